@@ -1,0 +1,33 @@
+# bcbench: every target sets itself up; `make test` and `make demo` work on a fresh clone.
+VENV    ?= .venv
+PY      := $(VENV)/bin/python
+PIP     := $(PY) -m pip
+STAMP   := $(VENV)/.bcbench-installed
+# The CPU build of torch lies in a local wheel directory on the project's machines.
+WHEELS  := $(wildcard /opt/wheels)
+PIPOPTS := -q $(if $(WHEELS),--find-links $(WHEELS),)
+
+.PHONY: install test lint demo clean
+
+install: $(STAMP)
+
+# Re-runs only when pyproject.toml changes (idempotent and fast otherwise).
+$(STAMP): pyproject.toml
+	@test -x $(PY) || python3 -m venv $(VENV)
+	$(PIP) install $(PIPOPTS) torch==2.13.0
+	$(PIP) install $(PIPOPTS) -e '.[dev]'
+	@touch $(STAMP)
+
+lint: install
+	$(VENV)/bin/ruff check src tests benchmarks
+
+test: install lint
+	$(VENV)/bin/pytest -q
+
+demo: install
+	$(VENV)/bin/bcbench data replay --out runs/demo/replay.json
+	$(VENV)/bin/bcbench eval --policy scripted --episodes 40 --video 2 --out runs/demo/eval-scripted
+	@echo "demo done: replay report runs/demo/replay.json, evaluation and videos in runs/demo/eval-scripted/"
+
+clean:
+	rm -rf $(VENV) runs build src/*.egg-info .pytest_cache .ruff_cache

@@ -1,0 +1,206 @@
+"""The `bcbench` command line. Every failure the user can cause ends in one line on stderr, exit 2."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+from bcbench import __version__
+from bcbench.errors import BCBenchError
+
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports a usage error in one line instead of usage + message."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a number >= 1, got {value}")
+    return value
+
+
+def _nonneg_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {value}")
+    return value
+
+
+def _add_data_flag(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--data", metavar="ZARR", help="dataset folder (default: $BCBENCH_DATA, then ../shared beside "
+                   "the repo, then the `bcbench data fetch` location)")
+
+
+# ----------------------------------------------------------------------------- commands
+
+
+def cmd_data_fetch(args: argparse.Namespace) -> int:
+    from bcbench.data.fetch import fetch
+    from bcbench.data.paths import OFFICIAL_URL
+
+    summary = fetch(args.source, args.dest, url=args.url or OFFICIAL_URL, force=args.force, progress=not args.quiet)
+    _print_summary(summary)
+    print(f"dataset ready: {summary['path']}  (use --data {summary['path']} or set BCBENCH_DATA)")
+    return 0
+
+
+def _print_summary(s: dict[str, Any]) -> None:
+    el = s["episode_length"]
+    print(f"{s['path']}\n  episodes {s['episodes']}, steps {s['steps']}, episode length "
+          f"{el['min']}..{el['max']} (mean {el['mean']}), images {s['images']} {s['image_dtype'] or ''}")
+
+
+def cmd_data_info(args: argparse.Namespace) -> int:
+    from bcbench.data import load_replay_buffer, resolve_dataset
+
+    buf = load_replay_buffer(resolve_dataset(args.data), images=not args.no_images)
+    _print_summary(buf.summary())
+    return 0
+
+
+def cmd_data_replay(args: argparse.Namespace) -> int:
+    from bcbench.data import load_replay_buffer, resolve_dataset
+    from bcbench.env.replay import replay_buffer_episodes, replay_report
+    from bcbench.stats import fmt_estimate
+    from bcbench.utils.io import write_json
+
+    buf = load_replay_buffer(resolve_dataset(args.data), images=False)
+    episodes = list(range(buf.n_episodes))[: args.episodes] if args.episodes else None
+    results = replay_buffer_episodes(buf, episodes, workers=args.workers, progress=not args.quiet)
+    report = replay_report(results)
+    report["dataset"] = buf.source
+    d, e = report["demonstrators"], report["block_error_px"]
+    print(f"replayed {report['episodes']} episodes open-loop from their recorded start states")
+    print(f"  exact (block within {report['exact_threshold_px']:g} px of the record all episode): "
+          f"{report['exact_episodes']}/{report['episodes']} = {100 * report['exact_fraction']:.1f}%")
+    print(f"  block position error px: median {e['median']:.3g}, p95 {e['p95']:.3g}, max {e['max']:.3g}")
+    print(f"  demonstrators' score (the ceiling for cloning): mean {fmt_estimate(d['mean_score'])}")
+    print(f"    > 0.5: {fmt_estimate(d['share_above_0.5'], pct=True)}   > 0.9: "
+          f"{fmt_estimate(d['share_above_0.9'], pct=True)}   success: {fmt_estimate(d['success_rate'], pct=True)}")
+    if args.out:
+        write_json(args.out, report)
+        print(f"  report written to {args.out}")
+    if report["exact_fraction"] < 0.95:
+        print("bcbench: error: fewer than 95% of episodes replay exactly: the simulator differs from the "
+              "one that recorded the data", file=sys.stderr)
+        return 1
+    return 0
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    from bcbench.evaluate import EvalConfig, evaluate
+    from bcbench.policies import make_policy
+    from bcbench.stats import fmt_estimate
+
+    if args.checkpoint:
+        raise BCBenchError("--checkpoint needs a trained policy; no learned policy is registered yet")
+    if not args.policy:
+        raise BCBenchError("choose --policy NAME (or --checkpoint RUN_DIR)")
+    cfg = EvalConfig(episodes=args.episodes, seed_start=args.seed_start, max_steps=args.max_steps,
+                     action_horizon=args.action_horizon, workers=args.workers, video=args.video)
+    policy = make_policy(args.policy, args.config, seed=args.seed)
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    out = Path(args.out) if args.out else Path("runs") / f"eval-{args.policy}-{stamp}"
+    result = evaluate(policy, cfg, out, progress=not args.quiet)
+    s = result["summary"]
+    print(f"{args.policy}: {s['n']} episodes from seed {cfg.seed_start}")
+    print(f"  mean score {fmt_estimate(s['mean_score'])}   > 0.5 {fmt_estimate(s['share_above_0.5'], pct=True)}"
+          f"   > 0.9 {fmt_estimate(s['share_above_0.9'], pct=True)}"
+          f"   success {fmt_estimate(s['success_rate'], pct=True)}")
+    print(f"  wall {s['wall_time_s']:.1f} s, {s['env_steps']} env steps ({s['env_steps_per_s']:.0f}/s on "
+          f"{s['workers']} workers), {s['policy_calls']} batched policy calls ({s['policy_time_s']:.2f} s)")
+    print(f"  results: {out / 'eval.json'}")
+    videos = [e["video"] for e in result["episodes"] if e["video"]]
+    if videos:
+        print(f"  videos: {', '.join(videos)}")
+    return 0
+
+
+# ----------------------------------------------------------------------------- parser
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from bcbench.policies import REGISTRY
+
+    parser = _Parser(prog="bcbench", description=__doc__.split("\n")[0] if __doc__ else None)
+    parser.description = ("Train, evaluate and benchmark visuomotor behavior-cloning policies on Push-T: "
+                          "task accuracy against real-time inference latency.")
+    parser.add_argument("--version", action="version", version=f"bcbench {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+
+    data = sub.add_parser("data", help="get, inspect and replay the Push-T demonstrations")
+    dsub = data.add_subparsers(dest="data_command", metavar="DATA_COMMAND", parser_class=_Parser)
+    dsub.required = True
+    p = dsub.add_parser("fetch", help="download the official pusht.zip (or import a local copy) and verify it")
+    p.add_argument("--from", dest="source", metavar="ZIP_OR_DIR",
+                   help="import this zip or folder instead of downloading")
+    p.add_argument("--dest", metavar="DIR",
+                   help="where the zarr folder goes (default: ~/.cache/bcbench/data/pusht/...)")
+    p.add_argument("--url", help="download address (default: the Diffusion Policy project's pusht.zip)")
+    p.add_argument("--force", action="store_true", help="replace an existing dataset at --dest")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_data_fetch)
+    p = dsub.add_parser("info", help="validate the dataset and print its summary")
+    _add_data_flag(p)
+    p.add_argument("--no-images", action="store_true", help="skip reading the image store (fast)")
+    p.set_defaults(func=cmd_data_info)
+    p = dsub.add_parser("replay", help="replay every demonstration open-loop: simulator exactness and the "
+                        "demonstrators' score")
+    _add_data_flag(p)
+    p.add_argument("--episodes", type=_positive_int, metavar="N", help="only the first N episodes")
+    p.add_argument("--workers", type=_positive_int, metavar="N", help="processes (default: one per core)")
+    p.add_argument("--out", metavar="FILE", help="write the JSON report here")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_data_replay)
+
+    p = sub.add_parser("eval", help="evaluate a policy over seeded Push-T episodes (JSON result, videos)")
+    p.add_argument("--policy", choices=sorted(REGISTRY), help="registered policy to evaluate")
+    p.add_argument("--config", default="quick", choices=["quick", "paper"], help="policy preset (default quick)")
+    p.add_argument("--checkpoint", metavar="RUN_DIR", help="evaluate a trained run instead of --policy")
+    p.add_argument("--episodes", type=_positive_int, default=40, help="episodes (default 40, as the study)")
+    p.add_argument("--seed-start", type=_nonneg_int, default=100_000,
+                   help="episode i uses seed SEED_START + i (default 100000, Diffusion Policy's test seeds)")
+    p.add_argument("--seed", type=_nonneg_int, default=0, help="the policy's own random seed (default 0)")
+    p.add_argument("--max-steps", type=_positive_int, default=300, help="steps per episode at most (default 300)")
+    p.add_argument("--action-horizon", type=_positive_int, help="actions executed per chunk (default: policy's, 8)")
+    p.add_argument("--workers", type=_positive_int, help="simulator processes (default: one per core)")
+    p.add_argument("--video", type=_nonneg_int, default=0, metavar="N", help="write videos of the first N episodes")
+    p.add_argument("--out", metavar="DIR", help="output folder (default runs/eval-POLICY-TIME)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_eval)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except BCBenchError as exc:
+        print(f"bcbench: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("bcbench: interrupted (finished results were written atomically; nothing half-written)",
+              file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,109 @@
+"""Training windows over demonstrations, with Diffusion Policy's edge padding.
+
+A window holds obs_horizon observations (image + agent position) and pred_horizon actions that start at
+the same time step as the first observation. Windows start from -(obs_horizon - 1) to
+L - pred_horizon + (action_horizon - 1) within an episode of length L; indices outside the episode repeat
+its first or last step, so a window never crosses an episode boundary (Chi et al., RSS 2023).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bcbench.data.normalizer import MinMaxNormalizer
+from bcbench.data.replay_buffer import ReplayBuffer
+from bcbench.errors import BCBenchError
+
+
+def split_episodes(n_episodes: int, val_fraction: float = 0.1, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Seeded episode-level split; returns sorted (train, val) episode indices."""
+    if not 0.0 <= val_fraction < 1.0:
+        raise BCBenchError(f"val_fraction must be in [0, 1), got {val_fraction}")
+    if n_episodes < 2 and val_fraction > 0:
+        raise BCBenchError(f"need at least 2 episodes to hold some out, got {n_episodes}")
+    perm = np.random.default_rng(seed).permutation(n_episodes)
+    n_val = round(n_episodes * val_fraction)
+    n_val = max(1, n_val) if val_fraction > 0 else 0
+    return np.sort(perm[n_val:]), np.sort(perm[:n_val])
+
+
+def window_indices(
+    episode_ends: np.ndarray, episodes: np.ndarray, obs_horizon: int, pred_horizon: int, action_horizon: int
+) -> np.ndarray:
+    """(W, pred_horizon) absolute step indices of every window of the given episodes, padding clamped."""
+    starts_all = np.concatenate([[0], episode_ends[:-1]])
+    pad_before, pad_after = obs_horizon - 1, action_horizon - 1
+    rows = []
+    offsets = np.arange(pred_horizon)
+    for e in episodes:
+        s, end = int(starts_all[e]), int(episode_ends[e])
+        length = end - s
+        first, last = -pad_before, length - pred_horizon + pad_after
+        if last < first:  # an episode shorter than a window still yields one padded window
+            last = first
+        local = np.arange(first, last + 1)[:, None] + offsets[None, :]  # (w, pred_horizon)
+        rows.append(np.clip(local, 0, length - 1) + s)
+    if not rows:
+        return np.zeros((0, pred_horizon), dtype=np.int64)
+    return np.concatenate(rows).astype(np.int64)
+
+
+@dataclass
+class SequenceDataset:
+    """Windows of one split, served as normalised batches.
+
+    Batches: image (B, To, 3, 96, 96) float32 in [0, 1]; agent_pos (B, To, 2) and action (B, Tp, 2) in [-1, 1].
+    """
+
+    buffer: ReplayBuffer
+    episodes: np.ndarray
+    normalizer: MinMaxNormalizer
+    obs_horizon: int = 2
+    pred_horizon: int = 16
+    action_horizon: int = 8
+
+    def __post_init__(self) -> None:
+        if self.buffer.images is None:
+            raise BCBenchError("the sequence dataset needs images: load the replay buffer with images=True")
+        if not 1 <= self.obs_horizon <= self.pred_horizon:
+            raise BCBenchError(f"need 1 <= obs_horizon <= pred_horizon, got {self.obs_horizon}, {self.pred_horizon}")
+        self.indices = window_indices(
+            self.buffer.episode_ends, self.episodes, self.obs_horizon, self.pred_horizon, self.action_horizon
+        )
+
+    def __len__(self) -> int:
+        return int(self.indices.shape[0])
+
+    def get_batch(self, window_ids: np.ndarray) -> dict[str, np.ndarray]:
+        """Gather, normalise and convert a batch of windows (numpy; the trainer moves it to torch)."""
+        idx = self.indices[window_ids]  # (B, Tp)
+        obs_idx = idx[:, : self.obs_horizon]  # (B, To)
+        assert self.buffer.images is not None
+        img = self.buffer.images[obs_idx]  # (B, To, H, W, C) uint8
+        img = np.ascontiguousarray(img.transpose(0, 1, 4, 2, 3), dtype=np.float32)  # (B, To, C, H, W)
+        img *= 1.0 / 255.0
+        agent_pos = self.normalizer.normalize("agent_pos", self.buffer.state[obs_idx, :2])  # (B, To, 2)
+        action = self.normalizer.normalize("action", self.buffer.action[idx])  # (B, Tp, 2)
+        return {"image": img, "agent_pos": agent_pos.astype(np.float32), "action": action.astype(np.float32)}
+
+    def __getitem__(self, i: int) -> dict[str, np.ndarray]:
+        return {k: v[0] for k, v in self.get_batch(np.array([i])).items()}
+
+
+def fit_normalizer(buffer: ReplayBuffer, train_episodes: np.ndarray) -> MinMaxNormalizer:
+    """Min-max statistics of agent position and action over the training episodes only."""
+    steps = np.concatenate([np.arange(buffer.episode_starts[e], buffer.episode_ends[e]) for e in train_episodes])
+    return MinMaxNormalizer.fit({"agent_pos": buffer.state[steps, :2], "action": buffer.action[steps]})
+
+
+def make_datasets(
+    buffer: ReplayBuffer, val_fraction: float = 0.1, seed: int = 0, obs_horizon: int = 2,
+    pred_horizon: int = 16, action_horizon: int = 8,
+) -> tuple[SequenceDataset, SequenceDataset, MinMaxNormalizer]:
+    """Split by episode, fit the normalizer on the training split, build both datasets."""
+    train_eps, val_eps = split_episodes(buffer.n_episodes, val_fraction, seed)
+    norm = fit_normalizer(buffer, train_eps)
+    kw = {"obs_horizon": obs_horizon, "pred_horizon": pred_horizon, "action_horizon": action_horizon}
+    return SequenceDataset(buffer, train_eps, norm, **kw), SequenceDataset(buffer, val_eps, norm, **kw), norm

@@ -1,0 +1,1 @@
+"""Push-T environment (exact gym-pusht wrapper) and the shared chunked controller."""

@@ -1,0 +1,276 @@
+"""Closed-loop evaluation on Push-T: seeded episodes, parallel simulators, batched policy calls.
+
+Protocol (Diffusion Policy's, which the study follows): episode i starts from Diffusion Policy's seeded
+state for seed 100000 + i; at most 300 steps; the score of an episode is its maximum reward
+min(coverage / 0.95, 1); success is coverage > 0.95 (the episode then ends).
+
+Simulators run in worker processes (one per core by default); the policy runs in this process and is
+called once per re-planning round for every episode that needs a new chunk, so a batch of B episodes
+costs one forward pass. Latency at batch 1 is the business of `bcbench latency`, not of this module.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing as mp
+import os
+import time
+from dataclasses import asdict, dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bcbench.env.controller import ChunkedController
+from bcbench.errors import BCBenchError
+from bcbench.stats import score_summary
+from bcbench.utils.io import write_json
+from bcbench.utils.system import provenance
+
+TEST_SEED_START = 100_000  # Diffusion Policy's test seeds
+
+
+@dataclass
+class EvalConfig:
+    episodes: int = 40
+    """number of evaluation episodes (the study used 40)"""
+    seed_start: int = TEST_SEED_START
+    """episode i uses seed seed_start + i"""
+    max_steps: int = 300
+    """steps per episode at most"""
+    action_horizon: int | None = None
+    """actions executed per chunk (default: the policy's own, 8)"""
+    workers: int | None = None
+    """simulator processes (default: one per core)"""
+    video: int = 0
+    """write videos of the first N episodes"""
+    video_size: int = 256
+    """video frame size in pixels"""
+
+    def __post_init__(self) -> None:
+        if self.episodes < 1:
+            raise BCBenchError(f"--episodes must be >= 1, got {self.episodes}")
+        if not 1 <= self.max_steps <= 10_000:
+            raise BCBenchError(f"--max-steps must be in 1..10000, got {self.max_steps}")
+        if self.seed_start < 0:
+            raise BCBenchError(f"--seed-start must be >= 0, got {self.seed_start}")
+        if self.workers is not None and self.workers < 1:
+            raise BCBenchError(f"--workers must be >= 1, got {self.workers}")
+        if self.video < 0 or self.video > self.episodes:
+            raise BCBenchError(f"--video must be in 0..episodes ({self.episodes}), got {self.video}")
+        if self.action_horizon is not None and self.action_horizon < 1:
+            raise BCBenchError(f"--action-horizon must be >= 1, got {self.action_horizon}")
+
+
+@dataclass
+class EpisodeResult:
+    episode: int
+    seed: int
+    score: float = 0.0
+    final_coverage: float = 0.0
+    max_coverage: float = 0.0
+    success: bool = False
+    length: int = 0
+    initial_state: list[float] = field(default_factory=list)
+    video: str | None = None
+
+
+# ----------------------------------------------------------------------------- worker side
+
+
+def _worker(conn: Any, video_size: int) -> None:
+    """Own a set of environments; answer 'reset', 'step' and 'close' messages until 'stop'."""
+    from bcbench.env.pusht import dp_initial_state, make_env
+    from bcbench.env.video import VideoWriter
+
+    envs: dict[int, Any] = {}
+    videos: dict[int, VideoWriter] = {}
+    try:
+        while True:
+            cmd, payload = conn.recv()
+            if cmd == "reset":  # payload: [(episode, seed, video_path | None)]
+                out = {}
+                for ep, seed, video_path in payload:
+                    env = make_env(video_size=video_size)
+                    state = dp_initial_state(seed)
+                    obs, _ = env.reset(options={"reset_to_state": state})
+                    envs[ep] = env
+                    if video_path:
+                        videos[ep] = VideoWriter(video_path, label=f"seed {seed}")
+                        videos[ep].add(env.render(), step=0, reward=0.0, score=0.0)
+                    out[ep] = (obs, env.coverage(), state.tolist())
+                conn.send(("ok", out))
+            elif cmd == "step":  # payload: {episode: (action, score_so_far)}
+                out = {}
+                for ep, (action, score) in payload.items():
+                    obs, reward, terminated, _, info = envs[ep].step(np.asarray(action, dtype=np.float64))
+                    if ep in videos:
+                        videos[ep].add(envs[ep].render(), step=None, reward=float(reward),
+                                       score=max(score, float(reward)))
+                    out[ep] = (obs, float(reward), bool(terminated), float(info["coverage"]))
+                conn.send(("ok", out))
+            elif cmd == "close":  # payload: [episode]
+                paths = {}
+                for ep in payload:
+                    if ep in videos:
+                        paths[ep] = videos.pop(ep).close()
+                    env = envs.pop(ep, None)
+                    if env is not None:
+                        env.close()
+                conn.send(("ok", paths))
+            elif cmd == "stop":
+                break
+    except Exception as exc:  # report, don't hang the parent
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+    finally:
+        for v in videos.values():
+            v.close()
+        conn.close()
+
+
+class _WorkerPool:
+    """Simulator processes; episode e lives on worker e % n."""
+
+    def __init__(self, n: int, video_size: int) -> None:
+        ctx = mp.get_context("spawn")
+        self.conns, self.procs = [], []
+        for _ in range(n):
+            parent, child = ctx.Pipe()
+            proc = ctx.Process(target=_worker, args=(child, video_size), daemon=True)
+            proc.start()
+            child.close()
+            self.conns.append(parent)
+            self.procs.append(proc)
+
+    def call(self, cmd: str, per_worker: list[Any]) -> dict[int, Any]:
+        """Send each worker its payload (None = skip), gather and merge the answers."""
+        for conn, payload in zip(self.conns, per_worker, strict=True):
+            if payload is not None:
+                conn.send((cmd, payload))
+        merged: dict[int, Any] = {}
+        for conn, payload in zip(self.conns, per_worker, strict=True):
+            if payload is None:
+                continue
+            try:
+                status, out = conn.recv()
+            except EOFError:
+                raise BCBenchError("a simulator worker died unexpectedly") from None
+            if status != "ok":
+                raise BCBenchError(f"simulator worker failed: {out}")
+            merged.update(out)
+        return merged
+
+    def stop(self) -> None:
+        for conn in self.conns:
+            with contextlib.suppress(BrokenPipeError, OSError):
+                conn.send(("stop", None))
+        for proc in self.procs:
+            proc.join(timeout=5)
+            if proc.is_alive():
+                proc.terminate()
+
+
+# ----------------------------------------------------------------------------- driver side
+
+
+def _split(items: dict[int, Any] | list[Any], n: int, key=lambda x: x) -> list[Any]:
+    """Group by worker (episode % n); None where a worker has nothing to do."""
+    groups: list[Any] = [None] * n
+    if isinstance(items, dict):
+        for ep, v in items.items():
+            groups[ep % n] = {**(groups[ep % n] or {}), ep: v}
+    else:
+        for it in items:
+            w = key(it) % n
+            groups[w] = [*(groups[w] or []), it]
+    return groups
+
+
+def run_episodes(policy: Any, cfg: EvalConfig, out_dir: Path | None = None, progress: bool = True
+                 ) -> tuple[list[EpisodeResult], dict[str, float]]:
+    """Run cfg.episodes closed-loop episodes; returns per-episode results and timing counters."""
+    from tqdm import tqdm
+
+    n_workers = max(1, min(cfg.workers or os.cpu_count() or 1, cfg.episodes))
+    controller = ChunkedController(policy, cfg.action_horizon)
+    results = {i: EpisodeResult(episode=i, seed=cfg.seed_start + i) for i in range(cfg.episodes)}
+    video_dir = (out_dir / "videos") if out_dir is not None else Path("videos")
+    pool = _WorkerPool(n_workers, cfg.video_size)
+    policy_time, env_steps, t0 = 0.0, 0, time.perf_counter()
+    try:
+        resets = [(i, r.seed, str(video_dir / f"episode_{i:03d}_seed_{r.seed}.mp4") if i < cfg.video else None)
+                  for i, r in results.items()]
+        for ep, (obs, coverage, state) in pool.call("reset", _split(resets, n_workers, key=lambda x: x[0])).items():
+            controller.reset(ep, obs)
+            results[ep].initial_state = state
+            results[ep].final_coverage = results[ep].max_coverage = coverage
+        active = sorted(results)
+        bar = tqdm(total=cfg.max_steps, desc=f"eval {getattr(policy, 'name', '')}".strip(), unit="step",
+                   disable=not progress)
+        for _ in range(cfg.max_steps):
+            if not active:
+                break
+            tp = time.perf_counter()
+            actions = controller.act(active)
+            policy_time += time.perf_counter() - tp
+            payload = {ep: (actions[ep], results[ep].score) for ep in active}
+            stepped = pool.call("step", _split(payload, n_workers))
+            finished = []
+            for ep, (obs, reward, terminated, coverage) in stepped.items():
+                r = results[ep]
+                r.length += 1
+                r.score = max(r.score, reward)
+                r.final_coverage, r.max_coverage = coverage, max(r.max_coverage, coverage)
+                r.success = r.success or terminated
+                env_steps += 1
+                if terminated:
+                    finished.append(ep)
+                else:
+                    controller.observe(ep, obs)
+            for ep in finished:
+                controller.drop(ep)
+            active = [ep for ep in active if ep not in finished]
+            bar.update()
+            bar.set_postfix(running=len(active), mean_score=f"{np.mean([r.score for r in results.values()]):.3f}")
+        bar.close()
+        paths = pool.call("close", _split(list(results), n_workers))
+        for ep, path in paths.items():
+            results[ep].video = path
+    finally:
+        pool.stop()
+    wall = time.perf_counter() - t0
+    timing = {
+        "wall_time_s": wall, "env_steps": env_steps, "env_steps_per_s": env_steps / wall if wall > 0 else 0.0,
+        "policy_calls": controller.n_calls, "chunks_planned": controller.n_plans, "policy_time_s": policy_time,
+        "workers": n_workers,
+    }
+    return [results[i] for i in sorted(results)], timing
+
+
+def evaluate(policy: Any, cfg: EvalConfig, out_dir: str | Path | None = None, progress: bool = True,
+             extra: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Evaluate and (if out_dir) write `eval.json` there atomically; returns the result dict."""
+    out = Path(out_dir) if out_dir is not None else None
+    episodes, timing = run_episodes(policy, cfg, out, progress)
+    summary = score_summary(
+        np.array([e.score for e in episodes]), np.array([e.success for e in episodes]),
+        np.array([e.final_coverage for e in episodes]),
+    )
+    summary.update(timing)
+    summary["mean_length"] = float(np.mean([e.length for e in episodes]))
+    describe = policy.describe()
+    summary["parameters"] = describe.get("parameters", 0)
+    result = {
+        "type": "evaluation",
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+        "policy": describe,
+        "eval_config": asdict(cfg),
+        "summary": summary,
+        "episodes": [asdict(e) for e in episodes],
+        **provenance(),
+        **(extra or {}),
+    }
+    if out is not None:
+        write_json(out / "eval.json", result)
+    return result

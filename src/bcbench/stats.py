@@ -1,0 +1,56 @@
+"""Score statistics with 95% bootstrap confidence intervals (percentile method, seeded)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+N_BOOT = 10_000
+
+
+def bootstrap_ci(values: np.ndarray, level: float = 0.95, n_boot: int = N_BOOT, seed: int = 0) -> tuple[float, float]:
+    """Percentile bootstrap interval of the mean of `values` (deterministic for a given seed)."""
+    x = np.asarray(values, dtype=np.float64)
+    if x.size == 0:
+        return (float("nan"), float("nan"))
+    if np.all(x == x[0]):  # every resample has the same mean
+        return (float(x[0]), float(x[0]))
+    rng = np.random.default_rng(seed)
+    means = x[rng.integers(0, x.size, size=(n_boot, x.size))].mean(axis=1)
+    alpha = (1.0 - level) / 2.0
+    lo, hi = np.quantile(means, [alpha, 1.0 - alpha])
+    return (float(lo), float(hi))
+
+
+def estimate(values: np.ndarray, seed: int = 0) -> dict[str, Any]:
+    """Mean with its 95% interval, as stored in result files."""
+    x = np.asarray(values, dtype=np.float64)
+    lo, hi = bootstrap_ci(x, seed=seed)
+    return {"value": float(x.mean()) if x.size else float("nan"), "ci95": [lo, hi]}
+
+
+def score_summary(scores: np.ndarray, success: np.ndarray, final_coverage: np.ndarray) -> dict[str, Any]:
+    """The study's metrics: mean score, share of scores > 0.5 and > 0.9, plus success rate."""
+    scores = np.asarray(scores, dtype=np.float64)
+    return {
+        "n": int(scores.size),
+        "mean_score": estimate(scores),
+        "share_above_0.5": estimate(scores > 0.5),
+        "share_above_0.9": estimate(scores > 0.9),
+        "success_rate": estimate(np.asarray(success, dtype=np.float64)),
+        "mean_final_coverage": estimate(np.asarray(final_coverage, dtype=np.float64)),
+    }
+
+
+def intervals_overlap(a: dict[str, Any], b: dict[str, Any]) -> bool:
+    """Whether two `estimate` intervals overlap."""
+    return not (a["ci95"][1] < b["ci95"][0] or b["ci95"][1] < a["ci95"][0])
+
+
+def fmt_estimate(e: dict[str, Any], pct: bool = False) -> str:
+    """'0.41 [0.33, 0.49]' or '40.0% [25.0, 55.0]'."""
+    v, (lo, hi) = e["value"], e["ci95"]
+    if pct:
+        return f"{100 * v:.1f}% [{100 * lo:.1f}, {100 * hi:.1f}]"
+    return f"{v:.3f} [{lo:.3f}, {hi:.3f}]"

@@ -1,0 +1,55 @@
+"""Shared fixtures: a tiny synthetic replay buffer on disk, and the real dataset when it is beside us."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
+
+from bcbench.data.replay_buffer import ReplayBuffer, write_replay_buffer
+
+EPISODE_LENGTHS = (5, 20, 12)
+
+
+def make_synthetic_buffer(lengths: tuple[int, ...] = EPISODE_LENGTHS, seed: int = 0) -> ReplayBuffer:
+    """Random but well-formed data; images hold non-integers too, to exercise the uint8 rounding."""
+    rng = np.random.default_rng(seed)
+    n = sum(lengths)
+    images = rng.uniform(-3, 258, size=(n, 96, 96, 3)).astype(np.float32)
+    images[:, :2] = np.round(images[:, :2])
+    state = rng.uniform(0, 512, size=(n, 5)).astype(np.float32)
+    state[:, 0] = np.arange(n)  # agent x = global step index: makes window checks readable
+    action = rng.uniform(0, 512, size=(n, 2)).astype(np.float32)
+    action[:, 0] = np.arange(n)
+    return ReplayBuffer(
+        state=state, action=action, episode_ends=np.cumsum(lengths).astype(np.int64), images=images,
+        keypoint=rng.uniform(0, 512, size=(n, 9, 2)).astype(np.float32),
+        n_contacts=rng.integers(0, 3, size=(n, 1)).astype(np.float32),
+    )
+
+
+@pytest.fixture(scope="session")
+def synthetic_buffer() -> ReplayBuffer:
+    return make_synthetic_buffer()
+
+
+@pytest.fixture(scope="session")
+def synthetic_zarr(tmp_path_factory: pytest.TempPathFactory, synthetic_buffer: ReplayBuffer) -> Path:
+    path = tmp_path_factory.mktemp("data") / "pusht_cchi_v7_replay.zarr"
+    # chunk of 7 steps: several chunks, and the last one partial
+    return write_replay_buffer(path, synthetic_buffer, chunk=7)
+
+
+@pytest.fixture(scope="session")
+def real_zarr() -> Path:
+    from bcbench.data.paths import candidate_paths
+
+    env = os.environ.get("BCBENCH_DATA")
+    for cand in ([Path(env)] if env else []) + candidate_paths():
+        if cand.is_dir():
+            return cand
+    pytest.skip("the real Push-T dataset is not beside the repository")
