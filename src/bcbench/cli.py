@@ -103,23 +103,35 @@ def cmd_data_replay(args: argparse.Namespace) -> int:
     return 0
 
 
+def _load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
+    """The policy to evaluate and the default output folder."""
+    from bcbench.policies import is_learned, make_policy
+
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    if args.checkpoint:
+        from bcbench.checkpoint import load_runner
+
+        runner = load_runner(args.checkpoint, use_ema=not args.no_ema, device=args.device)
+        return runner, Path(args.checkpoint) / f"eval-{args.episodes}ep-{stamp}"
+    if not args.policy:
+        raise BCBenchError("choose --policy NAME or --checkpoint RUN_DIR")
+    if is_learned(args.policy):
+        raise BCBenchError(f"'{args.policy}' is a learned policy: train it (`bcbench train --policy {args.policy}`) "
+                           "and evaluate with --checkpoint RUN_DIR")
+    return make_policy(args.policy, args.config, seed=args.seed), Path("runs") / f"eval-{args.policy}-{stamp}"
+
+
 def cmd_eval(args: argparse.Namespace) -> int:
     from bcbench.evaluate import EvalConfig, evaluate
-    from bcbench.policies import make_policy
     from bcbench.stats import fmt_estimate
 
-    if args.checkpoint:
-        raise BCBenchError("--checkpoint needs a trained policy; no learned policy is registered yet")
-    if not args.policy:
-        raise BCBenchError("choose --policy NAME (or --checkpoint RUN_DIR)")
     cfg = EvalConfig(episodes=args.episodes, seed_start=args.seed_start, max_steps=args.max_steps,
                      action_horizon=args.action_horizon, workers=args.workers, video=args.video)
-    policy = make_policy(args.policy, args.config, seed=args.seed)
-    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    out = Path(args.out) if args.out else Path("runs") / f"eval-{args.policy}-{stamp}"
+    policy, default_out = _load_eval_policy(args)
+    out = Path(args.out) if args.out else default_out
     result = evaluate(policy, cfg, out, progress=not args.quiet)
     s = result["summary"]
-    print(f"{args.policy}: {s['n']} episodes from seed {cfg.seed_start}")
+    print(f"{policy.name}: {s['n']} episodes from seed {cfg.seed_start}")
     print(f"  mean score {fmt_estimate(s['mean_score'])}   > 0.5 {fmt_estimate(s['share_above_0.5'], pct=True)}"
           f"   > 0.9 {fmt_estimate(s['share_above_0.9'], pct=True)}"
           f"   success {fmt_estimate(s['success_rate'], pct=True)}")
@@ -129,6 +141,66 @@ def cmd_eval(args: argparse.Namespace) -> int:
     videos = [e["video"] for e in result["episodes"] if e["video"]]
     if videos:
         print(f"  videos: {', '.join(videos)}")
+    return 0
+
+
+def _parse_sets(items: list[str] | None) -> dict[str, Any]:
+    """--set key=value pairs; values are JSON when they parse as JSON (numbers, lists, true), else strings."""
+    import json
+
+    out: dict[str, Any] = {}
+    for item in items or []:
+        if "=" not in item:
+            raise BCBenchError(f"--set expects KEY=VALUE, got '{item}'")
+        key, raw = item.split("=", 1)
+        try:
+            out[key.strip()] = json.loads(raw)
+        except json.JSONDecodeError:
+            out[key.strip()] = raw
+    return out
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from bcbench.train import Trainer, TrainOptions, new_run
+
+    opts = TrainOptions(minutes=args.minutes, threads=args.threads, device=args.device, data=args.data,
+                        progress=not args.quiet)
+    if args.resume:
+        run_dir = Path(args.resume)
+    else:
+        if not args.policy:
+            raise BCBenchError("choose --policy NAME (or --resume RUN_DIR)")
+        overrides = _parse_sets(args.set)
+        if args.pretrained:
+            overrides["pretrained"] = args.pretrained
+        if args.seed is not None:
+            overrides["seed"] = args.seed
+        run_dir = new_run(args.policy, args.config, overrides, args.out, opts)
+    print(f"run directory: {run_dir}")
+    s = Trainer(run_dir, opts).fit()
+    print(f"{s['policy']} ({s['preset']}): stopped ({s['stopped']}) at step {s['step']}/{s['total_steps']} "
+          f"= {s['epochs']:.2f} epochs; {s['samples_per_s']:.0f} samples/s on {s['device']} ({s['threads']} threads)")
+    print(f"  validation loss {s['val_loss']:.5f} (best {s['best_val_loss']:.5f}); parameters {s['parameters']:,}")
+    print(f"  evaluate: bcbench eval --checkpoint {run_dir} --episodes 40")
+    return 0
+
+
+def cmd_params(args: argparse.Namespace) -> int:
+    from bcbench.policies import STUDY_PARAMETERS, learned_policies, make_policy
+    from bcbench.policies.encoders import count_parameters, resnet18, resnet50
+
+    print(f"{'policy':<18}{'paper':>14}{'study':>14}{'diff':>9}{'quick':>12}")
+    for name in learned_policies():
+        paper, quick = make_policy(name, "paper"), make_policy(name, "quick")
+        n, study = paper.num_parameters(), STUDY_PARAMETERS.get(name)
+        diff = f"{100 * (n - study) / study:+.3f}%" if study else "-"
+        print(f"{name:<18}{n:>14,}{(f'{study:,}' if study else '-'):>14}{diff:>9}{quick.num_parameters():>12,}")
+        for part, count in getattr(paper, "parameter_breakdown", lambda: {})().items():
+            print(f"  {part:<16}{count:>14,}")
+    print("backbones (no fc head):")
+    for label, net in (("resnet18 (batch)", resnet18("batch")), ("resnet18 (group)", resnet18("group")),
+                       ("resnet50 (batch)", resnet50("batch"))):
+        print(f"  {label:<16}{count_parameters(net):>14,}")
     return 0
 
 
@@ -170,10 +242,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_data_replay)
 
+    p = sub.add_parser("train", help="train a policy (resumable; checkpoints, metrics.jsonl)")
+    p.add_argument("--policy", choices=sorted(REGISTRY), help="registered policy to train")
+    p.add_argument("--config", default="quick", choices=["quick", "paper"],
+                   help="preset: quick (2-core CPU) or paper (the study's sizes)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="override a config field, e.g. --set optim.epochs=2 --set hidden=64 (repeatable)")
+    p.add_argument("--minutes", type=float, help="wall-clock budget; stops cleanly at the next step and saves")
+    p.add_argument("--out", metavar="DIR", help="run directory (default runs/train-POLICY-CONFIG-TIME)")
+    p.add_argument("--resume", metavar="RUN_DIR", help="continue a run from its newest checkpoint")
+    p.add_argument("--pretrained", metavar="PATH", help="torchvision-format ImageNet weights (local file)")
+    p.add_argument("--seed", type=_nonneg_int, help="seed (default: the config's, 0)")
+    p.add_argument("--threads", type=_positive_int, help="torch threads (default: torch's choice)")
+    p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"], help="default auto")
+    _add_data_flag(p)
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("params", help="parameter counts of every learned policy (paper and quick sizes)")
+    p.set_defaults(func=cmd_params)
+
     p = sub.add_parser("eval", help="evaluate a policy over seeded Push-T episodes (JSON result, videos)")
     p.add_argument("--policy", choices=sorted(REGISTRY), help="registered policy to evaluate")
     p.add_argument("--config", default="quick", choices=["quick", "paper"], help="policy preset (default quick)")
     p.add_argument("--checkpoint", metavar="RUN_DIR", help="evaluate a trained run instead of --policy")
+    p.add_argument("--no-ema", action="store_true", help="use the raw weights even if the run kept an EMA")
+    p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="where the policy runs (default cpu)")
     p.add_argument("--episodes", type=_positive_int, default=40, help="episodes (default 40, as the study)")
     p.add_argument("--seed-start", type=_nonneg_int, default=100_000,
                    help="episode i uses seed SEED_START + i (default 100000, Diffusion Policy's test seeds)")

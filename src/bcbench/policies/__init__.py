@@ -1,7 +1,8 @@
 """The policy registry: name -> (Config class, Policy class).
 
-Every entry's config class has `preset(name)` for the `quick` (2-core CPU) and `paper` (the study's)
-sizes. Learned policies join this dict as they are written.
+Every config class has `preset(name)` for `quick` (trains on a 2-core CPU) and `paper` (the study's
+architecture and hyper-parameters). Learned policies are `BCPolicy` modules (trained with `bcbench
+train`); baselines are ready-to-run `ChunkPolicy` objects.
 """
 
 from __future__ import annotations
@@ -10,23 +11,39 @@ from typing import Any
 
 from bcbench.errors import BCBenchError
 from bcbench.policies.baselines import BaselineConfig, RandomPolicy, ScriptedPolicy
+from bcbench.policies.cnn_mlp import CNNMLPConfig, CNNMLPPolicy
+from bcbench.policies.learned import BCPolicy
+from bcbench.policies.resnet50_cnn import ResNet50Config, ResNet50Policy
 
 REGISTRY: dict[str, tuple[type, type]] = {
     "random": (BaselineConfig, RandomPolicy),
     "scripted": (BaselineConfig, ScriptedPolicy),
+    "cnn_mlp": (CNNMLPConfig, CNNMLPPolicy),
+    "resnet50": (ResNet50Config, ResNet50Policy),
 }
+
+# The study's parameter counts, for `bcbench params` and the report.
+STUDY_PARAMETERS: dict[str, int] = {"cnn_mlp": 1_365_494, "resnet50": 34_527_593}
+
+
+def is_learned(name: str) -> bool:
+    return name in REGISTRY and issubclass(REGISTRY[name][1], BCPolicy)
+
+
+def learned_policies() -> list[str]:
+    return [n for n in REGISTRY if is_learned(n)]
+
+
+def make_config(name: str, preset: str = "quick", overrides: dict[str, Any] | None = None) -> Any:
+    from bcbench.policies.config import with_overrides
+
+    if name not in REGISTRY:
+        raise BCBenchError(f"unknown policy '{name}' (registered: {', '.join(sorted(REGISTRY))})")
+    cfg = REGISTRY[name][0].preset(preset)
+    return with_overrides(cfg, overrides) if overrides else cfg
 
 
 def make_policy(name: str, config: str = "quick", **overrides: Any) -> Any:
-    """Build a registered policy from a preset, with field overrides."""
-    if name not in REGISTRY:
-        raise BCBenchError(f"unknown policy '{name}' (registered: {', '.join(sorted(REGISTRY))})")
-    config_cls, policy_cls = REGISTRY[name]
-    cfg = config_cls.preset(config)
-    if overrides:
-        fields = set(cfg.__dataclass_fields__)
-        bad = sorted(set(overrides) - fields)
-        if bad:
-            raise BCBenchError(f"unknown config field(s) for {name}: {', '.join(bad)}")
-        cfg = config_cls(**{**cfg.__dict__, **overrides})
-    return policy_cls(cfg)
+    """Build a registered policy from a preset with (dotted) field overrides."""
+    cfg = make_config(name, config, overrides)
+    return REGISTRY[name][1](cfg)

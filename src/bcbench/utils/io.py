@@ -77,3 +77,9 @@ def read_jsonl(path: str | Path) -> list[dict[str, Any]]:
         except json.JSONDecodeError:
             continue
     return out
+
+
+def write_jsonl(path: str | Path, records: list[dict[str, Any]]) -> None:
+    """Replace a JSON Lines file atomically."""
+    with atomic_path(path) as tmp:
+        tmp.write_text("".join(json.dumps(r, default=_json_default) + "\n" for r in records))

@@ -1,0 +1,116 @@
+"""Run directories and checkpoints, written so that a crash at any instant leaves a loadable run.
+
+    RUN_DIR/run.json             policy name, preset, full config, data split, provenance
+    RUN_DIR/normalizer.json      min-max statistics of the training split
+    RUN_DIR/metrics.jsonl        training and validation metrics, one JSON object a line
+    RUN_DIR/checkpoints/step_NNNNNNN/{model.safetensors, ema.safetensors, state.pt}
+    RUN_DIR/checkpoints/latest.json   -> the newest complete step directory
+    RUN_DIR/train_summary.json   written when a run stops (finished, budget, interrupted)
+
+A checkpoint is written into a temporary directory, renamed into place, and only then is latest.json
+(atomically) pointed at it; older step directories are pruned afterwards.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors.torch import load_file, save_file
+
+from bcbench.data.normalizer import MinMaxNormalizer
+from bcbench.errors import BCBenchError
+from bcbench.utils.io import read_json, write_json
+
+KEEP = 2  # step directories kept besides the newest
+
+
+def _weights(model: torch.nn.Module) -> dict[str, torch.Tensor]:
+    # safetensors refuses shared or non-contiguous storage; a contiguous CPU copy of each is always safe
+    return {k: v.detach().to("cpu").contiguous().clone() for k, v in model.state_dict().items()}
+
+
+def save_checkpoint(run_dir: Path, step: int, model: torch.nn.Module, ema: torch.nn.Module | None,
+                    state: dict[str, Any]) -> Path:
+    """Write weights (+ EMA weights) and trainer state for `step`; returns the step directory."""
+    ckpt_root = Path(run_dir) / "checkpoints"
+    ckpt_root.mkdir(parents=True, exist_ok=True)
+    name = f"step_{step:07d}"
+    final = ckpt_root / name
+    tmp = ckpt_root / f".tmp-{name}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    save_file(_weights(model), str(tmp / "model.safetensors"))
+    if ema is not None:
+        save_file(_weights(ema), str(tmp / "ema.safetensors"))
+    torch.save({**state, "step": step}, tmp / "state.pt")
+    if final.exists():
+        shutil.rmtree(final)
+    tmp.rename(final)
+    write_json(ckpt_root / "latest.json", {"step": step, "dir": name})
+    steps = sorted(p for p in ckpt_root.glob("step_*") if p.is_dir() and p.name != name)
+    for old in steps[: max(0, len(steps) - KEEP)]:
+        shutil.rmtree(old, ignore_errors=True)
+    return final
+
+
+def latest_checkpoint(run_dir: Path) -> Path | None:
+    pointer = Path(run_dir) / "checkpoints" / "latest.json"
+    if not pointer.exists():
+        return None
+    path = pointer.parent / read_json(pointer)["dir"]
+    if not (path / "model.safetensors").exists():
+        raise BCBenchError(f"{pointer} points at {path}, which is incomplete")
+    return path
+
+
+def load_weights(path: Path, model: torch.nn.Module, ema: bool = False) -> None:
+    file = Path(path) / ("ema.safetensors" if ema else "model.safetensors")
+    try:
+        model.load_state_dict(load_file(str(file)))
+    except (OSError, RuntimeError) as exc:
+        raise BCBenchError(f"cannot load weights from {file}: {exc}") from None
+
+
+def load_state(path: Path) -> dict[str, Any]:
+    return torch.load(Path(path) / "state.pt", map_location="cpu", weights_only=False)
+
+
+def read_run(run_dir: str | Path) -> dict[str, Any]:
+    """run.json of a run directory, with a clear error when it is not one."""
+    run_dir = Path(run_dir)
+    meta = run_dir / "run.json"
+    if not meta.exists():
+        raise BCBenchError(f"{run_dir} is not a bcbench run directory (no run.json)")
+    return read_json(meta)
+
+
+def build_model(run: dict[str, Any]) -> torch.nn.Module:
+    from bcbench.policies import REGISTRY
+    from bcbench.policies.config import config_from_dict
+
+    name = run["policy"]
+    if name not in REGISTRY:
+        raise BCBenchError(f"run uses policy '{name}', which this bcbench does not know")
+    config_cls, policy_cls = REGISTRY[name]
+    return policy_cls(config_from_dict(config_cls, run["config"]))
+
+
+def load_runner(run_dir: str | Path, use_ema: bool = True, device: str = "cpu") -> Any:
+    """A PolicyRunner (raw obs -> chunk in pixels) from a run's newest checkpoint."""
+    from bcbench.policies.learned import PolicyRunner
+
+    run_dir = Path(run_dir)
+    run = read_run(run_dir)
+    ckpt = latest_checkpoint(run_dir)
+    if ckpt is None:
+        raise BCBenchError(f"{run_dir} has no checkpoint yet")
+    model = build_model(run)
+    has_ema = (ckpt / "ema.safetensors").exists()
+    load_weights(ckpt, model, ema=use_ema and has_ema)
+    norm = MinMaxNormalizer.from_dict(read_json(run_dir / "normalizer.json"))
+    extra = {"run_dir": str(run_dir), "checkpoint": ckpt.name, "weights": "ema" if use_ema and has_ema else "raw",
+             "preset": run.get("preset")}
+    return PolicyRunner(model, norm, device, extra=extra)

@@ -1,0 +1,135 @@
+"""Typed configuration shared by the learned policies: optimisation, schedule, EMA, horizons.
+
+Every policy config embeds an `OptimConfig` and validates itself in `__post_init__`; configs round-trip
+through JSON (`config_to_dict` / `config_from_dict`) so that each run saves exactly what it trained.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from dataclasses import dataclass, field
+from typing import Any
+
+from bcbench.errors import BCBenchError
+
+
+@dataclass
+class OptimConfig:
+    optimizer: str = "adam"
+    """adam or adamw"""
+    lr: float = 1e-4
+    """peak learning rate"""
+    betas: tuple[float, float] = (0.9, 0.999)
+    """Adam betas"""
+    weight_decay: float = 0.0
+    """decoupled (adamw) or L2 (adam) weight decay"""
+    schedule: str = "plateau"
+    """plateau (reduce on validation plateau), cosine (with linear warm-up) or constant"""
+    warmup_steps: int = 0
+    """linear warm-up steps (cosine and constant)"""
+    plateau_factor: float = 0.5
+    """learning-rate factor when validation loss plateaus"""
+    plateau_patience: int = 2
+    """epochs without improvement before the plateau schedule reduces the rate"""
+    epochs: int = 10
+    """passes over the training windows"""
+    max_steps: int | None = None
+    """stop after this many optimiser steps (overrides epochs when smaller)"""
+    batch_size: int = 64
+    """windows per optimiser step"""
+    grad_clip: float | None = None
+    """clip the gradient norm to this value"""
+    ema: bool = False
+    """keep an exponential moving average of the weights and evaluate with it"""
+    ema_power: float = 0.75
+    """EMA warm-up power (decay = 1 - (1 + step)^-power, Diffusion Policy's EMAModel)"""
+    ema_max_decay: float = 0.9999
+    """EMA decay ceiling"""
+    checkpoint_every: int = 500
+    """optimiser steps between checkpoints (one is always written at the end)"""
+    log_every: int = 25
+    """optimiser steps between metrics.jsonl lines"""
+
+    def __post_init__(self) -> None:
+        self.betas = tuple(self.betas)  # type: ignore[assignment]  # JSON gives lists
+        if self.optimizer not in ("adam", "adamw"):
+            raise BCBenchError(f"optimizer must be adam or adamw, got '{self.optimizer}'")
+        if self.schedule not in ("plateau", "cosine", "constant"):
+            raise BCBenchError(f"schedule must be plateau, cosine or constant, got '{self.schedule}'")
+        if not self.lr > 0 or self.weight_decay < 0:
+            raise BCBenchError(f"need lr > 0 and weight_decay >= 0, got {self.lr}, {self.weight_decay}")
+        if self.epochs < 1 or self.batch_size < 1 or self.checkpoint_every < 1 or self.log_every < 1:
+            raise BCBenchError("epochs, batch_size, checkpoint_every and log_every must be >= 1")
+        if self.max_steps is not None and self.max_steps < 1:
+            raise BCBenchError(f"max_steps must be >= 1, got {self.max_steps}")
+        if not 0 < self.ema_max_decay < 1:
+            raise BCBenchError(f"ema_max_decay must be in (0, 1), got {self.ema_max_decay}")
+
+
+@dataclass
+class PolicyConfig:
+    """Fields every learned policy has."""
+
+    obs_horizon: int = 2
+    """observation frames per call (the study's 2)"""
+    pred_horizon: int = 16
+    """actions per predicted chunk"""
+    action_horizon: int = 8
+    """actions executed before re-planning"""
+    image_size: int = 96
+    """side of the square input image"""
+    seed: int = 0
+    """seed of initialisation, data order and noise"""
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    """optimisation and schedule"""
+
+    def __post_init__(self) -> None:
+        if isinstance(self.optim, dict):
+            self.optim = OptimConfig(**self.optim)
+        if self.obs_horizon < 1 or self.pred_horizon < 1:
+            raise BCBenchError("obs_horizon and pred_horizon must be >= 1")
+        if not 1 <= self.action_horizon <= self.pred_horizon - self.obs_horizon + 1:
+            raise BCBenchError(f"action_horizon {self.action_horizon} does not fit in pred_horizon "
+                               f"{self.pred_horizon} after obs_horizon {self.obs_horizon}")
+
+
+def config_to_dict(cfg: Any) -> dict[str, Any]:
+    return dataclasses.asdict(cfg)
+
+
+def config_from_dict(cls: type, data: dict[str, Any]) -> Any:
+    """Rebuild a (nested) config dataclass from its dict; unknown keys are an error."""
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise BCBenchError(f"unknown field(s) for {cls.__name__}: {', '.join(unknown)}")
+    kwargs = {}
+    for key, value in data.items():
+        hint = hints.get(key)
+        if dataclasses.is_dataclass(hint) and isinstance(value, dict):
+            value = config_from_dict(hint, value)
+        elif isinstance(value, list):
+            value = tuple(value)
+        kwargs[key] = value
+    try:
+        return cls(**kwargs)
+    except TypeError as exc:
+        raise BCBenchError(f"invalid {cls.__name__}: {exc}") from None
+
+
+def with_overrides(cfg: Any, overrides: dict[str, Any]) -> Any:
+    """A copy of cfg with dotted-key overrides, e.g. {'optim.epochs': 2, 'hidden': 64}."""
+    data = config_to_dict(cfg)
+    for key, value in overrides.items():
+        node = data
+        parts = key.split(".")
+        for p in parts[:-1]:
+            if p not in node or not isinstance(node[p], dict):
+                raise BCBenchError(f"unknown config field '{key}'")
+            node = node[p]
+        if parts[-1] not in node:
+            raise BCBenchError(f"unknown config field '{key}'")
+        node[parts[-1]] = value
+    return config_from_dict(type(cfg), data)

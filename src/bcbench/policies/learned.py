@@ -1,0 +1,68 @@
+"""The learned-policy interface and the runner that puts a trained model in the control loop.
+
+A `BCPolicy` is an nn.Module that works entirely in normalised units:
+    compute_loss(batch)          batch: image (B, To, 3, H, W) in [0, 1], agent_pos (B, To, 2) and
+                                 action (B, Tp, 2) in [-1, 1]  ->  scalar loss
+    predict_action_chunk(obs)    obs: image, agent_pos as above  ->  (B, Tp, 2) in [-1, 1]
+A `PolicyRunner` wraps one with its normalizer: raw observations in (uint8 frames, agent position in
+pixels), a chunk of target positions in pixels out. The chunk starts at the oldest observation (the
+training windows' alignment), so the runner's `chunk_start` is obs_horizon - 1.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from bcbench.data.normalizer import MinMaxNormalizer
+from bcbench.policies.config import config_to_dict
+from bcbench.policies.encoders import count_parameters
+
+
+class BCPolicy(nn.Module):
+    """Base class: subclasses set `self.config` and implement the two methods."""
+
+    name = "policy"
+    config: Any
+
+    def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        raise NotImplementedError
+
+    def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+        raise NotImplementedError
+
+    def num_parameters(self) -> int:
+        return count_parameters(self)
+
+
+class PolicyRunner:
+    """Raw observations -> action chunk in world pixels, for the controller and the latency benchmark."""
+
+    def __init__(self, model: BCPolicy, normalizer: MinMaxNormalizer, device: str | torch.device = "cpu",
+                 extra: dict[str, Any] | None = None) -> None:
+        self.model = model.to(device).eval()
+        self.normalizer = normalizer
+        self.device = torch.device(device)
+        cfg = model.config
+        self.name = model.name
+        self.obs_horizon, self.pred_horizon, self.action_horizon = cfg.obs_horizon, cfg.pred_horizon, cfg.action_horizon
+        self.chunk_start = cfg.obs_horizon - 1
+        self.extra = extra or {}
+
+    def prepare(self, obs: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
+        image = torch.from_numpy(np.ascontiguousarray(obs["image"])).to(self.device)  # (B, To, H, W, 3) uint8
+        image = image.permute(0, 1, 4, 2, 3).float().div_(255.0)  # (B, To, 3, H, W)
+        agent_pos = torch.as_tensor(obs["agent_pos"], dtype=torch.float32, device=self.device)  # (B, To, 2)
+        return {"image": image, "agent_pos": self.normalizer.normalize("agent_pos", agent_pos)}
+
+    @torch.inference_mode()
+    def predict_action_chunk(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        chunk = self.model.predict_action_chunk(self.prepare(obs))  # (B, Tp, 2) normalised
+        return self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()
+
+    def describe(self) -> dict[str, Any]:
+        return {"name": self.name, "parameters": self.model.num_parameters(),
+                "config": config_to_dict(self.model.config), **self.extra}

@@ -1,0 +1,73 @@
+"""Every learned policy in the registry, at a tiny size: construction, shapes, learning, round trip."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from bcbench.data import MinMaxNormalizer
+from bcbench.policies import REGISTRY, learned_policies, make_config, make_policy
+from bcbench.policies.config import config_from_dict, config_to_dict
+from bcbench.policies.learned import PolicyRunner
+from tests.tiny import TINY, tiny_overrides
+
+LEARNED = learned_policies()
+
+
+def _batch(b: int = 4, seed: int = 0) -> dict[str, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    return {"image": torch.rand(b, 2, 3, 96, 96, generator=g), "agent_pos": torch.rand(b, 2, 2, generator=g) * 2 - 1,
+            "action": torch.rand(b, 16, 2, generator=g) * 2 - 1}
+
+
+def test_every_learned_policy_has_a_tiny_config():
+    assert set(LEARNED) <= set(TINY), "add a tiny config for each new policy in tests/tiny.py"
+
+
+@pytest.mark.parametrize("name", LEARNED)
+def test_presets_construct_and_roundtrip_json(name):
+    for preset in ("quick", "paper"):
+        cfg = make_config(name, preset)
+        again = config_from_dict(REGISTRY[name][0], config_to_dict(cfg))
+        assert again == cfg
+
+
+@pytest.mark.parametrize("name", LEARNED)
+def test_chunk_shape_and_loss(name):
+    torch.manual_seed(0)
+    model = make_policy(name, "quick", **tiny_overrides(name)).eval()
+    batch = _batch()
+    with torch.no_grad():
+        chunk = model.predict_action_chunk(batch)
+    assert chunk.shape == (4, 16, 2) and torch.isfinite(chunk).all()
+    assert model.compute_loss(batch).ndim == 0
+
+
+@pytest.mark.parametrize("name", LEARNED)
+def test_loss_decreases_on_one_tiny_batch(name):
+    torch.manual_seed(0)
+    model = make_policy(name, "quick", **tiny_overrides(name)).train()
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+    batch = _batch()
+    first = None
+    for _ in range(60):
+        loss = model.compute_loss(batch)
+        first = first if first is not None else loss.item()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert loss.item() < 0.5 * first, (first, loss.item())
+
+
+@pytest.mark.parametrize("name", LEARNED)
+def test_runner_maps_raw_observations_to_pixels(name):
+    torch.manual_seed(0)
+    model = make_policy(name, "quick", **tiny_overrides(name))
+    norm = MinMaxNormalizer.fit({"agent_pos": np.array([[0.0, 0.0], [512.0, 512.0]]),
+                                 "action": np.array([[10.0, 20.0], [500.0, 490.0]])})
+    runner = PolicyRunner(model, norm)
+    obs = {"image": np.zeros((2, 2, 96, 96, 3), np.uint8), "agent_pos": np.full((2, 2, 2), 256.0, np.float32)}
+    chunk = runner.predict_action_chunk(obs)
+    assert chunk.shape == (2, 16, 2) and chunk.dtype == np.float32
+    assert runner.chunk_start == 1 and runner.describe()["parameters"] == model.num_parameters()

@@ -1,0 +1,134 @@
+"""The trainer: exact resume after SIGKILL, NaN stop, checkpoint round trip, budget, CLI smoke."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from bcbench.checkpoint import latest_checkpoint, load_runner
+from bcbench.errors import BCBenchError
+from bcbench.policies import learned_policies
+from bcbench.train import Trainer, TrainOptions, new_run
+from tests.tiny import tiny_overrides
+
+EXE = os.path.join(os.path.dirname(sys.executable), "bcbench")
+
+
+@pytest.fixture
+def one_thread():
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)
+
+
+def _opts(data) -> TrainOptions:
+    return TrainOptions(data=str(data), threads=1, progress=False)
+
+
+def _weights(run_dir):
+    from safetensors.torch import load_file
+
+    return load_file(str(latest_checkpoint(run_dir) / "model.safetensors"))
+
+
+def test_sigkill_then_resume_gives_identical_weights(synthetic_zarr, tmp_path, one_thread):
+    overrides = tiny_overrides("cnn_mlp", epochs=6, checkpoint_every=3)
+    full = new_run("cnn_mlp", "quick", overrides, tmp_path / "full", _opts(synthetic_zarr))
+    summary = Trainer(full, _opts(synthetic_zarr)).fit()
+    assert summary["stopped"] == "finished" and summary["step"] >= 9
+
+    sets = [a for k, v in overrides.items() for a in ("--set", f"{k}={json.dumps(v)}")]
+    killed = tmp_path / "killed"
+    proc = subprocess.run(
+        [EXE, "train", "--policy", "cnn_mlp", "--out", str(killed), "--data", str(synthetic_zarr), "--threads", "1",
+         "--quiet", *sets],
+        env={**os.environ, "BCBENCH_TEST_KILL_AT_STEP": "7"}, capture_output=True, text=True, timeout=300,
+    )
+    assert proc.returncode == -9, proc.stderr  # died by SIGKILL, after the checkpoint of step 6
+    assert json.loads((killed / "checkpoints" / "latest.json").read_text())["step"] == 6
+    resumed = Trainer(killed, _opts(synthetic_zarr)).fit()
+    assert resumed["step"] == summary["step"]
+    a, b = _weights(full), _weights(killed)
+    assert a.keys() == b.keys()
+    for k in a:
+        assert torch.equal(a[k], b[k]), k
+    steps = [m["step"] for m in map(json.loads, (killed / "metrics.jsonl").read_text().splitlines())
+             if "train_loss" in m]
+    assert steps == sorted(set(steps))  # no step logged twice after the resume
+
+
+def test_nan_loss_stops_with_clear_error_and_keeps_checkpoint(synthetic_zarr, tmp_path, monkeypatch, one_thread):
+    from bcbench.policies.cnn_mlp import CNNMLPPolicy
+
+    run = new_run("cnn_mlp", "quick", tiny_overrides("cnn_mlp", epochs=5), tmp_path / "nan", _opts(synthetic_zarr))
+    real = CNNMLPPolicy.compute_loss
+    calls = {"n": 0}
+
+    def poisoned(self, batch):
+        if self.training:
+            calls["n"] += 1
+            if calls["n"] == 3:
+                return real(self, batch) * float("nan")
+        return real(self, batch)
+
+    monkeypatch.setattr(CNNMLPPolicy, "compute_loss", poisoned)
+    with pytest.raises(BCBenchError, match=r"loss is nan at step 3.*last good checkpoint"):
+        Trainer(run, _opts(synthetic_zarr)).fit()
+    ckpt = latest_checkpoint(run)
+    assert ckpt is not None and ckpt.name == "step_0000002"
+    assert load_runner(run).model.num_parameters() > 0  # the last good checkpoint loads
+
+
+@pytest.mark.parametrize("name", learned_policies())
+def test_checkpoint_roundtrip_every_policy(name, synthetic_zarr, tmp_path, one_thread):
+    run = new_run(name, "quick", tiny_overrides(name, max_steps=2, ema=True), tmp_path / name, _opts(synthetic_zarr))
+    trainer = Trainer(run, _opts(synthetic_zarr))
+    trainer.fit()
+    runner = load_runner(run, use_ema=False)
+    for k, v in trainer.model.state_dict().items():
+        assert torch.equal(v, runner.model.state_dict()[k]), k
+    ema_runner = load_runner(run, use_ema=True)
+    assert ema_runner.describe()["weights"] == "ema"
+    ema_state = trainer.ema.model.state_dict()
+    for k, v in ema_runner.model.state_dict().items():
+        assert torch.equal(v, ema_state[k]), k
+
+
+def test_budget_stops_cleanly(synthetic_zarr, tmp_path, one_thread):
+    opts = TrainOptions(data=str(synthetic_zarr), threads=1, progress=False, minutes=1e-6)
+    run = new_run("cnn_mlp", "quick", tiny_overrides("cnn_mlp", epochs=50), tmp_path / "budget", opts)
+    s = Trainer(run, opts).fit()
+    assert s["stopped"] == "time budget" and s["step"] == 1 and latest_checkpoint(run).name == "step_0000001"
+
+
+def test_existing_run_and_bad_override_are_errors(synthetic_zarr, tmp_path):
+    opts = _opts(synthetic_zarr)
+    new_run("cnn_mlp", "quick", {}, tmp_path / "r", opts)
+    with pytest.raises(BCBenchError, match="already holds a run"):
+        new_run("cnn_mlp", "quick", {}, tmp_path / "r", opts)
+    with pytest.raises(BCBenchError, match="unknown config field"):
+        new_run("cnn_mlp", "quick", {"optim.nope": 1}, tmp_path / "s", opts)
+    with pytest.raises(BCBenchError, match="nothing to train"):
+        new_run("random", "quick", {}, tmp_path / "t", opts)
+
+
+def test_cli_train_then_eval_smoke(synthetic_zarr, tmp_path):
+    """End to end as a user runs it: train a tiny policy for a few steps, then evaluate the checkpoint."""
+    run = tmp_path / "run"
+    sets = [a for k, v in tiny_overrides("cnn_mlp", max_steps=3).items() for a in ("--set", f"{k}={json.dumps(v)}")]
+    proc = subprocess.run([EXE, "train", "--policy", "cnn_mlp", "--out", str(run), "--data", str(synthetic_zarr),
+                           "--quiet", *sets], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "stopped (finished) at step 3/3" in proc.stdout
+    proc = subprocess.run([EXE, "eval", "--checkpoint", str(run), "--episodes", "2", "--max-steps", "16",
+                           "--out", str(tmp_path / "ev"), "--quiet"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads((tmp_path / "ev" / "eval.json").read_text())
+    assert result["policy"]["name"] == "cnn_mlp" and result["summary"]["n"] == 2
+    assert result["policy"]["checkpoint"] == "step_0000003"
