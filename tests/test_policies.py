@@ -50,14 +50,17 @@ def test_loss_decreases_on_one_tiny_batch(name):
     model = make_policy(name, "quick", **tiny_overrides(name)).train()
     opt = torch.optim.Adam(model.parameters(), lr=3e-3)
     batch = _batch()
-    first = None
-    for _ in range(60):
+    losses = []
+    for _ in range(80):
         loss = model.compute_loss(batch)
-        first = first if first is not None else loss.item()
+        losses.append(loss.item())
         opt.zero_grad()
         loss.backward()
         opt.step()
-    assert loss.item() < 0.5 * first, (first, loss.item())
+    # means over 10 steps: diffusion losses are noisy (random timestep and noise each step) and the
+    # epsilon-prediction loss has a floor well above zero, hence the modest factor
+    first, last = sum(losses[:10]) / 10, sum(losses[-10:]) / 10
+    assert last < 0.8 * first, (first, last)
 
 
 @pytest.mark.parametrize("name", LEARNED)

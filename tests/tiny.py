@@ -12,6 +12,14 @@ TINY: dict[str, dict[str, Any]] = {
 
 def tiny_overrides(name: str, **optim: Any) -> dict[str, Any]:
     """Dotted overrides for `name`'s quick preset: the tiny network plus optimiser settings."""
-    base = {"optim.batch_size": 4, "optim.log_every": 1, "optim.checkpoint_every": 2, "optim.epochs": 1}
+    base = {"optim.batch_size": 4, "optim.log_every": 1, "optim.checkpoint_every": 2, "optim.epochs": 1,
+            "optim.warmup_steps": 0}
     base.update({f"optim.{k}": v for k, v in optim.items()})
     return {**TINY[name], **base}
+
+TINY["diffusion"] = {"encoder_width": 16, "encoder_layers": [1, 1, 1, 1], "down_dims": [8, 16, 32], "n_groups": 4,
+                     "step_embed_dim": 8, "sampling_steps": 5, "crop": 88}
+TINY["bet"] = {"encoder_width": 16, "encoder_layers": [1, 1, 1, 1], "n_bins": 8, "d_model": 16, "n_heads": 2,
+               "n_layers": 2, "dropout": 0.0}
+TINY["bct"] = {"encoder_width": 16, "encoder_layers": [1, 1, 1, 1], "d_model": 16, "n_heads": 2, "n_layers": 2,
+               "ffn_dim": 32, "dropout": 0.0}

@@ -112,9 +112,22 @@ def _load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
         from bcbench.checkpoint import load_runner
 
         runner = load_runner(args.checkpoint, use_ema=not args.no_ema, device=args.device)
-        return runner, Path(args.checkpoint) / f"eval-{args.episodes}ep-{stamp}"
+        tag = ""
+        if hasattr(runner.model, "reset_noise"):  # stochastic policies: the evaluation seed fixes the noise
+            runner.model.reset_noise(args.seed)
+        if hasattr(runner.model, "set_sampler"):
+            kind = args.sampler or runner.model.sampler_kind
+            steps = args.steps or runner.model.sampler_steps
+            runner.model.set_sampler(kind, steps)
+            runner.extra.update({"sampler": kind, "steps": steps})
+            tag = f"{kind}{steps}-"
+        elif args.sampler or args.steps:
+            raise BCBenchError(f"--sampler/--steps apply to diffusion policies, not to '{runner.name}'")
+        return runner, Path(args.checkpoint) / f"eval-{tag}{args.episodes}ep-{stamp}"
     if not args.policy:
         raise BCBenchError("choose --policy NAME or --checkpoint RUN_DIR")
+    if args.sampler or args.steps:
+        raise BCBenchError("--sampler/--steps need a diffusion --checkpoint")
     if is_learned(args.policy):
         raise BCBenchError(f"'{args.policy}' is a learned policy: train it (`bcbench train --policy {args.policy}`) "
                            "and evaluate with --checkpoint RUN_DIR")
@@ -244,8 +257,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("train", help="train a policy (resumable; checkpoints, metrics.jsonl)")
     p.add_argument("--policy", choices=sorted(REGISTRY), help="registered policy to train")
-    p.add_argument("--config", default="quick", choices=["quick", "paper"],
-                   help="preset: quick (2-core CPU) or paper (the study's sizes)")
+    p.add_argument("--config", default="quick",
+                   help="preset: quick (2-core CPU) or paper (the study's sizes); diffusion also has "
+                        "quick_linear and paper_linear (linear betas)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a config field, e.g. --set optim.epochs=2 --set hidden=64 (repeatable)")
     p.add_argument("--minutes", type=float, help="wall-clock budget; stops cleanly at the next step and saves")
@@ -267,6 +281,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", default="quick", choices=["quick", "paper"], help="policy preset (default quick)")
     p.add_argument("--checkpoint", metavar="RUN_DIR", help="evaluate a trained run instead of --policy")
     p.add_argument("--no-ema", action="store_true", help="use the raw weights even if the run kept an EMA")
+    p.add_argument("--sampler", choices=["ddpm", "ddim"], help="diffusion only: sampler (default: the run's)")
+    p.add_argument("--steps", type=_positive_int, help="diffusion only: denoising steps, 1..100 (default: the run's)")
     p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="where the policy runs (default cpu)")
     p.add_argument("--episodes", type=_positive_int, default=40, help="episodes (default 40, as the study)")
     p.add_argument("--seed-start", type=_nonneg_int, default=100_000,

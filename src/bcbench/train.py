@@ -163,6 +163,10 @@ class Trainer:
     def _resume(self) -> None:
         ckpt = latest_checkpoint(self.run_dir)
         if ckpt is None:
+            if hasattr(self.model, "prepare"):  # data-dependent set-up (BeT's k-means), fresh runs only
+                self.model.prepare(self.train_ds)
+                if self.ema is not None:
+                    self.ema.model.load_state_dict(self.model.state_dict())
             return
         load_weights(ckpt, self.model)
         state = load_state(ckpt)
@@ -217,7 +221,8 @@ class Trainer:
         from tqdm import tqdm
 
         stop = _StopFlag()
-        deadline = time.monotonic() + 60 * self.opts.minutes if self.opts.minutes else None
+        budgets = [m for m in (self.opts.minutes, self.o.max_minutes) if m]
+        deadline = time.monotonic() + 60 * min(budgets) if budgets else None
         seed, bs = self.cfg.seed, self.o.batch_size
         self.model.train()
         bar = tqdm(total=self.total_steps, initial=self.step, desc=f"train {self.model.name}", unit="step",

@@ -11,7 +11,10 @@ from typing import Any
 
 from bcbench.errors import BCBenchError
 from bcbench.policies.baselines import BaselineConfig, RandomPolicy, ScriptedPolicy
+from bcbench.policies.bct import BCTConfig, BCTPolicy
+from bcbench.policies.bet import BeTConfig, BeTPolicy
 from bcbench.policies.cnn_mlp import CNNMLPConfig, CNNMLPPolicy
+from bcbench.policies.diffusion import DiffusionConfig, DiffusionPolicy
 from bcbench.policies.learned import BCPolicy
 from bcbench.policies.resnet50_cnn import ResNet50Config, ResNet50Policy
 
@@ -20,10 +23,14 @@ REGISTRY: dict[str, tuple[type, type]] = {
     "scripted": (BaselineConfig, ScriptedPolicy),
     "cnn_mlp": (CNNMLPConfig, CNNMLPPolicy),
     "resnet50": (ResNet50Config, ResNet50Policy),
+    "bet": (BeTConfig, BeTPolicy),
+    "bct": (BCTConfig, BCTPolicy),
+    "diffusion": (DiffusionConfig, DiffusionPolicy),
 }
 
 # The study's parameter counts, for `bcbench params` and the report.
-STUDY_PARAMETERS: dict[str, int] = {"cnn_mlp": 1_365_494, "resnet50": 34_527_593}
+STUDY_PARAMETERS: dict[str, int] = {"cnn_mlp": 1_365_494, "resnet50": 34_527_593, "bct": 23_952_736,
+                                    "diffusion": 91_123_778}
 
 
 def is_learned(name: str) -> bool:

@@ -36,6 +36,9 @@ class OptimConfig:
     """passes over the training windows"""
     max_steps: int | None = None
     """stop after this many optimiser steps (overrides epochs when smaller)"""
+    max_minutes: float | None = None
+    """wall-clock budget of one training session (the quick presets set one, so a loaded laptop still
+    finishes in time); `bcbench train --minutes` takes the smaller of the two"""
     batch_size: int = 64
     """windows per optimiser step"""
     grad_clip: float | None = None
@@ -61,6 +64,8 @@ class OptimConfig:
             raise BCBenchError(f"need lr > 0 and weight_decay >= 0, got {self.lr}, {self.weight_decay}")
         if self.epochs < 1 or self.batch_size < 1 or self.checkpoint_every < 1 or self.log_every < 1:
             raise BCBenchError("epochs, batch_size, checkpoint_every and log_every must be >= 1")
+        if self.max_minutes is not None and self.max_minutes <= 0:
+            raise BCBenchError(f"max_minutes must be > 0, got {self.max_minutes}")
         if self.max_steps is not None and self.max_steps < 1:
             raise BCBenchError(f"max_steps must be >= 1, got {self.max_steps}")
         if not 0 < self.ema_max_decay < 1:

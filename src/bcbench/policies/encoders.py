@@ -144,3 +144,38 @@ def load_pretrained(model: ResNet, path: str | Path) -> list[str]:
 
 def count_parameters(module: nn.Module) -> int:
     return sum(p.numel() for p in module.parameters())
+
+
+def crop_images(image: torch.Tensor, size: int, random: bool) -> torch.Tensor:
+    """(N, C, H, W) -> (N, C, size, size): independent random crops in training, the centre otherwise."""
+    n, _, h, w = image.shape
+    if size == h and size == w:
+        return image
+    if not random:
+        top, left = (h - size) // 2, (w - size) // 2
+        return image[:, :, top:top + size, left:left + size]
+    tops = torch.randint(0, h - size + 1, (n,)).tolist()
+    lefts = torch.randint(0, w - size + 1, (n,)).tolist()
+    return torch.stack([image[i, :, t:t + size, s:s + size] for i, (t, s) in enumerate(zip(tops, lefts, strict=True))])
+
+
+class FrameFeatures(nn.Module):
+    """ResNet-18 per frame with global average pooling: (B, To, 3, H, W) -> (B, To, F).
+
+    Shared by Diffusion Policy (GroupNorm, random crop) and the transformers (BatchNorm). Frames are
+    folded into the batch, so one forward pass encodes all of them.
+    """
+
+    def __init__(self, norm: str, width: int = 64, layers: tuple[int, ...] = RESNET18_LAYERS,
+                 crop: int | None = None) -> None:
+        super().__init__()
+        self.backbone = resnet18(norm, width, layers)
+        self.crop = crop
+        self.out_dim = self.backbone.out_channels
+
+    def forward(self, image: torch.Tensor) -> torch.Tensor:
+        b, t = image.shape[:2]
+        x = image.flatten(0, 1)  # (B*To, 3, H, W)
+        if self.crop:
+            x = crop_images(x, self.crop, random=self.training)
+        return self.backbone(x).mean(dim=(2, 3)).view(b, t, -1)  # (B, To, F)

@@ -54,8 +54,8 @@ class ResNet50Config(PolicyConfig):
             return cls()
         if name == "quick":  # same topology at 1/8 width, one block per stage: trains in 15 min on 2 cores
             return cls(width=8, layers=(1, 1, 1, 1), head_channels=(128, 128, 64, 32), hidden=256,
-                       optim=OptimConfig(optimizer="adam", lr=1e-3, schedule="plateau", epochs=5, batch_size=64,
-                                         plateau_patience=1, checkpoint_every=200))
+                       optim=OptimConfig(optimizer="adam", lr=1e-3, schedule="plateau", epochs=4, batch_size=64,
+                                         max_minutes=14, plateau_patience=1, checkpoint_every=200))
         raise BCBenchError(f"unknown config '{name}' for resnet50 (choose quick or paper)")
 
 

@@ -1,0 +1,168 @@
+"""Behavior Transformer (BeT; Shafiullah et al., NeurIPS 2022), predicting a chunk of binned actions.
+
+Actions are discretised by k-means over the training split (fitted once, saved with the weights as a
+buffer). A minGPT-style causal transformer reads one token per observation (ResNet-18 features of the
+frame concatenated with the normalised agent position); from the newest token, the head predicts, for
+each of the 16 future steps, logits over the k bins and a continuous offset per bin. Training: focal
+loss (gamma 2) on the bin of each target action plus a scaled MSE on that bin's offset. Sampling draws a
+bin from the softmax and adds its offset.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from bcbench.errors import BCBenchError
+from bcbench.policies.config import OptimConfig, PolicyConfig
+from bcbench.policies.encoders import RESNET18_LAYERS, FrameFeatures
+from bcbench.policies.learned import BCPolicy
+
+
+@dataclass
+class BeTConfig(PolicyConfig):
+    encoder_width: int = 64
+    """ResNet-18 base width (64 = the real ResNet-18)"""
+    encoder_layers: tuple[int, ...] = RESNET18_LAYERS
+    """basic blocks per ResNet stage"""
+    n_bins: int = 64
+    """k-means action bins (BeT used 24-64)"""
+    d_model: int = 120
+    """transformer width (BeT: 72-120)"""
+    n_heads: int = 6
+    """attention heads"""
+    n_layers: int = 6
+    """transformer blocks"""
+    dropout: float = 0.1
+    """dropout in the transformer"""
+    focal_gamma: float = 2.0
+    """focal-loss focusing parameter"""
+    offset_weight: float = 100.0
+    """weight of the offset MSE against the bin loss (BeT's 'offset_loss_scale')"""
+    optim: OptimConfig = field(default_factory=lambda: OptimConfig(
+        optimizer="adamw", lr=1e-4, weight_decay=0.1, betas=(0.9, 0.95), schedule="cosine", warmup_steps=500,
+        epochs=100, batch_size=64, grad_clip=1.0))
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.encoder_layers = tuple(self.encoder_layers)
+        if self.d_model % self.n_heads:
+            raise BCBenchError(f"d_model {self.d_model} must divide by n_heads {self.n_heads}")
+        if self.n_bins < 2:
+            raise BCBenchError(f"n_bins must be >= 2, got {self.n_bins}")
+
+    @classmethod
+    def preset(cls, name: str) -> BeTConfig:
+        if name == "paper":
+            return cls()
+        if name == "quick":
+            return cls(encoder_width=16, n_bins=32, d_model=96, n_heads=4, n_layers=3,
+                       optim=OptimConfig(optimizer="adamw", lr=1e-3, weight_decay=0.1, betas=(0.9, 0.95),
+                                         schedule="cosine", warmup_steps=100, epochs=4, batch_size=64,
+                                         grad_clip=1.0, max_minutes=14, checkpoint_every=200))
+        raise BCBenchError(f"unknown config '{name}' for bet (choose quick or paper)")
+
+
+def kmeans(x: np.ndarray, k: int, iters: int = 50, seed: int = 0) -> np.ndarray:
+    """Lloyd's k-means with k-means++ seeding; returns (k, D) centres."""
+    rng = np.random.default_rng(seed)
+    x = np.asarray(x, dtype=np.float64)
+    if len(x) < k:
+        raise BCBenchError(f"k-means needs at least {k} points, got {len(x)}")
+    centres = [x[rng.integers(len(x))]]
+    d2 = ((x - centres[0]) ** 2).sum(1)
+    for _ in range(k - 1):  # k-means++: far points are likelier seeds
+        centres.append(x[rng.choice(len(x), p=d2 / d2.sum()) if d2.sum() > 0 else rng.integers(len(x))])
+        d2 = np.minimum(d2, ((x - centres[-1]) ** 2).sum(1))
+    c = np.stack(centres)
+    for _ in range(iters):
+        assign = ((x[:, None, :] - c[None]) ** 2).sum(-1).argmin(1)
+        new = np.stack([x[assign == j].mean(0) if np.any(assign == j) else c[j] for j in range(k)])
+        if np.allclose(new, c):
+            break
+        c = new
+    return c.astype(np.float32)
+
+
+class Block(nn.Module):
+    """minGPT block: pre-LayerNorm causal self-attention and MLP."""
+
+    def __init__(self, d: int, heads: int, dropout: float) -> None:
+        super().__init__()
+        self.ln1, self.ln2 = nn.LayerNorm(d), nn.LayerNorm(d)
+        self.attn = nn.MultiheadAttention(d, heads, dropout=dropout, batch_first=True)
+        self.mlp = nn.Sequential(nn.Linear(d, 4 * d), nn.GELU(), nn.Linear(4 * d, d), nn.Dropout(dropout))
+
+    def forward(self, x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        h = self.ln1(x)
+        x = x + self.attn(h, h, h, attn_mask=mask, need_weights=False)[0]
+        return x + self.mlp(self.ln2(x))
+
+
+class BeTPolicy(BCPolicy):
+    name = "bet"
+
+    def __init__(self, config: BeTConfig) -> None:
+        super().__init__()
+        self.config = c = config
+        self.encoder = FrameFeatures("batch", c.encoder_width, c.encoder_layers)
+        self.tok = nn.Linear(self.encoder.out_dim + 2, c.d_model)
+        self.pos = nn.Parameter(torch.zeros(1, c.obs_horizon, c.d_model))
+        self.drop = nn.Dropout(c.dropout)
+        self.blocks = nn.ModuleList(Block(c.d_model, c.n_heads, c.dropout) for _ in range(c.n_layers))
+        self.ln_f = nn.LayerNorm(c.d_model)
+        self.head = nn.Linear(c.d_model, c.pred_horizon * c.n_bins * 3)  # per step: k logits + k 2-D offsets
+        # True above the diagonal = not allowed to attend: token t sees tokens <= t only (causal).
+        self.register_buffer("mask", torch.triu(torch.ones(c.obs_horizon, c.obs_horizon, dtype=torch.bool), 1),
+                             persistent=False)
+        self.register_buffer("centres", torch.zeros(c.n_bins, 2))  # k-means bins, saved with the weights
+        self.generator: torch.Generator | None = None
+
+    def prepare(self, train_ds: Any) -> None:
+        """Fit the k-means bins on the normalised actions of the training split (once, before training)."""
+        steps = np.unique(train_ds.indices)
+        actions = train_ds.normalizer.normalize("action", train_ds.buffer.action[steps])
+        self.centres.copy_(torch.from_numpy(kmeans(actions, self.config.n_bins, seed=self.config.seed)))
+
+    def transformer(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:
+        """(B, To, ...) observations -> per-token outputs (B, To, D), causally masked."""
+        x = self.drop(self.tok(torch.cat([self.encoder(image), agent_pos], dim=-1)) + self.pos)
+        for block in self.blocks:
+            x = block(x, self.mask[: x.shape[1], : x.shape[1]])
+        return self.ln_f(x)
+
+    def _heads(self, obs: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        h = self.transformer(obs["image"], obs["agent_pos"])[:, -1]  # newest token: (B, D)
+        c = self.config
+        out = self.head(h).view(-1, c.pred_horizon, c.n_bins, 3)
+        return out[..., 0], out[..., 1:]  # logits (B, Tp, k), offsets (B, Tp, k, 2)
+
+    def encode_actions(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(..., 2) -> nearest bin (...,) and the residual offset (..., 2): bin centre + offset = action."""
+        bins = torch.cdist(action.reshape(-1, 2), self.centres).argmin(-1).view(action.shape[:-1])
+        return bins, action - self.centres[bins]
+
+    def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        logits, offsets = self._heads(batch)
+        bins, target_offset = self.encode_actions(batch["action"])  # (B, Tp), (B, Tp, 2)
+        logp = F.log_softmax(logits, dim=-1).gather(-1, bins[..., None]).squeeze(-1)  # (B, Tp)
+        focal = -((1 - logp.exp()) ** self.config.focal_gamma * logp).mean()
+        chosen = offsets.gather(2, bins[..., None, None].expand(-1, -1, 1, 2)).squeeze(2)  # (B, Tp, 2)
+        return focal + self.config.offset_weight * F.mse_loss(chosen, target_offset)
+
+    def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+        logits, offsets = self._heads(obs)
+        if self.generator is None or self.generator.device != logits.device:
+            self.generator = torch.Generator(device=logits.device).manual_seed(self.config.seed)
+        probs = F.softmax(logits, dim=-1).flatten(0, 1)  # (B*Tp, k)
+        bins = torch.multinomial(probs, 1, generator=self.generator).view(logits.shape[:2])  # sample, as BeT does
+        chosen = offsets.gather(2, bins[..., None, None].expand(-1, -1, 1, 2)).squeeze(2)
+        return self.centres[bins] + chosen  # (B, Tp, 2)
+
+    def reset_noise(self, seed: int | None = None) -> None:
+        self.generator = None if seed is None else torch.Generator(device=self.centres.device).manual_seed(seed)

@@ -1,0 +1,140 @@
+"""Diffusion Policy (Chi et al., RSS 2023), as in its vision notebook and as the study ran it.
+
+Vision: ResNet-18 with GroupNorm(C/16) instead of BatchNorm, no fc, global average pool -> 512 per frame;
+the To=2 frame features and normalised agent positions form the global condition 2 x (512 + 2) = 1028.
+Action: a 1-D conditional U-Net predicts the noise added to the normalised 16x2 chunk (epsilon
+prediction, 100 training timesteps, squared-cosine or linear betas, samples clipped to [-1, 1]).
+Sampling: DDPM or DDIM with any step count, chosen at evaluation time (`set_sampler`); the observation is
+encoded once per call and only the U-Net runs K times.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+import torch.nn.functional as F
+
+from bcbench.errors import BCBenchError
+from bcbench.policies.config import OptimConfig, PolicyConfig
+from bcbench.policies.encoders import RESNET18_LAYERS, FrameFeatures, count_parameters
+from bcbench.policies.learned import BCPolicy
+from bcbench.policies.samplers import make_train_scheduler, plan, run_plan
+from bcbench.policies.unet1d import ConditionalUnet1D
+
+STUDY_PARAMETERS = {"encoder": 11_176_512, "unet": 79_947_266, "total": 91_123_778}
+
+
+def _paper_optim() -> OptimConfig:
+    return OptimConfig(optimizer="adamw", lr=1e-4, betas=(0.95, 0.999), weight_decay=1e-6, schedule="cosine",
+                       warmup_steps=500, epochs=100, batch_size=64, ema=True, ema_power=0.75, ema_max_decay=0.9999)
+
+
+@dataclass
+class DiffusionConfig(PolicyConfig):
+    encoder_width: int = 64
+    """ResNet-18 base width (64 = the real ResNet-18, 512 features per frame)"""
+    encoder_layers: tuple[int, ...] = RESNET18_LAYERS
+    """basic blocks per ResNet stage"""
+    down_dims: tuple[int, ...] = (256, 512, 1024)
+    """U-Net channel widths per level"""
+    kernel_size: int = 5
+    """U-Net convolution kernel"""
+    n_groups: int = 8
+    """GroupNorm groups in the U-Net"""
+    step_embed_dim: int = 256
+    """sinusoidal diffusion-step embedding size"""
+    num_train_timesteps: int = 100
+    """diffusion steps at training"""
+    beta_schedule: str = "squaredcos_cap_v2"
+    """squaredcos_cap_v2 (the study's cosine) or linear (the study's Figure 4 re-training)"""
+    crop: int | None = 84
+    """random crop size at training (centre crop at evaluation); None = no crop"""
+    sampler: str = "ddpm"
+    """default sampler at evaluation: ddpm or ddim (bcbench eval --sampler overrides)"""
+    sampling_steps: int = 100
+    """default denoising steps at evaluation (bcbench eval --steps overrides)"""
+    optim: OptimConfig = field(default_factory=_paper_optim)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.encoder_layers, self.down_dims = tuple(self.encoder_layers), tuple(self.down_dims)
+        if self.beta_schedule not in ("squaredcos_cap_v2", "linear"):
+            raise BCBenchError(f"beta_schedule must be squaredcos_cap_v2 or linear, got '{self.beta_schedule}'")
+        if self.sampler not in ("ddpm", "ddim") or not 1 <= self.sampling_steps <= self.num_train_timesteps:
+            raise BCBenchError("sampler must be ddpm or ddim with 1 <= sampling_steps <= num_train_timesteps")
+        if self.crop is not None and not 8 <= self.crop <= self.image_size:
+            raise BCBenchError(f"crop must be in 8..{self.image_size} or None, got {self.crop}")
+        if any(d % self.n_groups for d in self.down_dims) or self.encoder_width % 16:
+            raise BCBenchError("down_dims must divide by n_groups and encoder_width by 16 (GroupNorm C/16)")
+        if self.pred_horizon % 2 ** (len(self.down_dims) - 1):
+            raise BCBenchError(f"pred_horizon must divide by {2 ** (len(self.down_dims) - 1)} for the U-Net")
+
+    @classmethod
+    def preset(cls, name: str) -> DiffusionConfig:
+        base, _, schedule = name.partition("_")
+        if base not in ("quick", "paper") or schedule not in ("", "linear"):
+            raise BCBenchError(f"unknown config '{name}' for diffusion (quick, paper, quick_linear, paper_linear)")
+        betas = "linear" if schedule else "squaredcos_cap_v2"
+        if base == "paper":
+            return cls(beta_schedule=betas)
+        # CPU-sized: 1/4-width ResNet-18 with one block per stage, a 64/128/256 U-Net, a higher learning
+        # rate, and a 29-minute budget on 2 cores.
+        return cls(encoder_width=16, encoder_layers=(1, 1, 1, 1), down_dims=(64, 128, 256), step_embed_dim=64,
+                   beta_schedule=betas,
+                   optim=OptimConfig(optimizer="adamw", lr=5e-4, betas=(0.95, 0.999), weight_decay=1e-6,
+                                     schedule="cosine", warmup_steps=200, epochs=8, batch_size=64, ema=True,
+                                     ema_power=0.75, ema_max_decay=0.9999, max_minutes=29, checkpoint_every=200))
+
+
+class DiffusionPolicy(BCPolicy):
+    name = "diffusion"
+
+    def __init__(self, config: DiffusionConfig) -> None:
+        super().__init__()
+        self.config = c = config
+        self.encoder = FrameFeatures("group", c.encoder_width, c.encoder_layers, c.crop)
+        feat = self.encoder.out_dim
+        self.unet = ConditionalUnet1D(2, c.obs_horizon * (feat + 2), c.step_embed_dim, c.down_dims, c.kernel_size,
+                                      c.n_groups)
+        self.noise_scheduler = make_train_scheduler(c.num_train_timesteps, c.beta_schedule)
+        ac = self.noise_scheduler.alphas_cumprod.float()
+        self.register_buffer("sqrt_ac", ac.sqrt(), persistent=False)  # for add_noise, on the model's device
+        self.register_buffer("sqrt_1m_ac", (1 - ac).sqrt(), persistent=False)
+        self.generator: torch.Generator | None = None
+        self.set_sampler(c.sampler, c.sampling_steps)
+
+    def set_sampler(self, kind: str, steps: int) -> None:
+        """Choose DDPM/DDIM and the number of denoising steps for inference (no retraining)."""
+        self.plan = plan(self.noise_scheduler, kind, steps)
+        self.sampler_kind, self.sampler_steps = kind, steps
+
+    def reset_noise(self, seed: int | None = None) -> None:
+        """Restart the inference noise stream (seeded: evaluations are reproducible)."""
+        self.generator = None if seed is None else torch.Generator(device=self.sqrt_ac.device).manual_seed(seed)
+
+    def encode(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:
+        """image (B, To, 3, H, W), agent_pos (B, To, 2) -> global condition (B, To * (F + 2))."""
+        feats = self.encoder(image)  # (B, To, F)
+        return torch.cat([feats, agent_pos], dim=-1).flatten(1)
+
+    def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        cond = self.encode(batch["image"], batch["agent_pos"])
+        action = batch["action"]  # (B, Tp, 2) in [-1, 1]
+        noise = torch.randn_like(action)
+        t = torch.randint(0, self.config.num_train_timesteps, (action.shape[0],), device=action.device)
+        noisy = self.sqrt_ac[t, None, None] * action + self.sqrt_1m_ac[t, None, None] * noise
+        return F.mse_loss(self.unet(noisy, t, cond), noise)
+
+    def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+        cond = self.encode(obs["image"], obs["agent_pos"])  # once per call
+        b = cond.shape[0]
+        if self.generator is None or self.generator.device != cond.device:
+            self.generator = torch.Generator(device=cond.device).manual_seed(self.config.seed)
+        x = torch.randn((b, self.config.pred_horizon, 2), generator=self.generator, device=cond.device)
+        return run_plan(self.plan, lambda x, t: self.unet(x, torch.tensor(t, device=x.device), cond), x,
+                        self.generator)
+
+    def parameter_breakdown(self) -> dict[str, int]:
+        return {"encoder": count_parameters(self.encoder), "unet": count_parameters(self.unet),
+                "total": self.num_parameters()}

@@ -1,0 +1,105 @@
+"""The 1-D conditional U-Net noise-prediction network of Diffusion Policy (Chi et al., RSS 2023).
+
+It denoises an action chunk (B, Tp, Da), treated as Da channels over Tp time steps. Conditioning
+(sinusoidal diffusion-step embedding through an MLP, concatenated with the observation features) enters
+every residual block through FiLM: a per-channel scale and bias computed from the condition. Down path
+with stride-2 convolutions, two middle blocks, transposed-convolution up path with skip connections.
+At the study's size (down dims 256/512/1024, kernel 5, 8 groups, step embedding 256, condition
+256 + 1028) it has 79,947,266 parameters.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import torch
+from torch import nn
+
+
+class SinusoidalPosEmb(nn.Module):
+    """Transformer-style sinusoidal embedding of the (integer) diffusion step."""
+
+    def __init__(self, dim: int) -> None:
+        super().__init__()
+        self.dim = dim
+
+    def forward(self, t: torch.Tensor) -> torch.Tensor:  # (B,) -> (B, dim)
+        half = self.dim // 2
+        freqs = torch.exp(torch.arange(half, device=t.device) * -(math.log(10000) / (half - 1)))
+        args = t.float()[:, None] * freqs[None, :]
+        return torch.cat([args.sin(), args.cos()], dim=-1)
+
+
+class Conv1dBlock(nn.Sequential):
+    """Conv1d -> GroupNorm -> Mish."""
+
+    def __init__(self, cin: int, cout: int, kernel: int, groups: int) -> None:
+        super().__init__(nn.Conv1d(cin, cout, kernel, padding=kernel // 2), nn.GroupNorm(groups, cout), nn.Mish())
+
+
+class ConditionalResidualBlock1D(nn.Module):
+    """Two conv blocks; FiLM (scale, bias per channel, from the condition) between them; 1x1 residual."""
+
+    def __init__(self, cin: int, cout: int, cond_dim: int, kernel: int, groups: int) -> None:
+        super().__init__()
+        self.blocks = nn.ModuleList([Conv1dBlock(cin, cout, kernel, groups), Conv1dBlock(cout, cout, kernel, groups)])
+        self.out_channels = cout
+        self.cond_encoder = nn.Sequential(nn.Mish(), nn.Linear(cond_dim, 2 * cout))
+        self.residual_conv = nn.Conv1d(cin, cout, 1) if cin != cout else nn.Identity()
+
+    def forward(self, x: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:  # x (B, Cin, T), cond (B, cond_dim)
+        out = self.blocks[0](x)  # (B, Cout, T)
+        film = self.cond_encoder(cond).view(-1, 2, self.out_channels, 1)  # (B, 2, Cout, 1)
+        out = film[:, 0] * out + film[:, 1]  # FiLM: the condition rescales and shifts every channel
+        out = self.blocks[1](out)
+        return out + self.residual_conv(x)
+
+
+class ConditionalUnet1D(nn.Module):
+    def __init__(self, input_dim: int, global_cond_dim: int, step_embed_dim: int = 256,
+                 down_dims: tuple[int, ...] = (256, 512, 1024), kernel: int = 5, groups: int = 8) -> None:
+        super().__init__()
+        self.diffusion_step_encoder = nn.Sequential(
+            SinusoidalPosEmb(step_embed_dim), nn.Linear(step_embed_dim, step_embed_dim * 4), nn.Mish(),
+            nn.Linear(step_embed_dim * 4, step_embed_dim),
+        )
+        cond_dim = step_embed_dim + global_cond_dim
+        dims = [input_dim, *down_dims]
+        in_out = list(itertools.pairwise(dims))
+
+        def block(cin: int, cout: int) -> ConditionalResidualBlock1D:
+            return ConditionalResidualBlock1D(cin, cout, cond_dim, kernel, groups)
+
+        self.down_modules = nn.ModuleList()
+        for i, (cin, cout) in enumerate(in_out):
+            last = i == len(in_out) - 1
+            self.down_modules.append(nn.ModuleList([
+                block(cin, cout), block(cout, cout), nn.Conv1d(cout, cout, 3, 2, 1) if not last else nn.Identity()]))
+        mid = down_dims[-1]
+        self.mid_modules = nn.ModuleList([block(mid, mid), block(mid, mid)])
+        self.up_modules = nn.ModuleList()
+        # One up level per down level but the first; each upsamples, undoing the down path's strides.
+        for cin, cout in reversed(in_out[1:]):
+            self.up_modules.append(nn.ModuleList([
+                block(cout * 2, cin), block(cin, cin), nn.ConvTranspose1d(cin, cin, 4, 2, 1)]))
+        self.final_conv = nn.Sequential(Conv1dBlock(down_dims[0], down_dims[0], kernel, groups),
+                                        nn.Conv1d(down_dims[0], input_dim, 1))
+
+    def forward(self, sample: torch.Tensor, timestep: torch.Tensor, global_cond: torch.Tensor) -> torch.Tensor:
+        """sample (B, Tp, Da), timestep (B,) or scalar, global_cond (B, G) -> predicted noise (B, Tp, Da)."""
+        x = sample.transpose(1, 2)  # (B, Da, Tp)
+        if timestep.ndim == 0:
+            timestep = timestep.expand(x.shape[0])
+        cond = torch.cat([self.diffusion_step_encoder(timestep), global_cond], dim=-1)  # (B, cond_dim)
+        skips = []
+        for res1, res2, down in self.down_modules:
+            x = res2(res1(x, cond), cond)
+            skips.append(x)
+            x = down(x)  # Tp 16 -> 8 -> 4 (the last level keeps its length)
+        for res in self.mid_modules:
+            x = res(x, cond)
+        for res1, res2, up in self.up_modules:
+            x = torch.cat([x, skips.pop()], dim=1)  # skip connection doubles the channels
+            x = up(res2(res1(x, cond), cond))
+        return self.final_conv(x).transpose(1, 2)  # (B, Tp, Da)
