@@ -25,9 +25,14 @@ test: install lint
 	$(VENV)/bin/pytest -q
 
 demo: install
-	$(VENV)/bin/bcbench data replay --out runs/demo/replay.json
-	$(VENV)/bin/bcbench eval --policy scripted --episodes 40 --video 2 --out runs/demo/eval-scripted
-	@echo "demo done: replay report runs/demo/replay.json, evaluation and videos in runs/demo/eval-scripted/"
+	$(VENV)/bin/bcbench data replay --quiet --out runs/demo/replay.json
+	$(VENV)/bin/bcbench eval --policy scripted --episodes 4 --video 2 --quiet --out runs/demo/videos
+	$(VENV)/bin/bcbench study studies/demo.toml --out runs/demo/study
+	@echo ""
+	@echo "demo done:"
+	@echo "  report (open in a browser): runs/demo/study/report/report.html  (Markdown: report.md)"
+	@echo "  simulator replay check:     runs/demo/replay.json"
+	@echo "  rollout videos:             runs/demo/videos/videos/"
 
 clean:
 	rm -rf $(VENV) runs build src/*.egg-info .pytest_cache .ruff_cache

@@ -217,6 +217,43 @@ def cmd_params(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_study(args: argparse.Namespace) -> int:
+    from bcbench.spec import load_spec
+    from bcbench.study import run_study
+
+    spec = load_spec(args.spec)
+    if args.check:
+        print(f"{args.spec}: valid; {len(spec.runs)} run(s): " + ", ".join(f"{r.label} s{r.seed}" for r in spec.runs))
+        return 0
+    summary = run_study(spec, args.out, args.data, progress=not args.quiet)
+    print(f"study {spec.name}: {summary['executed']} stage(s) run, {summary['skipped']} already done, "
+          f"{summary['seconds'] / 60:.1f} min; results in {summary['out']}")
+    if not args.no_report:
+        from bcbench.report import write_report
+
+        paths = write_report(summary["out"])
+        print(f"report: {paths['markdown']}  and  {paths['html']}")
+    return 0
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from bcbench.report import write_report
+
+    paths = write_report(args.results, extra_dirs=args.include or [])
+    print(f"report: {paths['markdown']}  and  {paths['html']}")
+    return 0
+
+
+def cmd_latency(args: argparse.Namespace) -> int:
+    from bcbench.bench import run_latency_benchmark
+
+    out = run_latency_benchmark(policies=args.policy, presets=args.config, modes=args.mode, steps=args.steps,
+                                samplers=args.sampler, device=args.device, threads=args.threads,
+                                rate_hz=args.rate, out=args.out, quick_timing=args.quick)
+    print(f"latency results: {out['json']}  table: {out['table']}  plot: {out['plot']}")
+    return 0
+
+
 # ----------------------------------------------------------------------------- parser
 
 
@@ -272,6 +309,36 @@ def build_parser() -> argparse.ArgumentParser:
     _add_data_flag(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("study", help="run a study spec: train, evaluate and time every run (resumable)")
+    p.add_argument("spec", metavar="SPEC.toml", help="study specification (see studies/)")
+    p.add_argument("--out", metavar="DIR", help="results directory (default runs/studies/NAME)")
+    p.add_argument("--check", action="store_true", help="validate the spec and exit")
+    p.add_argument("--no-report", action="store_true", help="do not write the report at the end")
+    _add_data_flag(p)
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_study)
+
+    p = sub.add_parser("report", help="Markdown + HTML report with the study's figures, from result files only")
+    p.add_argument("results", metavar="RESULTS_DIR", help="a study's results directory")
+    p.add_argument("--include", action="append", metavar="DIR",
+                   help="also read result JSON files from this folder (e.g. results/ from a GPU machine)")
+    p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser("latency", help="time one policy call at batch 1 for every policy, reference vs fast")
+    p.add_argument("--policy", action="append", help="only these policies (repeatable; default all learned)")
+    p.add_argument("--config", action="append", choices=["quick", "paper"], help="presets (default both)")
+    p.add_argument("--mode", action="append", choices=["reference", "fast", "fast-jit"],
+                   help="modes (default reference and fast)")
+    p.add_argument("--sampler", action="append", choices=["ddpm", "ddim"], help="diffusion samplers (default both)")
+    p.add_argument("--steps", type=_positive_int, action="append",
+                   help="diffusion step counts (default 1 2 5 10 20 50 100)")
+    p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"], help="default auto")
+    p.add_argument("--threads", type=_positive_int, help="torch threads (default: torch's choice)")
+    p.add_argument("--rate", type=float, default=10.0, help="control rate for the verdicts, Hz (default 10)")
+    p.add_argument("--quick", action="store_true", help="fewer timed calls (a rough table in a minute or two)")
+    p.add_argument("--out", metavar="DIR", help="output folder (default runs/latency-TIME)")
+    p.set_defaults(func=cmd_latency)
 
     p = sub.add_parser("params", help="parameter counts of every learned policy (paper and quick sizes)")
     p.set_defaults(func=cmd_params)

@@ -151,6 +151,7 @@ class Trainer:
         self.optimizer = make_optimizer(self.model, self.o)
         self.scheduler = make_scheduler(self.optimizer, self.o, self.total_steps)
         self.step, self.best_val, self.last_val = 0, float("inf"), float("nan")
+        self.train_time_before = 0.0  # seconds of training in earlier sessions of this run
         norm_file = self.run_dir / "normalizer.json"
         if norm_file.exists():  # resumed: keep the statistics the weights were trained with
             self.normalizer = MinMaxNormalizer.from_dict(read_json(norm_file))
@@ -179,6 +180,7 @@ class Trainer:
             torch.cuda.set_rng_state(state["cuda_rng"])
         self.step, self.best_val = int(state["step"]), float(state.get("best_val", float("inf")))
         self.last_val = float(state.get("last_val", float("nan")))
+        self.train_time_before = float(state.get("train_time_s", 0.0))
         # drop metrics logged after the checkpoint: the resumed run logs those steps again
         metrics = self.run_dir / "metrics.jsonl"
         kept = [m for m in read_jsonl(metrics) if m.get("step", 0) <= self.step]
@@ -214,6 +216,7 @@ class Trainer:
             "optimizer": self.optimizer.state_dict(), "scheduler": self.scheduler.state_dict(),
             "torch_rng": torch.get_rng_state(), "best_val": self.best_val, "last_val": self.last_val,
             "cuda_rng": torch.cuda.get_rng_state() if self.device.type == "cuda" else None,
+            "train_time_s": self.train_time_before + self._t_train,
         }
         return save_checkpoint(self.run_dir, self.step, self.model, self.ema.model if self.ema else None, state)
 
@@ -228,6 +231,7 @@ class Trainer:
         bar = tqdm(total=self.total_steps, initial=self.step, desc=f"train {self.model.name}", unit="step",
                    disable=not self.opts.progress)
         reason, run_loss, run_n, t_train, samples = "finished", 0.0, 0, 0.0, 0
+        self._t_train = 0.0
         kill_at = int(os.environ.get("BCBENCH_TEST_KILL_AT_STEP", "0"))  # test hook: SIGKILL after this step
         with stop:
             while self.step < self.total_steps:
@@ -251,6 +255,7 @@ class Trainer:
                 if self.ema is not None:
                     self.ema.update(self.model, self.step)
                 t_train += time.perf_counter() - t0
+                self._t_train = t_train
                 samples += bs
                 loss_value = loss.item()
                 run_loss, run_n = run_loss + loss_value, run_n + 1
@@ -293,7 +298,8 @@ class Trainer:
             "policy": self.model.name, "preset": self.run["preset"], "stopped": reason, "step": self.step,
             "total_steps": self.total_steps, "epochs": self.step / self.steps_per_epoch,
             "parameters": self.model.num_parameters(), "samples_per_s": samples / t_train if t_train else None,
-            "train_time_s_this_session": t_train, "val_loss": self.last_val, "best_val_loss": self.best_val,
+            "train_time_s_this_session": t_train, "train_time_s": self.train_time_before + t_train,
+            "val_loss": self.last_val, "best_val_loss": self.best_val,
             "device": str(self.device), "threads": torch.get_num_threads(),
             "train_windows": len(self.train_ds), "val_windows": len(self.val_ds),
         }

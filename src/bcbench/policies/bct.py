@@ -66,6 +66,7 @@ class BCTConfig(PolicyConfig):
 
 class BCTPolicy(BCPolicy):
     name = "bct"
+    traceable_forward = True  # predict_action_chunk is forward(image, agent_pos)
 
     def __init__(self, config: BCTConfig) -> None:
         super().__init__()

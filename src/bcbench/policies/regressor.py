@@ -38,6 +38,8 @@ class TimeMerge(nn.Module):
 class ChunkRegressor(BCPolicy):
     """A network that maps the observation window straight to the normalised chunk; MSE loss."""
 
+    traceable_forward = True  # predict_action_chunk is forward(image, agent_pos): fast.py may freeze it
+
     def forward(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:  # -> (B, Tp, 2)
         raise NotImplementedError
 

@@ -1,0 +1,111 @@
+"""`bcbench latency`: every registered policy at paper and quick size, reference vs fast, batch 1.
+
+Latency does not depend on the weights' values, so untrained models with an identity-range normalizer
+are timed. Diffusion Policy is timed for each sampler and step count. Output: latency.json, a Markdown
+table (also printed), and a log-scale bar chart with the real-time budget lines.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from bcbench.data.normalizer import MinMaxNormalizer
+from bcbench.errors import BCBenchError
+from bcbench.latency import TimingConfig, measure_runner, verdicts
+from bcbench.utils.io import atomic_path, write_json
+from bcbench.utils.system import provenance
+
+DEFAULT_STEPS = (1, 2, 5, 10, 20, 50, 100)
+
+
+def _normalizer() -> MinMaxNormalizer:
+    world = np.array([[0.0, 0.0], [512.0, 512.0]])
+    return MinMaxNormalizer.fit({"agent_pos": world, "action": world})
+
+
+def _rows_for(name: str, preset: str, modes: list[str], samplers: list[str], steps: list[int], device: torch.device,
+              timing: TimingConfig, rate_hz: float) -> list[dict[str, Any]]:
+    from bcbench.fast import make_runner
+    from bcbench.policies import is_learned, make_policy
+
+    torch.manual_seed(0)
+    model = make_policy(name, preset)
+    if not is_learned(name):
+        stats = measure_runner(model, timing, rate_hz)
+        return [{"policy": name, "preset": "-", "mode": "reference", "variant": "default", "params": 0, **stats}]
+    variants = [(s, k) for s in samplers for k in steps] if hasattr(model, "set_sampler") else [(None, None)]
+    rows = []
+    for sampler, k in variants:
+        if sampler:
+            model.set_sampler(sampler, k)
+        for mode in modes:
+            runner = make_runner(mode, model, _normalizer(), device)
+            if hasattr(runner.model, "reset_noise"):
+                runner.model.reset_noise(0)
+            stats = measure_runner(runner, timing, rate_hz)
+            rows.append({"policy": name, "preset": preset, "mode": mode, "variant": f"{sampler}{k}" if sampler else
+                         "default", "params": model.num_parameters(), **stats})
+    return rows
+
+
+def _table(rows: list[dict[str, Any]]) -> str:
+    ref = {(r["policy"], r["preset"], r["variant"]): r["median_ms"] for r in rows if r["mode"] == "reference"}
+    head = ("| policy | preset | variant | mode | params | median ms | p90 | p99 | min | calls/s | speed-up | "
+            "10 Hz chunked | 10 Hz every step | max Hz every step |")
+    lines = [head, "|" + "---|" * 14]
+    for r in rows:
+        base = ref.get((r["policy"], r["preset"], r["variant"]))
+        speed = f"{base / r['median_ms']:.2f}x" if base and r["mode"] != "reference" else "-"
+        lines.append(f"| {r['policy']} | {r['preset']} | {r['variant']} | {r['mode']} | {r['params'] / 1e6:.2f} M | "
+                     f"{r['median_ms']:.2f} | {r['p90_ms']:.2f} | {r['p99_ms']:.2f} | {r['min_ms']:.2f} | "
+                     f"{r['calls_per_s']:.1f} | {speed} | {'yes' if r['realtime_chunked'] else 'no'} | "
+                     f"{'yes' if r['realtime_every_step'] else 'no'} | {r['max_rate_every_step_hz']:.1f} |")
+    return "\n".join(lines)
+
+
+def run_latency_benchmark(policies: list[str] | None = None, presets: list[str] | None = None,
+                          modes: list[str] | None = None, steps: list[int] | None = None,
+                          samplers: list[str] | None = None, device: str = "auto", threads: int | None = None,
+                          rate_hz: float = 10.0, out: str | None = None, quick_timing: bool = False) -> dict[str, str]:
+    from tqdm import tqdm
+
+    from bcbench.figures import latency_bars
+    from bcbench.policies import REGISTRY
+    from bcbench.train import pick_device
+
+    if threads:
+        torch.set_num_threads(threads)
+    dev = pick_device(device)
+    names = policies or list(REGISTRY)
+    bad = [n for n in names if n not in REGISTRY]
+    if bad:
+        raise BCBenchError(f"unknown policy '{bad[0]}' (registered: {', '.join(sorted(REGISTRY))})")
+    if any(not 1 <= k <= 100 for k in steps or []):
+        raise BCBenchError("--steps must be in 1..100")
+    timing = TimingConfig(min_calls=5, min_seconds=0.5, max_seconds=20) if quick_timing else TimingConfig()
+    jobs = [(n, p) for n in names for p in (presets or ["paper", "quick"])]
+    rows: list[dict[str, Any]] = []
+    for name, preset in tqdm(jobs, desc="latency", unit="policy"):
+        if any(r["policy"] == name and r["preset"] == "-" for r in rows):
+            continue  # baselines have no sizes
+        rows += _rows_for(name, preset, modes or ["reference", "fast"], samplers or ["ddpm", "ddim"],
+                          list(steps or DEFAULT_STEPS), dev, timing, rate_hz)
+    out_dir = Path(out) if out else Path("runs") / f"latency-{datetime.now():%Y%m%d-%H%M%S}"
+    record = {"type": "latency-benchmark", "device": str(dev), "rate_hz": rate_hz, "timing": timing.__dict__,
+              "rows": rows, "verdict_rule": verdicts.__doc__, **provenance()}
+    write_json(out_dir / "latency.json", record)
+    table = _table(rows)
+    with atomic_path(out_dir / "latency.md") as tmp:
+        tmp.write_text(table + "\n")
+    print(table)
+    plot_rows = [{**r, "label": f"{r['policy']} {r['preset']} {r['variant']} {r['mode']}"} for r in rows]
+    hw = record["hardware"]
+    latency_bars(plot_rows, out_dir / "latency.png",
+                 f"Latency per call, batch 1 ({hw.get('gpu') or hw['cpu_model']}, {hw['torch_threads']} threads)")
+    return {"json": str(out_dir / "latency.json"), "table": str(out_dir / "latency.md"),
+            "plot": str(out_dir / "latency.png")}

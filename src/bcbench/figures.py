@@ -1,0 +1,139 @@
+"""The study's figures from result rows: Fig. 5 (accuracy vs inference time), Fig. 3 (DP vs denoising
+steps), Fig. 4 (DDPM-cosine, DDIM-cosine, DDIM-linear over steps), and the latency bar chart."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only, no display
+import matplotlib.pyplot as plt
+
+BUDGETS_MS = ((100.0, "10 Hz, re-plan every step (100 ms)"), (800.0, "10 Hz, re-plan every 8 steps (800 ms)"))
+COLOURS = {"cnn_mlp": "tab:blue", "resnet50": "tab:orange", "bet": "tab:purple", "bct": "tab:green",
+           "diffusion": "tab:red", "random": "tab:gray", "scripted": "tab:brown"}
+
+
+def _save(fig: Any, path: Path) -> Path:
+    from bcbench.utils.io import atomic_path
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=120, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def _budget_lines(ax: Any, vertical: bool = True) -> None:
+    for ms, label in BUDGETS_MS:
+        (ax.axvline if vertical else ax.axhline)(ms, ls="--", lw=1, color="k", alpha=0.5)
+        if vertical:
+            ax.text(ms, 1.01, label, rotation=90, va="bottom", ha="right", fontsize=7,
+                    transform=ax.get_xaxis_transform())
+
+
+def figure5(rows: list[Any], path: Path, mode: str = "reference") -> Path | None:
+    """Mean score vs latency per call (log x), marker area by parameters, labels in millions, CI error bars."""
+    pts = [r for r in rows if r.latency_ms(mode) is not None]
+    if not pts:
+        return None
+    fig, ax = plt.subplots(figsize=(8, 5))
+    for r in pts:
+        lo, hi = r.est("mean_score")["ci95"]
+        size = 30 + 400 * (r.params / 1e8) ** 0.5
+        ax.errorbar(r.latency_ms(mode), r.score, yerr=[[r.score - lo], [hi - r.score]], fmt="none",
+                    ecolor=COLOURS.get(r.policy, "k"), alpha=0.6, capsize=3)
+        ax.scatter(r.latency_ms(mode), r.score, s=size, color=COLOURS.get(r.policy, "k"), alpha=0.8,
+                   edgecolor="k", lw=0.5)
+        name = r.label + ("" if r.variant == "default" else f" {r.variant.upper()}")
+        ax.annotate(f"{name}\n{r.params / 1e6:.2f} M", (r.latency_ms(mode), r.score), fontsize=7,
+                    xytext=(5, 5), textcoords="offset points")
+    ax.set_xscale("log")
+    _budget_lines(ax)
+    ax.set_xlabel(f"inference time per call, batch 1 ({mode} mode, median, ms, log scale)")
+    ax.set_ylabel("mean score (max coverage / 0.95), 95% CI")
+    ax.set_ylim(-0.05, 1.05)
+    ax.set_title("Accuracy against inference time (the study's Fig. 5)")
+    ax.grid(alpha=0.3, which="both")
+    return _save(fig, path)
+
+
+def _dp_rows(rows: list[Any], sampler: str, schedule: str) -> list[Any]:
+    out = [r for r in rows if r.policy == "diffusion" and r.sampler == sampler
+           and (r.beta_schedule or "squaredcos_cap_v2") == schedule]
+    return sorted(out, key=lambda r: r.steps)
+
+
+def figure3(rows: list[Any], path: Path, mode: str = "reference") -> Path | None:
+    """Diffusion Policy (DDPM, cosine): score, share > 0.5, share > 0.9 and latency vs denoising steps."""
+    dp = _dp_rows(rows, "ddpm", "squaredcos_cap_v2")
+    if len(dp) < 2:
+        return None
+    steps = [r.steps for r in dp]
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4))
+    metrics = (("mean_score", "mean score"), ("share_above_0.5", "share > 0.5"), ("share_above_0.9", "share > 0.9"))
+    for key, label in metrics:
+        vals = [r.est(key)["value"] for r in dp]
+        lo = [r.est(key)["ci95"][0] for r in dp]
+        hi = [r.est(key)["ci95"][1] for r in dp]
+        ax.plot(steps, vals, marker="o", label=label)
+        ax.fill_between(steps, lo, hi, alpha=0.15)
+    ax.set_xlabel("denoising iterations (DDPM)")
+    ax.set_ylabel("score / share (95% CI)")
+    ax.set_ylim(-0.05, 1.05)
+    ax.legend()
+    ax.grid(alpha=0.3)
+    lat = [r.latency_ms(mode) for r in dp]
+    if all(v is not None for v in lat):
+        ax2.plot(steps, lat, marker="o", color="tab:red")
+        ax2.set_ylabel(f"inference time per call (ms, {mode})")
+    ax2.set_xlabel("denoising iterations (DDPM)")
+    ax2.grid(alpha=0.3)
+    fig.suptitle("Diffusion Policy against denoising iterations (the study's Fig. 3)")
+    return _save(fig, path)
+
+
+def figure4(rows: list[Any], path: Path) -> Path | None:
+    """Mean score over steps for DDPM-cosine, DDIM-cosine and DDIM-linear side by side."""
+    series = [("DDPM, cosine betas", _dp_rows(rows, "ddpm", "squaredcos_cap_v2")),
+              ("DDIM, cosine betas", _dp_rows(rows, "ddim", "squaredcos_cap_v2")),
+              ("DDIM, linear betas", _dp_rows(rows, "ddim", "linear"))]
+    series = [(n, s) for n, s in series if s]
+    if len(series) < 2:
+        return None
+    fig, ax = plt.subplots(figsize=(7, 4))
+    width = 0.8 / len(series)
+    all_steps = sorted({r.steps for _, s in series for r in s})
+    for i, (name, s) in enumerate(series):
+        xs = [all_steps.index(r.steps) + (i - (len(series) - 1) / 2) * width for r in s]
+        vals = [r.score for r in s]
+        err = [[r.score - r.est("mean_score")["ci95"][0] for r in s],
+               [r.est("mean_score")["ci95"][1] - r.score for r in s]]
+        ax.bar(xs, vals, width, yerr=err, capsize=3, label=name, alpha=0.8)
+    ax.set_xticks(range(len(all_steps)), [str(k) for k in all_steps])
+    ax.set_xlabel("denoising iterations")
+    ax.set_ylabel("mean score (95% CI)")
+    ax.set_ylim(0, 1.05)
+    ax.legend()
+    ax.set_title("Samplers and beta schedules (the study's Fig. 4)")
+    return _save(fig, path)
+
+
+def latency_bars(records: list[dict[str, Any]], path: Path, title: str) -> Path | None:
+    """Horizontal bars of median latency (log x) per row, with the real-time budget lines."""
+    if not records:
+        return None
+    fig, ax = plt.subplots(figsize=(8, 0.28 * len(records) + 1.5))
+    labels = [r["label"] for r in records]
+    vals = [r["median_ms"] for r in records]
+    colours = [COLOURS.get(r.get("policy", ""), "tab:gray") for r in records]
+    ax.barh(range(len(records)), vals, color=colours, alpha=0.8)
+    ax.set_yticks(range(len(records)), labels, fontsize=7)
+    ax.invert_yaxis()
+    ax.set_xscale("log")
+    _budget_lines(ax)
+    ax.set_xlabel("median latency per call, batch 1 (ms, log scale)")
+    ax.set_title(title)
+    ax.grid(alpha=0.3, axis="x", which="both")
+    return _save(fig, path)

@@ -1,0 +1,121 @@
+"""Inference latency of one policy call at batch 1: raw observation in, 16x2 chunk out, normalisation included.
+
+Method: warm-up calls, then timed calls until both a minimum count and a minimum time are reached (capped),
+`torch.cuda.synchronize()` around every GPU call; median, p90, p99, min and calls/s are reported with the
+thread count, CPU model, GPU name and torch version. Real-time verdicts use the p99 (a control loop must
+meet its deadline on the slow calls too): at control rate f, re-planning every 8 actions needs p99 <= 8/f,
+re-planning every step needs p99 <= 1/f.
+
+Modes: `reference` is what a user gets from the public code: fp32 eager PyTorch under `torch.no_grad`
+and, for Diffusion Policy, diffusers' scheduler `step` called in a Python loop. `fast` is bcbench's
+deployment path; its outputs equal the reference's within 1e-4 (tested): see `bcbench.fast`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from bcbench.errors import BCBenchError
+
+ACTION_HORIZON = 8
+
+
+@dataclass
+class TimingConfig:
+    warmup: int = 3
+    """untimed calls first (allocator, caches, lazy initialisation)"""
+    min_calls: int = 15
+    """timed calls at least"""
+    min_seconds: float = 2.0
+    """keep timing until this much time has passed (for a stable median)"""
+    max_calls: int = 200
+    """timed calls at most"""
+    max_seconds: float = 60.0
+    """stop timing after this long even if min_calls is not reached (very slow rows)"""
+
+    def __post_init__(self) -> None:
+        if self.min_calls < 1 or self.max_calls < self.min_calls or self.warmup < 0:
+            raise BCBenchError("need warmup >= 0 and 1 <= min_calls <= max_calls")
+
+
+def random_observation(batch: int = 1, obs_horizon: int = 2, seed: int = 0) -> dict[str, np.ndarray]:
+    """A raw observation as the controller hands it over (weights and inputs do not change the timing)."""
+    rng = np.random.default_rng(seed)
+    return {"image": rng.integers(0, 256, size=(batch, obs_horizon, 96, 96, 3), dtype=np.uint8),
+            "agent_pos": rng.uniform(0, 512, size=(batch, obs_horizon, 2)).astype(np.float32)}
+
+
+def time_calls(fn: Any, cfg: TimingConfig, cuda: bool = False) -> dict[str, float]:
+    """Time `fn()`; returns statistics in milliseconds."""
+    def once() -> float:
+        if cuda:
+            torch.cuda.synchronize()
+        t = time.perf_counter()
+        fn()
+        if cuda:
+            torch.cuda.synchronize()
+        return time.perf_counter() - t
+
+    for _ in range(cfg.warmup):
+        once()
+    times: list[float] = []
+    start = time.perf_counter()
+    while len(times) < cfg.max_calls:
+        times.append(once())
+        elapsed = time.perf_counter() - start
+        if len(times) >= cfg.min_calls and elapsed >= cfg.min_seconds:
+            break
+        if elapsed >= cfg.max_seconds and len(times) >= 3:
+            break
+    ms = np.array(times) * 1e3
+    return {"median_ms": float(np.median(ms)), "p90_ms": float(np.percentile(ms, 90)),
+            "p99_ms": float(np.percentile(ms, 99)), "min_ms": float(ms.min()), "mean_ms": float(ms.mean()),
+            "calls": len(ms), "calls_per_s": float(1e3 / np.median(ms))}
+
+
+def verdicts(p99_ms: float, rate_hz: float, action_horizon: int = ACTION_HORIZON) -> dict[str, Any]:
+    """Real-time verdicts at `rate_hz` and the largest control rates sustained (from the p99)."""
+    s = p99_ms / 1e3
+    return {
+        "rate_hz": rate_hz,
+        "realtime_chunked": s <= action_horizon / rate_hz,  # re-plan every action_horizon steps
+        "realtime_every_step": s <= 1.0 / rate_hz,  # re-plan at every control step
+        "max_rate_chunked_hz": action_horizon / s if s > 0 else float("inf"),
+        "max_rate_every_step_hz": 1.0 / s if s > 0 else float("inf"),
+    }
+
+
+def measure_runner(runner: Any, cfg: TimingConfig, rate_hz: float = 10.0) -> dict[str, Any]:
+    """Time `runner.predict_action_chunk` on a batch-1 raw observation."""
+    obs = random_observation(1, runner.obs_horizon)
+    out = runner.predict_action_chunk(obs)
+    if np.asarray(out).shape != (1, runner.pred_horizon, 2):
+        raise BCBenchError(f"{runner.name} returned {np.asarray(out).shape}, expected (1, {runner.pred_horizon}, 2)")
+    cuda = getattr(runner, "device", torch.device("cpu")).type == "cuda"
+    stats = time_calls(lambda: runner.predict_action_chunk(obs), cfg, cuda)
+    return {**stats, **verdicts(stats["p99_ms"], rate_hz, runner.action_horizon)}
+
+
+def latency_record(policy: Any, cfg: TimingConfig, rate_hz: float = 10.0,
+                   modes: tuple[str, ...] = ("reference", "fast")) -> dict[str, Any]:
+    """Time a policy in each mode (baselines have one); a JSON-ready record with provenance."""
+    from datetime import UTC, datetime
+
+    from bcbench.fast import make_runner
+    from bcbench.policies.learned import PolicyRunner
+    from bcbench.utils.system import provenance
+
+    out: dict[str, Any] = {"type": "latency", "created": datetime.now(UTC).isoformat(timespec="seconds"),
+                           "policy": policy.describe(), "batch": 1, "timing": cfg.__dict__, "modes": {}}
+    if not isinstance(policy, PolicyRunner):
+        out["modes"]["reference"] = measure_runner(policy, cfg, rate_hz)
+    else:
+        for mode in modes:
+            runner = make_runner(mode, policy.model, policy.normalizer, policy.device, policy.extra)
+            out["modes"][mode] = measure_runner(runner, cfg, rate_hz)
+    return {**out, **provenance()}

@@ -1,0 +1,133 @@
+"""`bcbench report RESULTS_DIR`: a Markdown report and a self-contained HTML page with PNG figures.
+
+Reads result files only (evaluations, latencies, training summaries); never trains or evaluates.
+Writes RESULTS_DIR/report/{report.md, report.html, fig5_accuracy_vs_latency.png, fig3_denoising_steps.png,
+fig4_samplers.png}. Beside each of our numbers stand the study's own (measured on an A100 by the study).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from bcbench.figures import figure3, figure4, figure5
+from bcbench.findings import judge, points_from_rows
+from bcbench.results import STUDY_REFERENCE, Row, load_rows
+from bcbench.stats import fmt_estimate
+from bcbench.utils.io import atomic_path
+
+COLUMNS = ["policy", "params", "mean score [95% CI]", "> 0.5", "> 0.9", "success", "latency ref. median / p99 (ms)",
+           "latency fast median (ms)", "max rate, every-step re-plan (Hz)", "training", "hardware",
+           "study (A100): score / >0.5 / >0.9 / ms"]
+
+
+def _ms(v: float | None) -> str:
+    return "-" if v is None else (f"{v:.1f}" if v >= 10 else f"{v:.2f}")
+
+
+def _study_cell(r: Row) -> str:
+    ref = STUDY_REFERENCE.get(r.reference_key)
+    if not ref:
+        return "-"
+    parts = []
+    for key, pct in (("score", False), ("gt05", True), ("gt09", True)):
+        v = ref.get(key)
+        parts.append("-" if v is None else (f"{100 * v:.1f}%" if pct else f"{v:.2f}"))
+    parts.append(_ms(ref.get("latency_ms")))
+    return " / ".join(parts)
+
+
+def _train_cell(r: Row) -> str:
+    t = r.train
+    if not t:
+        return "none (baseline)"
+    minutes = (t.get("train_time_s") or t.get("train_time_s_this_session") or 0) / 60
+    sps = t.get("samples_per_s")
+    return f"{t.get('epochs', 0):.2f} epochs, {minutes:.1f} min" + (f", {sps:.0f} samples/s" if sps else "")
+
+
+def _hw_cell(r: Row) -> str:
+    h = r.hardware
+    dev = h.get("gpu") or h.get("cpu_model", "?")
+    return f"{dev}, {h.get('torch_threads', '?')} threads"
+
+
+def table_rows(rows: list[Row]) -> list[list[str]]:
+    out = []
+    order = ["random", "scripted", "cnn_mlp", "resnet50", "bet", "bct", "diffusion"]
+    for r in sorted(rows, key=lambda r: (order.index(r.policy) if r.policy in order else 99, r.label,
+                                          r.sampler or "", r.steps or 0)):
+        p99 = r.latency_ms("reference", "p99_ms")
+        fast = r.latency.get("fast", {})
+        rate = fast.get("max_rate_every_step_hz") or (r.latency.get("reference") or {}).get("max_rate_every_step_hz")
+        name = r.label + ("" if r.variant == "default" else f" {r.variant.upper()}")
+        out.append([name, f"{r.params / 1e6:.2f} M", fmt_estimate(r.est("mean_score")),
+                    fmt_estimate(r.est("share_above_0.5"), pct=True), fmt_estimate(r.est("share_above_0.9"), pct=True),
+                    fmt_estimate(r.est("success_rate"), pct=True), f"{_ms(r.latency_ms('reference'))} / {_ms(p99)}",
+                    _ms(fast.get("median_ms")), "-" if rate is None else f"{rate:.1f}", _train_cell(r), _hw_cell(r),
+                    _study_cell(r)])
+    return out
+
+
+def _md_table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(c.replace("|", "/") for c in row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def _html_table(header: list[str], rows: list[list[str]]) -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in rows)
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> dict[str, str]:
+    results = Path(results)
+    rows = load_rows(results, extra_dirs)
+    out = results / "report"
+    out.mkdir(parents=True, exist_ok=True)
+    figs = {"Figure 5: accuracy against inference time": figure5(rows, out / "fig5_accuracy_vs_latency.png"),
+            "Figure 3: Diffusion Policy against denoising iterations": figure3(rows, out / "fig3_denoising_steps.png"),
+            "Figure 4: DDPM-cosine, DDIM-cosine, DDIM-linear": figure4(rows, out / "fig4_samplers.png")}
+    findings = judge(points_from_rows(rows))
+    table = table_rows(rows)
+    created = datetime.now(UTC).isoformat(timespec="seconds")
+    intro = (f"Results directory `{results}`; {len(rows)} evaluated settings; generated {created}. "
+             "Scores: mean over the evaluation episodes of the max reward min(coverage/0.95, 1), with 95% bootstrap "
+             "intervals. Latency: one call at batch 1, raw observation in, chunk out (median and p99). The study's "
+             "numbers were measured by the study on an A100; ours on the hardware named in each row.")
+    md = ["# bcbench report", "", intro, "", "## The study's findings on this evidence", ""]
+    md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}" for f in findings]
+    md += ["", "## Results", "", _md_table(COLUMNS, table), ""]
+    for title, path in figs.items():
+        if path:
+            md += [f"## {title}", "", f"![{title}]({path.name})", ""]
+    md_path = out / "report.md"
+    with atomic_path(md_path) as tmp:
+        tmp.write_text("\n".join(md) + "\n")
+    html_path = out / "report.html"
+    with atomic_path(html_path) as tmp:
+        tmp.write_text(_html(intro, findings, table, figs))
+    return {"markdown": str(md_path), "html": str(html_path), "dir": str(out)}
+
+
+def _html(intro: str, findings: list[Any], table: list[list[str]], figs: dict[str, Path | None]) -> str:
+    css = ("body{font-family:system-ui,sans-serif;max-width:1400px;margin:2em auto;padding:0 1em;color:#222}"
+           "table{border-collapse:collapse;font-size:12px}td,th{border:1px solid #ccc;padding:3px 6px;text-align:left}"
+           "th{background:#f3f3f3}.supported{color:#176b2c}.not{color:#a11}.inconclusive{color:#8a6d00}"
+           "img{max-width:100%;border:1px solid #eee}")
+    items = "".join(
+        f"<li><b>{html.escape(f.claim)}</b>: <span class='{f.verdict.split()[0]}'>{html.escape(f.verdict)}</span>. "
+        f"{html.escape(f.evidence)}</li>" for f in findings)
+    images = ""
+    for title, path in figs.items():
+        if path:
+            data = base64.b64encode(path.read_bytes()).decode()
+            t = html.escape(title)
+            images += f"<h2>{t}</h2><img alt='{t}' src='data:image/png;base64,{data}'>"
+    return (f"<!doctype html><html><head><meta charset='utf-8'><title>bcbench report</title><style>{css}</style>"
+            f"</head><body><h1>bcbench report</h1><p>{html.escape(intro)}</p><h2>The study's findings on this "
+            f"evidence</h2><ol>{items}</ol><h2>Results</h2>{_html_table(COLUMNS, table)}{images}</body></html>\n")

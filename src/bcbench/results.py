@@ -1,0 +1,116 @@
+"""Reading result files back: evaluations, latencies, training summaries, as flat rows for the report.
+
+Only files are read (never a model): a results directory from `bcbench study`, plus any extra folders of
+result JSON (e.g. `results/` brought back from a GPU machine).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bcbench.errors import BCBenchError
+from bcbench.utils.io import read_json
+
+# The study's own numbers (measured on an A100 by the study), shown beside ours.
+STUDY_REFERENCE: dict[str, dict[str, Any]] = {
+    "cnn_mlp": {"params": 1_365_494, "score": 0.29, "gt05": 0.25, "gt09": 0.025, "latency_ms": 2.2},
+    "resnet50": {"params": 34_527_593, "score": 0.41, "gt05": 0.40, "gt09": 0.325, "latency_ms": 13.0},
+    "bct": {"params": 23_952_736, "score": 0.32, "gt05": 0.30, "gt09": 0.10, "latency_ms": 12.0},
+    "bet": {"params": None, "score": 0.0, "gt05": 0.0, "gt09": 0.0, "latency_ms": None},
+    "diffusion:ddpm10": {"params": 91_123_778, "score": None, "latency_ms": 116.5},
+    "diffusion:ddpm100": {"params": 91_123_778, "score": None, "latency_ms": 1109.4},
+}
+
+
+@dataclass
+class Row:
+    """One evaluated policy setting with everything the report shows about it."""
+
+    key: str  # unique: run folder + variant
+    label: str
+    policy: str
+    preset: str | None
+    variant: str  # "default", "ddpm10", ...
+    sampler: str | None
+    steps: int | None
+    beta_schedule: str | None
+    params: int
+    summary: dict[str, Any]
+    latency: dict[str, Any] = field(default_factory=dict)  # mode -> stats
+    train: dict[str, Any] = field(default_factory=dict)
+    hardware: dict[str, Any] = field(default_factory=dict)
+    source: str = ""
+
+    def est(self, name: str) -> dict[str, Any]:
+        return self.summary[name]
+
+    @property
+    def score(self) -> float:
+        return float(self.summary["mean_score"]["value"])
+
+    def latency_ms(self, mode: str = "reference", stat: str = "median_ms") -> float | None:
+        m = self.latency.get(mode) or self.latency.get("reference")
+        return None if m is None else float(m[stat])
+
+    @property
+    def reference_key(self) -> str:
+        return f"{self.policy}:{self.variant}" if self.sampler else self.policy
+
+
+def _row_from_eval(path: Path) -> Row:
+    ev = read_json(path)
+    if ev.get("type") != "evaluation":
+        raise BCBenchError(f"{path} is not an evaluation result")
+    pol = ev["policy"]
+    study = ev.get("study", {})
+    variant = (study.get("variant") or {})
+    sampler = pol.get("sampler") or variant.get("sampler")
+    steps = pol.get("steps") or variant.get("steps")
+    vkey = f"{sampler}{steps}" if sampler else "default"
+    cfg = pol.get("config", {})
+    run_dir = path.parent
+    row = Row(key=f"{run_dir.name}:{vkey}", label=study.get("label") or pol["name"], policy=pol["name"],
+              preset=pol.get("preset"), variant=vkey, sampler=sampler, steps=steps,
+              beta_schedule=cfg.get("beta_schedule"), params=int(pol.get("parameters", 0)), summary=ev["summary"],
+              hardware=ev.get("hardware", {}), source=str(path))
+    lat = run_dir / f"latency-{vkey}.json"
+    if lat.exists():
+        row.latency = read_json(lat)["modes"]
+    for name in ("train_summary.json",):
+        if (run_dir / name).exists():
+            row.train = read_json(run_dir / name)
+    return row
+
+
+def load_rows(results: str | Path, extra_dirs: list[str] | None = None) -> list[Row]:
+    """Every evaluation under `results` (and the extra folders), newest file per key."""
+    results = Path(results)
+    if not results.is_dir():
+        raise BCBenchError(f"results directory {results} not found")
+    files = sorted(results.rglob("eval-*.json")) + sorted(results.rglob("eval.json"))
+    for d in extra_dirs or []:
+        files += sorted(Path(d).rglob("eval*.json"))
+    rows: dict[str, Row] = {}
+    for f in files:
+        try:
+            row = _row_from_eval(f)
+        except (KeyError, ValueError, BCBenchError):
+            continue  # not an evaluation file of ours
+        rows[row.key] = row
+    if not rows:
+        raise BCBenchError(f"no evaluation results under {results}")
+    return list(rows.values())
+
+
+def load_latency_files(dirs: list[str | Path]) -> list[dict[str, Any]]:
+    """Stand-alone `bcbench latency` outputs (latency.json) found under the folders."""
+    out = []
+    for d in dirs:
+        for f in sorted(Path(d).rglob("latency.json")):
+            data = read_json(f)
+            if data.get("type") == "latency-benchmark":
+                data["source"] = str(f)
+                out.append(data)
+    return out

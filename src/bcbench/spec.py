@@ -1,0 +1,188 @@
+"""Study specifications (TOML): which policies to train, with what budget, and how to evaluate them.
+
+    [study]
+    name = "quick"          # results go to runs/studies/NAME unless --out says otherwise
+    episodes = 40           # evaluation episodes per variant (the study's 40)
+    seed_start = 100000     # Diffusion Policy's test seeds
+    val_fraction = 0.1      # the study's 90/10 split
+    latency = true          # time each variant at batch 1
+    threads = 2             # torch threads for training and timing
+
+    [[run]]
+    policy = "diffusion"
+    config = "quick"        # preset; diffusion also has quick_linear / paper_linear
+    minutes = 25            # training budget (optional; the preset's own budget still applies)
+    seeds = [0]             # one training run per seed
+    set = { "optim.epochs" = 8 }                    # config overrides (optional)
+    eval = [{ sampler = "ddpm", steps = [10, 100] }, { sampler = "ddim", steps = [10] }]
+
+Validation happens before anything runs and names the offending entry in one line.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bcbench.errors import BCBenchError
+
+STUDY_KEYS = {"name", "episodes", "seed_start", "val_fraction", "latency", "threads", "max_steps", "rate_hz",
+              "latency_min_calls", "latency_min_seconds"}
+RUN_KEYS = {"policy", "config", "minutes", "seeds", "set", "eval", "label"}
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One evaluation setting of a trained run (sampler and steps for diffusion, else the default)."""
+
+    sampler: str | None = None
+    steps: int | None = None
+
+    @property
+    def key(self) -> str:
+        return "default" if self.sampler is None else f"{self.sampler}{self.steps}"
+
+
+@dataclass
+class RunSpec:
+    policy: str
+    config: str
+    seed: int
+    minutes: float | None
+    overrides: dict[str, Any]
+    variants: list[Variant]
+    label: str
+
+    @property
+    def learned(self) -> bool:
+        from bcbench.policies import is_learned
+
+        return is_learned(self.policy)
+
+    def config_dict(self) -> dict[str, Any]:
+        from bcbench.policies import make_config
+        from bcbench.policies.config import config_to_dict
+
+        return config_to_dict(make_config(self.policy, self.config, {**self.overrides, "seed": self.seed}))
+
+    def key(self, val_fraction: float) -> str:
+        """policy-config-sSEED-HASH: the hash covers the full config and the split, so a change retrains."""
+        blob = json.dumps({"policy": self.policy, "config": self.config_dict(), "val_fraction": val_fraction},
+                          sort_keys=True)
+        return f"{self.policy}-{self.config}-s{self.seed}-{hashlib.sha256(blob.encode()).hexdigest()[:8]}"
+
+
+@dataclass
+class StudySpec:
+    name: str
+    episodes: int = 40
+    seed_start: int = 100_000
+    val_fraction: float = 0.1
+    latency: bool = True
+    threads: int | None = None
+    max_steps: int = 300
+    rate_hz: float = 10.0
+    latency_min_calls: int = 15
+    latency_min_seconds: float = 2.0
+    runs: list[RunSpec] = field(default_factory=list)
+    source: str = ""
+
+
+def _where(i: int, run: dict[str, Any]) -> str:
+    return f"[[run]] #{i + 1} ({run.get('policy', '?')})"
+
+
+def _variants(i: int, run: dict[str, Any], policy: str) -> list[Variant]:
+    entries = run.get("eval")
+    if entries is None:
+        return [Variant()]
+    if policy != "diffusion":
+        raise BCBenchError(f"{_where(i, run)}: 'eval' variants (sampler/steps) apply to diffusion only")
+    if not isinstance(entries, list) or not entries:
+        raise BCBenchError(f"{_where(i, run)}: 'eval' must be a non-empty list of {{sampler, steps}} tables")
+    out = []
+    for e in entries:
+        if not isinstance(e, dict) or set(e) - {"sampler", "steps"} or "sampler" not in e:
+            raise BCBenchError(f"{_where(i, run)}: each eval entry needs sampler (and steps), got {e}")
+        if e["sampler"] not in ("ddpm", "ddim"):
+            raise BCBenchError(f"{_where(i, run)}: sampler must be ddpm or ddim, got '{e['sampler']}'")
+        steps = e.get("steps", [100])
+        steps = steps if isinstance(steps, list) else [steps]
+        for k in steps:
+            if not isinstance(k, int) or not 1 <= k <= 100:
+                raise BCBenchError(f"{_where(i, run)}: steps must be whole numbers in 1..100, got {k!r}")
+            out.append(Variant(e["sampler"], k))
+    return out
+
+
+def _run_specs(i: int, run: Any) -> list[RunSpec]:
+    from bcbench.policies import REGISTRY, make_config
+
+    if not isinstance(run, dict):
+        raise BCBenchError(f"[[run]] #{i + 1} must be a table")
+    unknown = sorted(set(run) - RUN_KEYS)
+    if unknown:
+        allowed = ", ".join(sorted(RUN_KEYS))
+        raise BCBenchError(f"{_where(i, run)}: unknown key(s) {', '.join(unknown)} (allowed: {allowed})")
+    policy = run.get("policy")
+    if policy not in REGISTRY:
+        raise BCBenchError(f"{_where(i, run)}: unknown policy '{policy}' (registered: {', '.join(sorted(REGISTRY))})")
+    config = run.get("config", "quick")
+    overrides = run.get("set", {})
+    if not isinstance(overrides, dict):
+        raise BCBenchError(f"{_where(i, run)}: 'set' must be a table of config overrides")
+    try:
+        make_config(policy, config, overrides)
+    except BCBenchError as exc:
+        raise BCBenchError(f"{_where(i, run)}: {exc}") from None
+    minutes = run.get("minutes")
+    if minutes is not None and (not isinstance(minutes, int | float) or minutes <= 0):
+        raise BCBenchError(f"{_where(i, run)}: minutes must be a positive number, got {minutes!r}")
+    seeds = run.get("seeds", [0])
+    if not isinstance(seeds, list) or not seeds or not all(isinstance(s, int) and s >= 0 for s in seeds):
+        raise BCBenchError(f"{_where(i, run)}: seeds must be a non-empty list of whole numbers >= 0")
+    variants = _variants(i, run, policy)
+    label = run.get("label", f"{policy} ({config})")
+    return [RunSpec(policy, config, s, minutes, overrides, variants, label) for s in seeds]
+
+
+def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
+    study = data.get("study", {})
+    if not isinstance(study, dict):
+        raise BCBenchError("[study] must be a table")
+    extra = sorted(set(data) - {"study", "run"}) + [f"study.{k}" for k in sorted(set(study) - STUDY_KEYS)]
+    if extra:
+        raise BCBenchError(f"unknown key(s) in the spec: {', '.join(extra)}")
+    runs = data.get("run")
+    if not isinstance(runs, list) or not runs:
+        raise BCBenchError("the spec lists no runs: add at least one [[run]] table")
+    spec = StudySpec(name=str(study.get("name", Path(source).stem or "study")), source=source)
+    for key, typ, ok in (("episodes", int, lambda v: v >= 1), ("seed_start", int, lambda v: v >= 0),
+                         ("val_fraction", float, lambda v: 0 < v < 1), ("latency", bool, lambda v: True),
+                         ("threads", int, lambda v: v >= 1), ("max_steps", int, lambda v: 1 <= v <= 10_000),
+                         ("rate_hz", float, lambda v: v > 0), ("latency_min_calls", int, lambda v: v >= 1),
+                         ("latency_min_seconds", float, lambda v: v >= 0)):
+        if key in study:
+            v = study[key]
+            good = isinstance(v, typ) or (typ is float and isinstance(v, int) and not isinstance(v, bool))
+            if not good or (typ is int and isinstance(v, bool)) or not ok(v):
+                raise BCBenchError(f"study.{key} has an invalid value {v!r}")
+            setattr(spec, key, v)
+    for i, run in enumerate(runs):
+        spec.runs.extend(_run_specs(i, run))
+    return spec
+
+
+def load_spec(path: str | Path) -> StudySpec:
+    path = Path(path)
+    if not path.is_file():
+        raise BCBenchError(f"study spec {path} not found")
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise BCBenchError(f"{path} is not valid TOML: {exc}") from None
+    return parse_spec(data, str(path))

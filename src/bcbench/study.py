@@ -1,0 +1,154 @@
+"""`bcbench study SPEC.toml`: train, evaluate and time every run of a study; resumable stage by stage.
+
+Layout of a results directory:
+
+    OUT/spec.json                         the parsed spec
+    OUT/index.jsonl                       one line per finished stage (the report's table of contents)
+    OUT/runs/KEY/                         a training run (KEY = policy-config-sSEED-CONFIGHASH), or a
+                                          baseline's folder; inside: eval-VARIANT.json, latency-VARIANT.json
+
+A stage whose result file exists is skipped, so an interrupted study (Ctrl-C, kill, crash) resumes where
+it stopped; a training stage resumes from its newest checkpoint. Every file is written atomically.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from dataclasses import asdict
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from bcbench.errors import BCBenchError
+from bcbench.spec import RunSpec, StudySpec, Variant
+from bcbench.utils.io import append_jsonl, read_json, write_json
+
+DONE_TRAINING = ("finished", "time budget")
+
+
+class StudyRunner:
+    def __init__(self, spec: StudySpec, out: str | Path, data: str | None = None, progress: bool = True) -> None:
+        self.spec, self.out, self.data, self.progress = spec, Path(out), data, progress
+        self.executed = 0  # stages executed (not skipped) in this process
+        self._kill_after = int(os.environ.get("BCBENCH_TEST_KILL_AFTER_STAGES", "0"))  # test hook
+
+    # ------------------------------------------------------------------ layout
+    def run_dir(self, run: RunSpec) -> Path:
+        key = run.key(self.spec.val_fraction) if run.learned else f"{run.policy}-{run.config}-s{run.seed}-baseline"
+        return self.out / "runs" / key
+
+    def stages(self) -> list[tuple[str, RunSpec, Variant | None]]:
+        out: list[tuple[str, RunSpec, Variant | None]] = []
+        for run in self.spec.runs:
+            if run.learned:
+                out.append(("train", run, None))
+            out += [("eval", run, v) for v in run.variants]
+            if self.spec.latency:
+                out += [("latency", run, v) for v in run.variants]
+        return out
+
+    def result_file(self, stage: str, run: RunSpec, variant: Variant | None) -> Path:
+        d = self.run_dir(run)
+        if stage == "train":
+            return d / "train_summary.json"
+        return d / f"{stage}-{variant.key}.json"
+
+    def is_done(self, stage: str, run: RunSpec, variant: Variant | None) -> bool:
+        f = self.result_file(stage, run, variant)
+        if not f.exists():
+            return False
+        return stage != "train" or read_json(f).get("stopped") in DONE_TRAINING
+
+    # ------------------------------------------------------------------ stages
+    def _train(self, run: RunSpec) -> None:
+        from bcbench.train import Trainer, TrainOptions, new_run
+
+        opts = TrainOptions(minutes=run.minutes, threads=self.spec.threads, data=self.data,
+                            val_fraction=self.spec.val_fraction, progress=self.progress)
+        d = self.run_dir(run)
+        if not (d / "run.json").exists():
+            new_run(run.policy, run.config, {**run.overrides, "seed": run.seed}, d, opts)
+        summary = Trainer(d, opts).fit()
+        if summary["stopped"] not in DONE_TRAINING:
+            raise KeyboardInterrupt  # Ctrl-C during training: the checkpoint is saved; stop the study here
+
+    def _policy(self, run: RunSpec, variant: Variant, device: str = "cpu") -> Any:
+        from bcbench.checkpoint import load_runner
+        from bcbench.policies import make_policy
+
+        if not run.learned:
+            return make_policy(run.policy, run.config, seed=run.seed)
+        runner = load_runner(self.run_dir(run), use_ema=True, device=device)
+        if hasattr(runner.model, "reset_noise"):
+            runner.model.reset_noise(run.seed)
+        if variant.sampler is not None:
+            runner.model.set_sampler(variant.sampler, variant.steps)
+            runner.extra.update({"sampler": variant.sampler, "steps": variant.steps})
+        return runner
+
+    def _eval(self, run: RunSpec, variant: Variant) -> None:
+        from bcbench.evaluate import EvalConfig, evaluate
+
+        cfg = EvalConfig(episodes=self.spec.episodes, seed_start=self.spec.seed_start, max_steps=self.spec.max_steps)
+        extra = {"study": {"name": self.spec.name, "label": run.label, "variant": asdict(variant),
+                           "run_dir": str(self.run_dir(run))}}
+        result = evaluate(self._policy(run, variant), cfg, None, progress=self.progress, extra=extra)
+        write_json(self.result_file("eval", run, variant), result)
+
+    def _latency(self, run: RunSpec, variant: Variant) -> None:
+        from bcbench.latency import TimingConfig, latency_record
+
+        if self.spec.threads:
+            import torch
+
+            torch.set_num_threads(self.spec.threads)
+        timing = TimingConfig(min_calls=self.spec.latency_min_calls, min_seconds=self.spec.latency_min_seconds,
+                              max_calls=max(200, self.spec.latency_min_calls))
+        rec = latency_record(self._policy(run, variant), timing, self.spec.rate_hz)
+        rec["study"] = {"name": self.spec.name, "label": run.label, "variant": asdict(variant)}
+        write_json(self.result_file("latency", run, variant), rec)
+
+    # ------------------------------------------------------------------ driver
+    def run(self) -> dict[str, Any]:
+        from tqdm import tqdm
+
+        self.out.mkdir(parents=True, exist_ok=True)
+        write_json(self.out / "spec.json", {**asdict(self.spec), "runs": [asdict(r) for r in self.spec.runs]})
+        stages = self.stages()
+        t0 = time.monotonic()
+        bar = tqdm(total=len(stages), desc=f"study {self.spec.name}", unit="stage", position=0,
+                   disable=not self.progress)
+        skipped = 0
+        for stage, run, variant in stages:
+            label = f"{stage} {run.label} s{run.seed}" + (f" {variant.key}" if variant and variant.sampler else "")
+            bar.set_postfix_str(label)
+            if self.is_done(stage, run, variant):
+                skipped += 1
+                bar.update()
+                continue
+            started = time.monotonic()
+            getattr(self, f"_{stage}")(run, variant) if stage != "train" else self._train(run)
+            append_jsonl(self.out / "index.jsonl", {
+                "stage": stage, "run": self.run_dir(run).name, "policy": run.policy, "config": run.config,
+                "seed": run.seed, "variant": variant.key if variant else None,
+                "file": str(self.result_file(stage, run, variant).relative_to(self.out)),
+                "seconds": round(time.monotonic() - started, 2),
+                "finished": datetime.now(UTC).isoformat(timespec="seconds"),
+            })
+            self.executed += 1
+            bar.update()
+            if self._kill_after and self.executed >= self._kill_after:
+                os.kill(os.getpid(), signal.SIGKILL)
+        bar.close()
+        return {"stages": len(stages), "skipped": skipped, "executed": self.executed,
+                "seconds": time.monotonic() - t0, "out": str(self.out)}
+
+
+def run_study(spec: StudySpec, out: str | Path | None = None, data: str | None = None,
+              progress: bool = True) -> dict[str, Any]:
+    out = Path(out) if out else Path("runs") / "studies" / spec.name
+    if not spec.runs:
+        raise BCBenchError("the study has no runs")
+    return StudyRunner(spec, out, data, progress).run()

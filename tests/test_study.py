@@ -1,0 +1,184 @@
+"""Study specs, resumable studies (kill and rerun), the findings' verdicts, and the report."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from bcbench.errors import BCBenchError
+from bcbench.findings import INCONCLUSIVE, NOT_SUPPORTED, SUPPORTED, Point, judge
+from bcbench.report import write_report
+from bcbench.spec import load_spec, parse_spec
+from tests.tiny import TINY
+
+EXE = os.path.join(os.path.dirname(sys.executable), "bcbench")
+
+
+def _spec_text(tmp_path) -> str:
+    tiny = ", ".join(f'"{k}" = {json.dumps(v)}' for k, v in TINY["cnn_mlp"].items())
+    dp = ", ".join(f'"{k}" = {json.dumps(v)}' for k, v in TINY["diffusion"].items())
+    return f"""
+[study]
+name = "tiny"
+episodes = 2
+max_steps = 8
+latency = true
+latency_min_calls = 2
+latency_min_seconds = 0.0
+
+[[run]]
+policy = "random"
+
+[[run]]
+policy = "cnn_mlp"
+set = {{ {tiny}, "optim.max_steps" = 2, "optim.batch_size" = 4 }}
+
+[[run]]
+policy = "diffusion"
+set = {{ {dp}, "optim.max_steps" = 2, "optim.batch_size" = 4, "optim.warmup_steps" = 0 }}
+eval = [{{ sampler = "ddpm", steps = [2] }}, {{ sampler = "ddim", steps = [2] }}]
+"""
+
+
+@pytest.mark.parametrize("text, message", [
+    ("", "no runs"),
+    ("[[run]]\npolicy = 'nope'", "unknown policy 'nope'"),
+    ("[[run]]\npolicy = 'cnn_mlp'\nconfig = 'huge'", "unknown config 'huge'"),
+    ("[[run]]\npolicy = 'cnn_mlp'\neval = [{sampler='ddim', steps=[10]}]", "apply to diffusion only"),
+    ("[[run]]\npolicy = 'diffusion'\neval = [{sampler='dpm', steps=[10]}]", "sampler must be ddpm or ddim"),
+    ("[[run]]\npolicy = 'diffusion'\neval = [{sampler='ddim', steps=[0]}]", "steps must be whole numbers"),
+    ("[[run]]\npolicy = 'cnn_mlp'\nminutes = -1", "minutes must be a positive number"),
+    ("[[run]]\npolicy = 'cnn_mlp'\nset = {'optim.nope' = 1}", "unknown config field"),
+    ("[[run]]\npolicy = 'cnn_mlp'\ncolour = 'red'", "unknown key(s) colour"),
+    ("[study]\nepisodes = 0\n[[run]]\npolicy = 'random'", "study.episodes"),
+    ("[studdy]\n[[run]]\npolicy = 'random'", "unknown key(s) in the spec: studdy"),
+])
+def test_bad_specs_are_clear_errors(text, message, tmp_path):
+    import tomllib
+
+    with pytest.raises(BCBenchError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        parse_spec(tomllib.loads(text), "x.toml")
+
+
+def test_bad_toml_and_missing_file(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[[run]\npolicy=")
+    with pytest.raises(BCBenchError, match="not valid TOML"):
+        load_spec(bad)
+    from bcbench.cli import main
+
+    assert main(["study", str(tmp_path / "none.toml")]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_shipped_specs_are_valid():
+    for name in ("quick", "paper", "demo"):
+        spec = load_spec(f"studies/{name}.toml")
+        policies = {r.policy for r in spec.runs}
+        assert {"cnn_mlp", "resnet50", "bet", "bct", "diffusion"} <= policies
+        assert spec.episodes == 40
+
+
+def test_config_hash_changes_with_the_config():
+    import tomllib
+
+    a = parse_spec(tomllib.loads("[[run]]\npolicy='cnn_mlp'"), "a").runs[0]
+    b = parse_spec(tomllib.loads("[[run]]\npolicy='cnn_mlp'\nset={hidden=10}"), "b").runs[0]
+    assert a.key(0.1) != b.key(0.1) and a.key(0.1) != a.key(0.2) and a.key(0.1) == a.key(0.1)
+
+
+def test_study_killed_then_rerun_resumes_without_redoing(synthetic_zarr, tmp_path):
+    spec = tmp_path / "tiny.toml"
+    spec.write_text(_spec_text(tmp_path))
+    out = tmp_path / "out"
+    cmd = [EXE, "study", str(spec), "--out", str(out), "--data", str(synthetic_zarr), "--quiet"]
+    env = {**os.environ, "BCBENCH_TEST_KILL_AFTER_STAGES": "3"}
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == -9, proc.stderr  # SIGKILL after 3 finished stages
+    index = [json.loads(x) for x in (out / "index.jsonl").read_text().splitlines()]
+    assert [i["stage"] for i in index] == ["eval", "latency", "train"]
+    first_files = {i["file"]: (out / i["file"]).stat().st_mtime_ns for i in index}
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert "3 already done" in proc.stdout
+    for f, mtime in first_files.items():
+        assert (out / f).stat().st_mtime_ns == mtime  # finished stages were not redone
+    index = [json.loads(x) for x in (out / "index.jsonl").read_text().splitlines()]
+    assert len(index) == 2 + 3 + 5  # random: eval, latency; cnn: train, eval, latency; dp: train, 2 evals, 2 latencies
+    report = out / "report" / "report.md"
+    assert report.exists() and (out / "report" / "report.html").exists()
+    text = report.read_text()
+    assert "The study's findings" in text and "DDPM2" in text
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert "0 stage(s) run" in proc.stdout
+
+
+def _p(name, policy, variant, score, ci, ms, beta=None):
+    return Point(name, policy, variant, score, ci, ms, beta)
+
+
+def test_findings_verdicts_on_constructed_inputs():
+    pts = [
+        _p("random", "random", "default", 0.05, (0.02, 0.08), 0.1),
+        _p("cnn", "cnn_mlp", "default", 0.30, (0.25, 0.35), 2.0),
+        _p("bct", "bct", "default", 0.45, (0.40, 0.50), 12.0),
+        _p("r50", "resnet50", "default", 0.60, (0.55, 0.65), 13.0),
+        _p("bet", "bet", "default", 0.04, (0.0, 0.09), 5.0),
+        _p("dp10", "diffusion", "ddpm10", 0.70, (0.60, 0.80), 100.0),
+        _p("dp100", "diffusion", "ddpm100", 0.72, (0.62, 0.82), 1000.0),
+        _p("ddim10", "diffusion", "ddim10", 0.69, (0.59, 0.79), 98.0),
+    ]
+    f = {x.number: x.verdict for x in judge(pts)}
+    assert f == {1: SUPPORTED, 2: SUPPORTED, 3: SUPPORTED, 4: SUPPORTED, 5: SUPPORTED}
+    pts[6] = _p("dp100", "diffusion", "ddpm100", 0.95, (0.90, 0.99), 1000.0)  # 100 steps significantly better
+    pts[4] = _p("bet", "bet", "default", 0.40, (0.30, 0.50), 5.0)  # BeT works
+    pts[2] = _p("bct", "bct", "default", 0.10, (0.05, 0.15), 12.0)  # BCT below CNN-MLP
+    pts[7] = _p("ddim10", "diffusion", "ddim10", 0.69, (0.59, 0.79), 50.0)  # DDIM twice as fast
+    f = {x.number: x.verdict for x in judge(pts)}
+    assert f[2] == NOT_SUPPORTED and f[3] == NOT_SUPPORTED and f[4] == NOT_SUPPORTED and f[5] == NOT_SUPPORTED
+    assert {x.number: x.verdict for x in judge(pts[:2])}[2] == INCONCLUSIVE
+    slow_and_better = [_p("a", "cnn_mlp", "default", 0.1, (0.05, 0.15), 1.0),
+                       _p("b", "resnet50", "default", 0.9, (0.85, 0.95), 10.0)]
+    assert judge(slow_and_better)[0].verdict == NOT_SUPPORTED
+
+
+def test_report_from_fixture_files(tmp_path):
+    """A hand-made results directory: the report reads files only and draws every figure."""
+    from bcbench.utils.io import write_json
+
+    def ev(policy, label, score, variant=None, schedule=None, params=1000):
+        lo, hi = max(0, score - 0.1), min(1, score + 0.1)
+        est = {"value": score, "ci95": [lo, hi]}
+        pol = {"name": policy, "parameters": params, "config": {"beta_schedule": schedule} if schedule else {}}
+        if variant:
+            pol.update({"sampler": variant[0], "steps": variant[1]})
+        return {"type": "evaluation", "policy": pol, "study": {"label": label},
+                "summary": {"n": 40, "mean_score": est, "share_above_0.5": est, "share_above_0.9": est,
+                            "success_rate": est}, "hardware": {"cpu_model": "test cpu", "torch_threads": 2}}
+
+    def lat(ms):
+        m = {"median_ms": ms, "p99_ms": ms * 1.2, "max_rate_every_step_hz": 1000 / ms}
+        return {"type": "latency", "modes": {"reference": m, "fast": {**m, "median_ms": ms / 2}}}
+
+    runs = tmp_path / "runs"
+    write_json(runs / "cnn" / "eval-default.json", ev("cnn_mlp", "CNN-MLP", 0.3))
+    write_json(runs / "cnn" / "latency-default.json", lat(2.0))
+    write_json(runs / "cnn" / "train_summary.json", {"epochs": 3.0, "train_time_s": 600, "samples_per_s": 150})
+    for sampler, schedule in (("ddpm", "squaredcos_cap_v2"), ("ddim", "squaredcos_cap_v2"), ("ddim", "linear")):
+        d = runs / f"dp-{schedule}"
+        for k in (10, 100):
+            write_json(d / f"eval-{sampler}{k}.json", ev("diffusion", "DP", 0.5, (sampler, k), schedule, 91_123_778))
+            write_json(d / f"latency-{sampler}{k}.json", lat(10.0 * k))
+    paths = write_report(tmp_path)
+    md = Path(paths["markdown"]).read_text()
+    for fig in ("fig5_accuracy_vs_latency.png", "fig3_denoising_steps.png", "fig4_samplers.png"):
+        assert (tmp_path / "report" / fig).stat().st_size > 1000 and fig in md
+    assert "0.29 / 25.0% / 2.5% / 2.20" in md  # the study's CNN-MLP numbers beside ours
+    assert "10 denoising steps score as well as 100**: *supported*" in md
+    html = Path(paths["html"]).read_text()
+    assert html.count("data:image/png;base64,") == 3  # self-contained
