@@ -9,8 +9,15 @@ import numpy as np
 import pytest
 
 os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
+# Tiny models gain nothing from threads, and OpenMP threads spinning against another busy process (a
+# study running beside the tests) can slow small ops 100-fold. Subprocesses inherit this too.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from bcbench.data.replay_buffer import ReplayBuffer, write_replay_buffer
+import torch
+
+torch.set_num_threads(int(os.environ["OMP_NUM_THREADS"]))
+
+from bcbench.data.replay_buffer import ReplayBuffer, write_replay_buffer  # noqa: E402
 
 EPISODE_LENGTHS = (5, 20, 12)
 

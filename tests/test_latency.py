@@ -1,0 +1,81 @@
+"""Latency: fast mode returns the reference chunk (same weights, same noise); timing and verdict logic."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from bcbench.bench import _normalizer
+from bcbench.fast import make_runner
+from bcbench.latency import TimingConfig, latency_record, random_observation, time_calls, verdicts
+from bcbench.policies import learned_policies, make_policy
+from tests.tiny import tiny_overrides
+
+
+def _pair(name: str, mode: str):
+    torch.manual_seed(0)
+    model = make_policy(name, "quick", **tiny_overrides(name)).eval()
+    return make_runner("reference", model, _normalizer()), make_runner(mode, model, _normalizer())
+
+
+def _chunk(runner, obs):
+    if hasattr(runner.model, "reset_noise"):
+        runner.model.reset_noise(123)  # the same noise for both runners
+    return runner.predict_action_chunk(obs)
+
+
+@pytest.mark.parametrize("mode", ["fast", "fast-jit"])
+@pytest.mark.parametrize("name", learned_policies())
+def test_fast_equals_reference(name, mode):
+    ref, fast = _pair(name, mode)
+    obs = random_observation(2)
+    a, b = _chunk(ref, obs), _chunk(fast, obs)
+    assert a.shape == b.shape == (2, 16, 2)
+    # 1e-4 in the normalised action range [-1, 1] = 0.0256 px in the 512 px world
+    np.testing.assert_allclose(a / 256.0, b / 256.0, atol=1e-4, rtol=0)
+
+
+@pytest.mark.parametrize("sampler, steps", [("ddpm", 100), ("ddpm", 10), ("ddim", 10), ("ddim", 3)])
+def test_fast_diffusion_matches_every_sampler(sampler, steps):
+    ref, fast = _pair("diffusion", "fast")
+    ref.model.set_sampler(sampler, steps)
+    obs = random_observation(1)
+    np.testing.assert_allclose(_chunk(ref, obs) / 256.0, _chunk(fast, obs) / 256.0, atol=1e-4, rtol=0)
+
+
+def test_jit_does_not_touch_the_callers_model():
+    ref, fast = _pair("cnn_mlp", "fast-jit")
+    assert isinstance(ref.model.convs, torch.nn.Sequential) and fast.model is not ref.model
+
+
+def test_timing_statistics_and_verdicts():
+    stats = time_calls(lambda: sum(range(1000)), TimingConfig(warmup=1, min_calls=10, min_seconds=0.0))
+    assert stats["calls"] == 10 and stats["min_ms"] <= stats["median_ms"] <= stats["p99_ms"]
+    v = verdicts(p99_ms=120.0, rate_hz=10.0)
+    assert v["realtime_chunked"] and not v["realtime_every_step"]
+    assert v["max_rate_every_step_hz"] == pytest.approx(1000 / 120)
+    assert v["max_rate_chunked_hz"] == pytest.approx(8000 / 120)
+
+
+def test_latency_record_for_a_trained_style_runner_and_a_baseline():
+    ref, _ = _pair("cnn_mlp", "fast")
+    timing = TimingConfig(warmup=1, min_calls=3, min_seconds=0.0)
+    rec = latency_record(ref, timing)
+    assert set(rec["modes"]) == {"reference", "fast"} and rec["hardware"]["torch_threads"] >= 1
+    base = latency_record(make_policy("random"), timing)
+    assert set(base["modes"]) == {"reference"}
+    json.dumps(rec)  # JSON-ready
+
+
+def test_latency_cli_writes_json_table_and_plot(tmp_path, capsys):
+    from bcbench.cli import main
+
+    assert main(["latency", "--policy", "cnn_mlp", "--policy", "random", "--config", "quick", "--quick",
+                 "--out", str(tmp_path)]) == 0
+    data = json.loads((tmp_path / "latency.json").read_text())
+    modes = {(r["policy"], r["mode"]) for r in data["rows"]}
+    assert modes == {("cnn_mlp", "reference"), ("cnn_mlp", "fast"), ("random", "reference")}
+    assert (tmp_path / "latency.png").stat().st_size > 1000 and "speed-up" in (tmp_path / "latency.md").read_text()
