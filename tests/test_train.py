@@ -132,3 +132,28 @@ def test_cli_train_then_eval_smoke(synthetic_zarr, tmp_path):
     result = json.loads((tmp_path / "ev" / "eval.json").read_text())
     assert result["policy"]["name"] == "cnn_mlp" and result["summary"]["n"] == 2
     assert result["policy"]["checkpoint"] == "step_0000003"
+
+
+def test_precise_batchnorm_sets_exact_population_statistics():
+    from bcbench.train import precise_batchnorm
+
+    class Net(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.bn = torch.nn.BatchNorm1d(3)
+
+        def compute_loss(self, batch):
+            return self.bn(batch["x"]).sum()
+
+    torch.manual_seed(0)
+    batches = [{"x": torch.randn(16, 3) * 2 + 5} for _ in range(7)]
+    net = Net()
+    for b in batches:  # ordinary training leaves momentum estimates
+        net.train().compute_loss(b)
+    precise_batchnorm(net, batches)
+    allx = torch.cat([b["x"] for b in batches])
+    torch.testing.assert_close(net.bn.running_mean, allx.mean(0), rtol=1e-5, atol=1e-5)
+    # cumulative average of per-batch unbiased variances
+    var = torch.stack([b["x"].var(0, unbiased=True) for b in batches]).mean(0)
+    torch.testing.assert_close(net.bn.running_var, var, rtol=1e-5, atol=1e-5)
+    assert net.bn.momentum == 0.1 and not net.training
