@@ -156,4 +156,4 @@ def test_precise_batchnorm_sets_exact_population_statistics():
     # cumulative average of per-batch unbiased variances
     var = torch.stack([b["x"].var(0, unbiased=True) for b in batches]).mean(0)
     torch.testing.assert_close(net.bn.running_var, var, rtol=1e-5, atol=1e-5)
-    assert net.bn.momentum == 0.1 and not net.training
+    assert net.bn.momentum == 0.1 and net.training  # momentum and mode restored
