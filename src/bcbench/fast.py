@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from bcbench.policies.learned import PolicyRunner
-from bcbench.policies.samplers import make_diffusers_sampler, run_diffusers
+from bcbench.policies.samplers import make_diffusers_sampler, run_diffusers, run_plan
 
 
 class ReferenceRunner(PolicyRunner):
@@ -47,8 +47,42 @@ def _generator(model: Any, device: torch.device) -> torch.Generator:
     return model.generator
 
 
+class SplitFiLM:
+    """Diffusion Policy's FiLM layers split into their step part and their observation part.
+
+    Each block's FiLM is Linear(Mish([step_emb(t) ; obs])): Mish acts elementwise, so the Linear splits
+    exactly into W_t Mish(step_emb(t)) + W_o Mish(obs) + b. The step part depends only on t, so it is
+    computed once per sampler plan; the observation part once per call. The 18.4 M conditioning weights
+    of the paper U-Net (23% of it) then leave the denoising loop, which only reads the convolutions.
+    """
+
+    def __init__(self, model: Any) -> None:
+        self.model = model
+        self.blocks = model.unet.residual_blocks()
+        self.step_dim = model.config.step_embed_dim
+        self._plan_key: Any = None
+        self._step_terms: list[list[torch.Tensor]] = []
+
+    def _linear(self, block: Any) -> torch.nn.Linear:
+        return block.cond_encoder[1]
+
+    def step_terms(self, plan: Any, device: torch.device) -> list[list[torch.Tensor]]:
+        key = (tuple(plan.timesteps), plan.kind, device)
+        if key != self._plan_key:
+            t = torch.tensor(plan.timesteps, device=device)
+            emb = torch.nn.functional.mish(self.model.unet.diffusion_step_encoder(t))  # (K, S)
+            per_block = [emb @ self._linear(b).weight[:, : self.step_dim].T for b in self.blocks]  # (K, 2C)
+            self._step_terms = [[pb[k : k + 1] for pb in per_block] for k in range(len(plan.timesteps))]
+            self._plan_key = key
+        return self._step_terms
+
+    def obs_terms(self, cond: torch.Tensor) -> list[torch.Tensor]:
+        g = torch.nn.functional.mish(cond)  # (B, G)
+        return [torch.addmm(self._linear(b).bias, g, self._linear(b).weight[:, self.step_dim:].T) for b in self.blocks]
+
+
 class FastRunner(PolicyRunner):
-    """inference_mode + precomputed sampler constants (+ optional frozen TorchScript)."""
+    """inference_mode + precomputed sampler constants and FiLM terms (+ optional frozen TorchScript)."""
 
     mode = "fast"
 
@@ -77,6 +111,28 @@ class FastRunner(PolicyRunner):
             elif getattr(m, "traceable_forward", False):
                 frozen = _frozen(m, (image, pos))
                 m.forward = frozen.forward  # predict_action_chunk calls self(...), i.e. the frozen graph
+
+    @torch.inference_mode()
+    def predict_action_chunk(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        m = self.model
+        if not hasattr(m, "set_sampler") or self.backend == "jit":
+            return super().predict_action_chunk(obs)
+        if getattr(self, "_film", None) is None:
+            self._film = SplitFiLM(m)
+        o = self.prepare(obs)
+        cond = m.encode(o["image"], o["agent_pos"])  # once per call
+        obs_terms = self._film.obs_terms(cond)
+        step_terms = self._film.step_terms(m.plan, cond.device)
+        index = {t: k for k, t in enumerate(m.plan.timesteps)}
+
+        def denoise(x: torch.Tensor, t: int) -> torch.Tensor:
+            films = [a + b for a, b in zip(obs_terms, step_terms[index[t]], strict=True)]
+            return m.unet.forward_films(x, films)
+
+        gen = _generator(m, cond.device)
+        x = torch.randn((cond.shape[0], m.config.pred_horizon, 2), generator=gen, device=cond.device)
+        chunk = run_plan(m.plan, denoise, x, gen)
+        return self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()
 
     def describe(self) -> dict[str, Any]:
         return {**super().describe(), "mode": self.mode, "backend": self.backend}

@@ -49,8 +49,12 @@ class ConditionalResidualBlock1D(nn.Module):
         self.residual_conv = nn.Conv1d(cin, cout, 1) if cin != cout else nn.Identity()
 
     def forward(self, x: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:  # x (B, Cin, T), cond (B, cond_dim)
+        return self.forward_film(x, self.cond_encoder(cond))
+
+    def forward_film(self, x: torch.Tensor, film: torch.Tensor) -> torch.Tensor:
+        """The block given its FiLM parameters (B, 2 * Cout) already computed."""
         out = self.blocks[0](x)  # (B, Cout, T)
-        film = self.cond_encoder(cond).view(-1, 2, self.out_channels, 1)  # (B, 2, Cout, 1)
+        film = film.view(-1, 2, self.out_channels, 1)  # (B, 2, Cout, 1)
         out = film[:, 0] * out + film[:, 1]  # FiLM: the condition rescales and shifts every channel
         out = self.blocks[1](out)
         return out + self.residual_conv(x)
@@ -85,6 +89,28 @@ class ConditionalUnet1D(nn.Module):
                 block(cout * 2, cin), block(cin, cin), nn.ConvTranspose1d(cin, cin, 4, 2, 1)]))
         self.final_conv = nn.Sequential(Conv1dBlock(down_dims[0], down_dims[0], kernel, groups),
                                         nn.Conv1d(down_dims[0], input_dim, 1))
+
+    def residual_blocks(self) -> list[ConditionalResidualBlock1D]:
+        """Every conditional block, in the order `forward` runs them."""
+        out = [b for level in self.down_modules for b in level[:2]]
+        out += list(self.mid_modules)
+        return out + [b for level in self.up_modules for b in level[:2]]
+
+    def forward_films(self, sample: torch.Tensor, films: list[torch.Tensor]) -> torch.Tensor:
+        """`forward` with each block's FiLM parameters given (same order as `residual_blocks`)."""
+        x = sample.transpose(1, 2)  # (B, Da, Tp)
+        it = iter(films)
+        skips = []
+        for res1, res2, down in self.down_modules:
+            x = res2.forward_film(res1.forward_film(x, next(it)), next(it))
+            skips.append(x)
+            x = down(x)
+        for res in self.mid_modules:
+            x = res.forward_film(x, next(it))
+        for res1, res2, up in self.up_modules:
+            x = torch.cat([x, skips.pop()], dim=1)
+            x = up(res2.forward_film(res1.forward_film(x, next(it)), next(it)))
+        return self.final_conv(x).transpose(1, 2)
 
     def forward(self, sample: torch.Tensor, timestep: torch.Tensor, global_cond: torch.Tensor) -> torch.Tensor:
         """sample (B, Tp, Da), timestep (B,) or scalar, global_cond (B, G) -> predicted noise (B, Tp, Da)."""
