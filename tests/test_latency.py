@@ -42,13 +42,19 @@ def test_fast_equals_reference(name, mode):
 def test_fast_diffusion_matches_every_sampler(sampler, steps):
     ref, fast = _pair("diffusion", "fast")
     ref.model.set_sampler(sampler, steps)
+    fast.model.set_sampler(sampler, steps)  # the fast runner works on its own copy of the model
     obs = random_observation(1)
     np.testing.assert_allclose(_chunk(ref, obs) / 256.0, _chunk(fast, obs) / 256.0, atol=1e-4, rtol=0)
 
 
-def test_jit_does_not_touch_the_callers_model():
+def test_fast_modes_do_not_touch_the_callers_model():
     ref, fast = _pair("cnn_mlp", "fast-jit")
     assert isinstance(ref.model.convs, torch.nn.Sequential) and fast.model is not ref.model
+    ref, fast = _pair("diffusion", "fast")
+    from bcbench.fast import MatmulConv1d
+
+    assert not any(isinstance(m, MatmulConv1d) for m in ref.model.modules())
+    assert any(isinstance(m, MatmulConv1d) for m in fast.model.modules())
 
 
 def test_timing_statistics_and_verdicts():
