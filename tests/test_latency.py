@@ -85,3 +85,15 @@ def test_latency_cli_writes_json_table_and_plot(tmp_path, capsys):
     modes = {(r["policy"], r["mode"]) for r in data["rows"]}
     assert modes == {("cnn_mlp", "reference"), ("cnn_mlp", "fast"), ("random", "reference")}
     assert (tmp_path / "latency.png").stat().st_size > 1000 and "speed-up" in (tmp_path / "latency.md").read_text()
+
+
+def test_int8_mode_is_close_but_its_own_mode():
+    from bcbench.fast import Int8Conv1d
+
+    ref, q = _pair("diffusion", "fast-int8")
+    assert any(isinstance(m, Int8Conv1d) for m in q.model.modules())
+    obs = random_observation(2)
+    a, b = _chunk(ref, obs) / 256.0 - 1, _chunk(q, obs) / 256.0 - 1  # normalised units
+    assert np.isfinite(b).all() and np.abs(b).max() <= 1 + 1e-5
+    assert np.abs(a - b).max() < 0.5  # approximate, not equal: its deviation is reported, not hidden
+    assert q.describe()["mode"] == "fast-int8"

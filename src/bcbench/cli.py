@@ -123,6 +123,12 @@ def _load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
             tag = f"{kind}{steps}-"
         elif args.sampler or args.steps:
             raise BCBenchError(f"--sampler/--steps apply to diffusion policies, not to '{runner.name}'")
+        if args.mode != "default":
+            from bcbench.fast import make_runner
+
+            runner = make_runner(args.mode, runner.model, runner.normalizer, args.device, runner.extra)
+            runner.extra["mode"] = args.mode
+            tag += f"{args.mode}-"
         return runner, Path(args.checkpoint) / f"eval-{tag}{args.episodes}ep-{stamp}"
     if not args.policy:
         raise BCBenchError("choose --policy NAME or --checkpoint RUN_DIR")
@@ -328,8 +334,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("latency", help="time one policy call at batch 1 for every policy, reference vs fast")
     p.add_argument("--policy", action="append", help="only these policies (repeatable; default all learned)")
     p.add_argument("--config", action="append", choices=["quick", "paper"], help="presets (default both)")
-    p.add_argument("--mode", action="append", choices=["reference", "fast", "fast-jit"],
-                   help="modes (default reference and fast)")
+    p.add_argument("--mode", action="append", choices=["reference", "fast", "fast-jit", "fast-int8"],
+                   help="modes (default reference and fast; fast-int8 is approximate, reported apart)")
     p.add_argument("--sampler", action="append", choices=["ddpm", "ddim"], help="diffusion samplers (default both)")
     p.add_argument("--steps", type=_positive_int, action="append",
                    help="diffusion step counts (default 1 2 5 10 20 50 100)")
@@ -348,6 +354,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", default="quick", choices=["quick", "paper"], help="policy preset (default quick)")
     p.add_argument("--checkpoint", metavar="RUN_DIR", help="evaluate a trained run instead of --policy")
     p.add_argument("--no-ema", action="store_true", help="use the raw weights even if the run kept an EMA")
+    p.add_argument("--mode", default="default", choices=["default", "reference", "fast", "fast-jit", "fast-int8"],
+                   help="inference path of a trained policy: all give the same chunks except fast-int8 "
+                        "(approximate); default = inference_mode with precomputed sampler constants")
     p.add_argument("--sampler", choices=["ddpm", "ddim"], help="diffusion only: sampler (default: the run's)")
     p.add_argument("--steps", type=_positive_int, help="diffusion only: denoising steps, 1..100 (default: the run's)")
     p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="where the policy runs (default cpu)")
