@@ -129,8 +129,10 @@ class Int8Conv1d(torch.nn.Module):
             lin.weight.copy_(conv.weight_t.t())
             if conv.bias is not None:
                 lin.bias.copy_(conv.bias)
-        self.lin = torch.ao.quantization.quantize_dynamic(torch.nn.Sequential(lin), {torch.nn.Linear},
-                                                          dtype=torch.qint8)[0]
+        with warnings.catch_warnings():  # torch.ao.quantization is deprecated upstream; it still works here
+            warnings.simplefilter("ignore")
+            self.lin = torch.ao.quantization.quantize_dynamic(torch.nn.Sequential(lin), {torch.nn.Linear},
+                                                              dtype=torch.qint8)[0]
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if self.k == 1 and self.stride == 1:
