@@ -273,6 +273,13 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
 
+    _add_data_commands(sub)
+    _add_train_eval_commands(sub, sorted(REGISTRY))
+    _add_study_commands(sub)
+    return parser
+
+
+def _add_data_commands(sub: Any) -> None:
     data = sub.add_parser("data", help="get, inspect and replay the Push-T demonstrations")
     dsub = data.add_subparsers(dest="data_command", metavar="DATA_COMMAND", parser_class=_Parser)
     dsub.required = True
@@ -298,8 +305,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_data_replay)
 
+
+def _add_train_eval_commands(sub: Any, policies: list[str]) -> None:
     p = sub.add_parser("train", help="train a policy (resumable; checkpoints, metrics.jsonl)")
-    p.add_argument("--policy", choices=sorted(REGISTRY), help="registered policy to train")
+    p.add_argument("--policy", choices=policies, help="registered policy to train")
     p.add_argument("--config", default="quick",
                    help="preset: quick (2-core CPU) or paper (the study's sizes); diffusion also has "
                         "quick_linear and paper_linear (linear betas)")
@@ -315,7 +324,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_data_flag(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train)
+    _add_eval_command(sub, policies)
 
+
+def _add_study_commands(sub: Any) -> None:
     p = sub.add_parser("study", help="run a study spec: train, evaluate and time every run (resumable)")
     p.add_argument("spec", metavar="SPEC.toml", help="study specification (see studies/)")
     p.add_argument("--out", metavar="DIR", help="results directory (default runs/studies/NAME)")
@@ -349,8 +361,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("params", help="parameter counts of every learned policy (paper and quick sizes)")
     p.set_defaults(func=cmd_params)
 
+
+
+def _add_eval_command(sub: Any, policies: list[str]) -> None:
     p = sub.add_parser("eval", help="evaluate a policy over seeded Push-T episodes (JSON result, videos)")
-    p.add_argument("--policy", choices=sorted(REGISTRY), help="registered policy to evaluate")
+    p.add_argument("--policy", choices=policies, help="registered policy to evaluate")
     p.add_argument("--config", default="quick", choices=["quick", "paper"], help="policy preset (default quick)")
     p.add_argument("--checkpoint", metavar="RUN_DIR", help="evaluate a trained run instead of --policy")
     p.add_argument("--no-ema", action="store_true", help="use the raw weights even if the run kept an EMA")
@@ -371,7 +386,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="DIR", help="output folder (default runs/eval-POLICY-TIME)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_eval)
-    return parser
 
 
 def main(argv: list[str] | None = None) -> int:
