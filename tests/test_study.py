@@ -182,3 +182,16 @@ def test_report_from_fixture_files(tmp_path):
     assert "10 denoising steps score as well as 100**: *supported*" in md
     html = Path(paths["html"]).read_text()
     assert html.count("data:image/png;base64,") == 3  # self-contained
+
+
+def test_export_copies_results_but_no_checkpoints(tmp_path):
+    from bcbench.report import export_results
+    from bcbench.utils.io import write_json
+
+    src = tmp_path / "study"
+    write_json(src / "runs" / "a" / "eval-default.json", {"x": 1})
+    write_json(src / "runs" / "a" / "train_summary.json", {"x": 1})
+    (src / "runs" / "a" / "checkpoints" / "step_1").mkdir(parents=True)
+    (src / "runs" / "a" / "checkpoints" / "step_1" / "model.safetensors").write_bytes(b"w")
+    assert export_results(src, tmp_path / "out") == 2
+    assert not (tmp_path / "out" / "runs" / "a" / "checkpoints").exists()

@@ -243,8 +243,10 @@ def cmd_study(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from bcbench.report import write_report
+    from bcbench.report import export_results, write_report
 
+    if args.export:
+        print(f"exported {export_results(args.results, args.export)} result files to {args.export}")
     paths = write_report(args.results, extra_dirs=args.include or [])
     print(f"report: {paths['markdown']}  and  {paths['html']}")
     return 0
@@ -341,6 +343,7 @@ def _add_study_commands(sub: Any) -> None:
     p.add_argument("results", metavar="RESULTS_DIR", help="a study's results directory")
     p.add_argument("--include", action="append", metavar="DIR",
                    help="also read result JSON files from this folder (e.g. results/ from a GPU machine)")
+    p.add_argument("--export", metavar="DIR", help="also copy the result files (no checkpoints) to DIR")
     p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("latency", help="time one policy call at batch 1 for every policy, reference vs fast")

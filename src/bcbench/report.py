@@ -131,3 +131,23 @@ def _html(intro: str, findings: list[Any], table: list[list[str]], figs: dict[st
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>bcbench report</title><style>{css}</style>"
             f"</head><body><h1>bcbench report</h1><p>{html.escape(intro)}</p><h2>The study's findings on this "
             f"evidence</h2><ol>{items}</ol><h2>Results</h2>{_html_table(COLUMNS, table)}{images}</body></html>\n")
+
+
+EXPORTED = ("spec.json", "index.jsonl", "run.json", "train_summary.json", "normalizer.json", "metrics.jsonl")
+
+
+def export_results(results: str | Path, dest: str | Path) -> int:
+    """Copy a study's result files (no checkpoints, no videos) to `dest`; returns the number of files."""
+    import shutil
+
+    results, dest = Path(results), Path(dest)
+    n = 0
+    for f in sorted(results.rglob("*")):
+        if "checkpoints" in f.parts or "report" in f.relative_to(results).parts or not f.is_file():
+            continue
+        if f.name in EXPORTED or (f.suffix == ".json" and f.name.startswith(("eval", "latency"))):
+            target = dest / f.relative_to(results)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(f, target)
+            n += 1
+    return n
