@@ -47,6 +47,15 @@ def _generator(model: Any, device: torch.device) -> torch.Generator:
     return model.generator
 
 
+def im2col(x: torch.Tensor, k: int, stride: int, pad: int) -> torch.Tensor:
+    """(B, Cin, T) -> (B, T', Cin * k): each output step's receptive field as one row, (channel, tap) order."""
+    if k == 1 and stride == 1:
+        return x.transpose(1, 2)
+    xp = torch.nn.functional.pad(x, (pad, pad)) if pad else x
+    u = xp.unfold(2, k, stride)  # (B, Cin, T', k)
+    return u.transpose(1, 2).reshape(x.shape[0], u.shape[2], -1)
+
+
 class MatmulConv1d(torch.nn.Module):
     """A Conv1d evaluated as one matrix product: im2col of the input times the pre-transposed weight.
 
@@ -64,13 +73,7 @@ class MatmulConv1d(torch.nn.Module):
         self.register_buffer("bias", None if conv.bias is None else conv.bias.detach().clone())
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:  # (B, Cin, T) -> (B, Cout, T')
-        if self.k == 1 and self.stride == 1:
-            cols = x.transpose(1, 2)  # (B, T, Cin)
-        else:
-            xp = torch.nn.functional.pad(x, (self.pad, self.pad)) if self.pad else x
-            u = xp.unfold(2, self.k, self.stride)  # (B, Cin, T', k)
-            cols = u.transpose(1, 2).reshape(x.shape[0], u.shape[2], -1)  # (B, T', Cin * k)
-        out = cols @ self.weight_t  # (B, T', Cout)
+        out = im2col(x, self.k, self.stride, self.pad) @ self.weight_t  # (B, T', Cout)
         if self.bias is not None:
             out = out + self.bias
         return out.transpose(1, 2)
@@ -135,13 +138,7 @@ class Int8Conv1d(torch.nn.Module):
                                                               dtype=torch.qint8)[0]
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        if self.k == 1 and self.stride == 1:
-            cols = x.transpose(1, 2)
-        else:
-            xp = torch.nn.functional.pad(x, (self.pad, self.pad)) if self.pad else x
-            u = xp.unfold(2, self.k, self.stride)
-            cols = u.transpose(1, 2).reshape(x.shape[0], u.shape[2], -1)
-        return self.lin(cols.contiguous()).transpose(1, 2)
+        return self.lin(im2col(x, self.k, self.stride, self.pad).contiguous()).transpose(1, 2)
 
 
 def int8_convs(module: torch.nn.Module) -> int:
