@@ -109,20 +109,10 @@ def _load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
 
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     if args.checkpoint:
-        from bcbench.checkpoint import load_runner
+        from bcbench.checkpoint import configure_runner, load_runner
 
         runner = load_runner(args.checkpoint, use_ema=not args.no_ema, device=args.device)
-        tag = ""
-        if hasattr(runner.model, "reset_noise"):  # stochastic policies: the evaluation seed fixes the noise
-            runner.model.reset_noise(args.seed)
-        if hasattr(runner.model, "set_sampler"):
-            kind = args.sampler or runner.model.sampler_kind
-            steps = args.steps or runner.model.sampler_steps
-            runner.model.set_sampler(kind, steps)
-            runner.extra.update({"sampler": kind, "steps": steps})
-            tag = f"{kind}{steps}-"
-        elif args.sampler or args.steps:
-            raise BCBenchError(f"--sampler/--steps apply to diffusion policies, not to '{runner.name}'")
+        tag = configure_runner(runner, args.sampler, args.steps, args.seed)
         if args.mode != "default":
             from bcbench.fast import make_runner
 

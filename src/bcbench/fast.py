@@ -33,18 +33,12 @@ class ReferenceRunner(PolicyRunner):
         if hasattr(model, "set_sampler"):
             cond = model.encode(o["image"], o["agent_pos"])
             sched = make_diffusers_sampler(model.noise_scheduler, model.sampler_kind, model.sampler_steps)
-            gen = _generator(model, cond.device)
+            gen = model.noise_generator(cond.device)
             x = torch.randn((cond.shape[0], model.config.pred_horizon, 2), generator=gen, device=cond.device)
             chunk = run_diffusers(sched, lambda x, t: model.unet(x, torch.tensor(t, device=x.device), cond), x, gen)
         else:
             chunk = model.predict_action_chunk(o)
         return self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()
-
-
-def _generator(model: Any, device: torch.device) -> torch.Generator:
-    if model.generator is None or model.generator.device != device:
-        model.generator = torch.Generator(device=device).manual_seed(model.config.seed)
-    return model.generator
 
 
 def im2col(x: torch.Tensor, k: int, stride: int, pad: int) -> torch.Tensor:
@@ -243,7 +237,7 @@ class FastRunner(PolicyRunner):
             films = [a + b for a, b in zip(obs_terms, step_terms[index[t]], strict=True)]
             return m.unet.forward_films(x, films)
 
-        gen = _generator(m, cond.device)
+        gen = m.noise_generator(cond.device)
         x = torch.randn((cond.shape[0], m.config.pred_horizon, 2), generator=gen, device=cond.device)
         chunk = run_plan(m.plan, denoise, x, gen)
         return self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()

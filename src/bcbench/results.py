@@ -68,7 +68,9 @@ def _row_from_eval(path: Path) -> Row:
     variant = (study.get("variant") or {})
     sampler = pol.get("sampler") or variant.get("sampler")
     steps = pol.get("steps") or variant.get("steps")
-    vkey = f"{sampler}{steps}" if sampler else "default"
+    # a study names its files by variant (eval-ddim10.json); a lone `bcbench eval` writes eval.json
+    named = path.stem.startswith("eval-")
+    vkey = path.stem[len("eval-"):] if named else (f"{sampler}{steps}" if sampler else "default")
     cfg = pol.get("config", {})
     run_dir = path.parent
     row = Row(key=f"{run_dir.name}:{vkey}", label=study.get("label") or pol["name"], policy=pol["name"],
@@ -78,9 +80,8 @@ def _row_from_eval(path: Path) -> Row:
     lat = run_dir / f"latency-{vkey}.json"
     if lat.exists():
         row.latency = read_json(lat)["modes"]
-    for name in ("train_summary.json",):
-        if (run_dir / name).exists():
-            row.train = read_json(run_dir / name)
+    if (run_dir / "train_summary.json").exists():
+        row.train = read_json(run_dir / "train_summary.json")
     return row
 
 

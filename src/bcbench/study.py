@@ -75,17 +75,13 @@ class StudyRunner:
             raise KeyboardInterrupt  # Ctrl-C during training: the checkpoint is saved; stop the study here
 
     def _policy(self, run: RunSpec, variant: Variant, device: str = "cpu") -> Any:
-        from bcbench.checkpoint import load_runner
+        from bcbench.checkpoint import configure_runner, load_runner
         from bcbench.policies import make_policy
 
         if not run.learned:
             return make_policy(run.policy, run.config, seed=run.seed)
         runner = load_runner(self.run_dir(run), use_ema=True, device=device)
-        if hasattr(runner.model, "reset_noise"):
-            runner.model.reset_noise(run.seed)
-        if variant.sampler is not None:
-            runner.model.set_sampler(variant.sampler, variant.steps)
-            runner.extra.update({"sampler": variant.sampler, "steps": variant.steps})
+        configure_runner(runner, variant.sampler, variant.steps, run.seed)
         return runner
 
     def _eval(self, run: RunSpec, variant: Variant) -> None:

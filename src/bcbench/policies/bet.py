@@ -121,7 +121,6 @@ class BeTPolicy(BCPolicy):
         self.register_buffer("mask", torch.triu(torch.ones(c.obs_horizon, c.obs_horizon, dtype=torch.bool), 1),
                              persistent=False)
         self.register_buffer("centres", torch.zeros(c.n_bins, 2))  # k-means bins, saved with the weights
-        self.generator: torch.Generator | None = None
 
     def prepare(self, train_ds: Any) -> None:
         """Fit the k-means bins on the normalised actions of the training split (once, before training)."""
@@ -157,12 +156,8 @@ class BeTPolicy(BCPolicy):
 
     def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
         logits, offsets = self._heads(obs)
-        if self.generator is None or self.generator.device != logits.device:
-            self.generator = torch.Generator(device=logits.device).manual_seed(self.config.seed)
         probs = F.softmax(logits, dim=-1).flatten(0, 1)  # (B*Tp, k)
-        bins = torch.multinomial(probs, 1, generator=self.generator).view(logits.shape[:2])  # sample, as BeT does
+        gen = self.noise_generator(logits.device)
+        bins = torch.multinomial(probs, 1, generator=gen).view(logits.shape[:2])  # sample, as BeT does
         chosen = offsets.gather(2, bins[..., None, None].expand(-1, -1, 1, 2)).squeeze(2)
         return self.centres[bins] + chosen  # (B, Tp, 2)
-
-    def reset_noise(self, seed: int | None = None) -> None:
-        self.generator = None if seed is None else torch.Generator(device=self.centres.device).manual_seed(seed)

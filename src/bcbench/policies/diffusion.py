@@ -101,17 +101,12 @@ class DiffusionPolicy(BCPolicy):
         ac = self.noise_scheduler.alphas_cumprod.float()
         self.register_buffer("sqrt_ac", ac.sqrt(), persistent=False)  # for add_noise, on the model's device
         self.register_buffer("sqrt_1m_ac", (1 - ac).sqrt(), persistent=False)
-        self.generator: torch.Generator | None = None
         self.set_sampler(c.sampler, c.sampling_steps)
 
     def set_sampler(self, kind: str, steps: int) -> None:
         """Choose DDPM/DDIM and the number of denoising steps for inference (no retraining)."""
         self.plan = plan(self.noise_scheduler, kind, steps)
         self.sampler_kind, self.sampler_steps = kind, steps
-
-    def reset_noise(self, seed: int | None = None) -> None:
-        """Restart the inference noise stream (seeded: evaluations are reproducible)."""
-        self.generator = None if seed is None else torch.Generator(device=self.sqrt_ac.device).manual_seed(seed)
 
     def encode(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:
         """image (B, To, 3, H, W), agent_pos (B, To, 2) -> global condition (B, To * (F + 2))."""
@@ -129,11 +124,9 @@ class DiffusionPolicy(BCPolicy):
     def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
         cond = self.encode(obs["image"], obs["agent_pos"])  # once per call
         b = cond.shape[0]
-        if self.generator is None or self.generator.device != cond.device:
-            self.generator = torch.Generator(device=cond.device).manual_seed(self.config.seed)
-        x = torch.randn((b, self.config.pred_horizon, 2), generator=self.generator, device=cond.device)
-        return run_plan(self.plan, lambda x, t: self.unet(x, torch.tensor(t, device=x.device), cond), x,
-                        self.generator)
+        gen = self.noise_generator(cond.device)
+        x = torch.randn((b, self.config.pred_horizon, 2), generator=gen, device=cond.device)
+        return run_plan(self.plan, lambda x, t: self.unet(x, torch.tensor(t, device=x.device), cond), x, gen)
 
     def parameter_breakdown(self) -> dict[str, int]:
         return {"encoder": count_parameters(self.encoder), "unet": count_parameters(self.unet),

@@ -27,6 +27,19 @@ class BCPolicy(nn.Module):
 
     name = "policy"
     config: Any
+    generator: torch.Generator | None = None  # inference noise of stochastic policies (DP, BeT)
+    noise_seed: int | None = None
+
+    def reset_noise(self, seed: int | None = None) -> None:
+        """Restart the inference noise stream at `seed` (None: the config's seed) on its next use."""
+        self.generator, self.noise_seed = None, seed
+
+    def noise_generator(self, device: torch.device) -> torch.Generator:
+        """The inference noise stream, created on `device` at first use (or after reset_noise)."""
+        if self.generator is None or self.generator.device != device:
+            seed = self.config.seed if self.noise_seed is None else self.noise_seed
+            self.generator = torch.Generator(device=device).manual_seed(seed)
+        return self.generator
 
     def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         raise NotImplementedError
