@@ -12,7 +12,7 @@ import torch
 
 from bcbench.policies import make_policy
 from bcbench.policies.diffusion import STUDY_PARAMETERS, DiffusionConfig
-from bcbench.policies.samplers import make_diffusers_sampler, run_diffusers, run_plan
+from bcbench.policies.samplers import make_diffusers_sampler, make_train_scheduler, plan, run_diffusers, run_plan
 from bcbench.policies.unet1d import ConditionalResidualBlock1D, ConditionalUnet1D
 from tests.tiny import tiny_overrides
 
@@ -47,9 +47,12 @@ def test_film_conditioning_changes_the_output():
     assert not torch.allclose(unet(s, t, torch.zeros(2, 10)), unet(s, t + 40, torch.zeros(2, 10)), atol=1e-4)
 
 
-@pytest.mark.parametrize("kind, steps", [("ddpm", 100), ("ddpm", 10), ("ddim", 10), ("ddim", 100)])
-def test_sampler_matches_diffusers_reference_loop(tiny, kind, steps):
-    tiny.set_sampler(kind, steps)
+@pytest.mark.parametrize("spacing", ["trailing", "leading"])
+@pytest.mark.parametrize("kind", ["ddpm", "ddim"])
+@pytest.mark.parametrize("steps", [1, 3, 10, 37, 100])
+def test_sampler_matches_diffusers_reference_loop(tiny, kind, steps, spacing):
+    """Our precomputed constants against diffusers' scheduler configured with the same spacing, same noise."""
+    tiny.set_sampler(kind, steps, spacing)
     with torch.no_grad():
         cond = tiny.encode(**_obs())
 
@@ -57,10 +60,39 @@ def test_sampler_matches_diffusers_reference_loop(tiny, kind, steps):
             return tiny.unet(x, torch.tensor(t), cond)
 
         x0 = torch.randn(3, 16, 2, generator=torch.Generator().manual_seed(7))
-        ours = run_plan(tiny.plan, denoise, x0.clone(), torch.Generator().manual_seed(9))
-        ref = run_diffusers(make_diffusers_sampler(tiny.noise_scheduler, kind, steps), denoise, x0.clone(),
-                            torch.Generator().manual_seed(9))
+        g = torch.Generator().manual_seed(9)
+        ours = run_plan(tiny.plan, denoise, x0.clone(), lambda shape: torch.randn(shape, generator=g))
+        sched = make_diffusers_sampler(tiny.noise_scheduler, kind, steps, spacing)
+        assert [int(t) for t in sched.timesteps] == tiny.plan.timesteps
+        ref = run_diffusers(sched, denoise, x0.clone(), torch.Generator().manual_seed(9))
     torch.testing.assert_close(ours, ref, atol=1e-5, rtol=1e-5)
+
+
+@pytest.mark.parametrize("kind", ["ddpm", "ddim"])
+def test_trailing_spacing_starts_every_step_count_from_pure_noise(kind):
+    sched = make_train_scheduler(100, "squaredcos_cap_v2")
+    for k in range(1, 101):
+        p = plan(sched, kind, k, "trailing")
+        assert p.timesteps[0] == 99 and len(p.timesteps) == k, k
+        assert p.timesteps == sorted(p.timesteps, reverse=True) and len(set(p.timesteps)) == k
+    assert plan(sched, kind, 10, "trailing").timesteps[-1] == 9
+    # leading, diffusers' default, does not: K=1 starts at t=0 (no noise at all), K=40 at t=78
+    assert plan(sched, kind, 1, "leading").timesteps == [0] and plan(sched, kind, 40, "leading").timesteps[0] == 78
+
+
+@pytest.mark.parametrize("kind", ["ddpm", "ddim"])
+def test_one_step_from_pure_noise_returns_the_x0_estimate(tiny, kind):
+    """At K = 1 (trailing) the single step predicts x0 from t = 99 and lands on it: not clipped noise."""
+    tiny.set_sampler(kind, 1, "trailing")
+    with torch.no_grad():
+        cond = tiny.encode(**_obs())
+        x = torch.randn(3, 16, 2, generator=torch.Generator().manual_seed(7))
+        eps = tiny.unet(x, torch.tensor(99), cond)
+        ac = tiny.noise_scheduler.alphas_cumprod[99]
+        x0_hat = ((x - (1 - ac).sqrt() * eps) / ac.sqrt()).clamp(-1, 1)
+        out = run_plan(tiny.plan, lambda x, t: tiny.unet(x, torch.tensor(t), cond), x.clone(), torch.randn)
+    torch.testing.assert_close(out, x0_hat, atol=1e-5, rtol=1e-5)
+    assert not torch.allclose(out, x.clamp(-1, 1), atol=1e-2)
 
 
 @pytest.mark.parametrize("kind", ["ddpm", "ddim"])

@@ -58,9 +58,16 @@ def test_fast_modes_do_not_touch_the_callers_model():
 
 
 def test_timing_statistics_and_verdicts():
-    stats = time_calls(lambda: sum(range(1000)), TimingConfig(warmup=1, min_calls=10, min_seconds=0.0))
-    assert stats["calls"] == 10 and stats["min_ms"] <= stats["median_ms"] <= stats["p99_ms"]
-    v = verdicts(p99_ms=120.0, rate_hz=10.0)
+    few = time_calls(lambda: sum(range(1000)), TimingConfig(warmup=1, min_calls=10, max_calls=10, min_seconds=0.0))
+    # fewer than 100 calls: no percentiles, the tail statistic is the maximum and says so
+    assert few["calls"] == 10 and few["p99_ms"] is None and few["p90_ms"] is None
+    assert few["tail_stat"] == "max of 10" and few["tail_ms"] == few["max_ms"] >= few["median_ms"] >= few["min_ms"]
+    many = time_calls(lambda: sum(range(1000)), TimingConfig(warmup=1, min_calls=100, min_seconds=0.0))
+    assert many["calls"] == 100 and many["tail_stat"] == "p99" and many["tail_ms"] == many["p99_ms"]
+    assert many["min_ms"] <= many["median_ms"] <= many["p90_ms"] <= many["p99_ms"] <= many["max_ms"]
+    v = verdicts(120.0, rate_hz=10.0)
+    assert v["verdict_statistic"] == "p99"
+    assert verdicts(120.0, 10.0, tail_stat="max of 7")["verdict_statistic"] == "max of 7"
     assert v["realtime_chunked"] and not v["realtime_every_step"]
     assert v["max_rate_every_step_hz"] == pytest.approx(1000 / 120)
     assert v["max_rate_chunked_hz"] == pytest.approx(8000 / 120)

@@ -11,7 +11,6 @@ from pathlib import Path
 import pytest
 
 from bcbench.errors import BCBenchError
-from bcbench.findings import INCONCLUSIVE, NOT_SUPPORTED, SUPPORTED, Point, judge
 from bcbench.report import write_report
 from bcbench.spec import load_spec, parse_spec
 from tests.tiny import TINY
@@ -52,7 +51,11 @@ eval = [{{ sampler = "ddpm", steps = [2] }}, {{ sampler = "ddim", steps = [2] }}
     ("[[run]]\npolicy = 'cnn_mlp'\neval = [{sampler='ddim', steps=[10]}]", "apply to diffusion only"),
     ("[[run]]\npolicy = 'diffusion'\neval = [{sampler='dpm', steps=[10]}]", "sampler must be ddpm or ddim"),
     ("[[run]]\npolicy = 'diffusion'\neval = [{sampler='ddim', steps=[0]}]", "steps must be whole numbers"),
-    ("[[run]]\npolicy = 'cnn_mlp'\nminutes = -1", "minutes must be a positive number"),
+    ("[[run]]\npolicy = 'cnn_mlp'\nmax_minutes = -1", "max_minutes must be a positive number"),
+    ("[[run]]\npolicy = 'cnn_mlp'\nminutes = 5", "'minutes' is no longer a training budget"),
+    ("[[run]]\npolicy = 'cnn_mlp'\nsteps = 0", "steps must be a whole number >= 1"),
+    ("[[run]]\npolicy = 'diffusion'\neval = [{sampler='ddim', steps=[10], spacing='middle'}]", "spacing must be"),
+    ("[study]\ndevice = 'tpu'\n[[run]]\npolicy = 'random'", "study.device"),
     ("[[run]]\npolicy = 'cnn_mlp'\nset = {'optim.nope' = 1}", "unknown config field"),
     ("[[run]]\npolicy = 'cnn_mlp'\ncolour = 'red'", "unknown key(s) colour"),
     ("[study]\nepisodes = 0\n[[run]]\npolicy = 'random'", "study.episodes"),
@@ -118,35 +121,6 @@ def test_study_killed_then_rerun_resumes_without_redoing(synthetic_zarr, tmp_pat
     assert "0 stage(s) run" in proc.stdout
 
 
-def _p(name, policy, variant, score, ci, ms, beta=None):
-    return Point(name, policy, variant, score, ci, ms, beta)
-
-
-def test_findings_verdicts_on_constructed_inputs():
-    pts = [
-        _p("random", "random", "default", 0.05, (0.02, 0.08), 0.1),
-        _p("cnn", "cnn_mlp", "default", 0.30, (0.25, 0.35), 2.0),
-        _p("bct", "bct", "default", 0.45, (0.40, 0.50), 12.0),
-        _p("r50", "resnet50", "default", 0.60, (0.55, 0.65), 13.0),
-        _p("bet", "bet", "default", 0.04, (0.0, 0.09), 5.0),
-        _p("dp10", "diffusion", "ddpm10", 0.70, (0.60, 0.80), 100.0),
-        _p("dp100", "diffusion", "ddpm100", 0.72, (0.62, 0.82), 1000.0),
-        _p("ddim10", "diffusion", "ddim10", 0.69, (0.59, 0.79), 98.0),
-    ]
-    f = {x.number: x.verdict for x in judge(pts)}
-    assert f == {1: SUPPORTED, 2: SUPPORTED, 3: SUPPORTED, 4: SUPPORTED, 5: SUPPORTED}
-    pts[6] = _p("dp100", "diffusion", "ddpm100", 0.95, (0.90, 0.99), 1000.0)  # 100 steps significantly better
-    pts[4] = _p("bet", "bet", "default", 0.40, (0.30, 0.50), 5.0)  # BeT works
-    pts[2] = _p("bct", "bct", "default", 0.10, (0.05, 0.15), 12.0)  # BCT below CNN-MLP
-    pts[7] = _p("ddim10", "diffusion", "ddim10", 0.69, (0.59, 0.79), 50.0)  # DDIM twice as fast
-    f = {x.number: x.verdict for x in judge(pts)}
-    assert f[2] == NOT_SUPPORTED and f[3] == NOT_SUPPORTED and f[4] == NOT_SUPPORTED and f[5] == NOT_SUPPORTED
-    assert {x.number: x.verdict for x in judge(pts[:2])}[2] == INCONCLUSIVE
-    slow_and_better = [_p("a", "cnn_mlp", "default", 0.1, (0.05, 0.15), 1.0),
-                       _p("b", "resnet50", "default", 0.9, (0.85, 0.95), 10.0)]
-    assert judge(slow_and_better)[0].verdict == NOT_SUPPORTED
-
-
 def test_report_from_fixture_files(tmp_path):
     """A hand-made results directory: the report reads files only and draws every figure."""
     from bcbench.utils.io import write_json
@@ -157,12 +131,15 @@ def test_report_from_fixture_files(tmp_path):
         pol = {"name": policy, "parameters": params, "config": {"beta_schedule": schedule} if schedule else {}}
         if variant:
             pol.update({"sampler": variant[0], "steps": variant[1]})
-        return {"type": "evaluation", "policy": pol, "study": {"label": label},
+        episodes = [{"seed": 100_000 + i, "score": score + 0.1 * ((i % 3) - 1)} for i in range(40)]
+        return {"type": "evaluation", "policy": pol, "study": {"label": label}, "episodes": episodes,
                 "summary": {"n": 40, "mean_score": est, "share_above_0.5": est, "share_above_0.9": est,
-                            "success_rate": est}, "hardware": {"cpu_model": "test cpu", "torch_threads": 2}}
+                            "success_rate": est}, "hardware": {"cpu_model": "test cpu", "torch_threads": 2},
+                "git_commit": "abc123"}
 
     def lat(ms):
-        m = {"median_ms": ms, "p99_ms": ms * 1.2, "max_rate_every_step_hz": 1000 / ms}
+        m = {"median_ms": ms, "p99_ms": ms * 1.2, "tail_ms": ms * 1.2, "tail_stat": "p99",
+             "max_rate_every_step_hz": 1000 / ms}
         return {"type": "latency", "modes": {"reference": m, "fast": {**m, "median_ms": ms / 2}}}
 
     runs = tmp_path / "runs"
@@ -179,7 +156,8 @@ def test_report_from_fixture_files(tmp_path):
     for fig in ("fig5_accuracy_vs_latency.png", "fig3_denoising_steps.png", "fig4_samplers.png"):
         assert (tmp_path / "report" / fig).stat().st_size > 1000 and fig in md
     assert "0.29 / 25.0% / 2.5% / 2.20" in md  # the study's CNN-MLP numbers beside ours
-    assert "10 denoising steps score as well as 100**: *supported*" in md
+    assert "10 denoising steps score as well as 100**: *supported*" in md and "Rule: DDPM-10 minus DDPM-100" in md
+    assert "Produced at commit: abc123." in md and "mix several commits" not in md
     html = Path(paths["html"]).read_text()
     assert html.count("data:image/png;base64,") == 3  # self-contained
 

@@ -14,6 +14,7 @@ from bcbench.checkpoint import latest_checkpoint, load_runner
 from bcbench.errors import BCBenchError
 from bcbench.policies import learned_policies
 from bcbench.train import Trainer, TrainOptions, new_run
+from bcbench.utils.io import read_jsonl
 from tests.tiny import tiny_overrides
 
 EXE = os.path.join(os.path.dirname(sys.executable), "bcbench")
@@ -100,11 +101,28 @@ def test_checkpoint_roundtrip_every_policy(name, synthetic_zarr, tmp_path, one_t
         assert torch.equal(v, ema_state[k]), k
 
 
-def test_budget_stops_cleanly(synthetic_zarr, tmp_path, one_thread):
-    opts = TrainOptions(data=str(synthetic_zarr), threads=1, progress=False, minutes=1e-6)
+def test_safety_stop_marks_the_schedule_unfinished(synthetic_zarr, tmp_path, one_thread):
+    opts = TrainOptions(data=str(synthetic_zarr), threads=1, progress=False, max_minutes=1e-6)
     run = new_run("cnn_mlp", "quick", tiny_overrides("cnn_mlp", epochs=50), tmp_path / "budget", opts)
     s = Trainer(run, opts).fit()
-    assert s["stopped"] == "time budget" and s["step"] == 1 and latest_checkpoint(run).name == "step_0000001"
+    assert s["stopped"] == "stopped by time: schedule not finished" and s["step"] == 1
+    assert latest_checkpoint(run).name == "step_0000001"
+
+
+def test_step_budget_sizes_the_schedule(synthetic_zarr, tmp_path, one_thread):
+    """A step budget ends the run on time with its cosine schedule annealed to zero."""
+    opts = TrainOptions(data=str(synthetic_zarr), threads=1, progress=False)
+    run = new_run("bct", "quick", tiny_overrides("bct", epochs=50, max_steps=6, warmup_steps=2), tmp_path / "s", opts)
+    s = Trainer(run, opts).fit()
+    assert s["stopped"] == "finished" and s["step"] == s["total_steps"] == 6
+    lrs = [m["lr"] for m in read_jsonl(run / "metrics.jsonl") if "lr" in m]
+    assert lrs[-1] == pytest.approx(0.0, abs=1e-12) and max(lrs) == pytest.approx(1e-3)
+
+
+def test_runs_written_before_step_budgets_still_load(synthetic_zarr, tmp_path):
+    from bcbench.policies.config import OptimConfig, config_from_dict
+
+    assert config_from_dict(OptimConfig, {"epochs": 3, "max_minutes": 14}).epochs == 3  # retired field dropped
 
 
 def test_existing_run_and_bad_override_are_errors(synthetic_zarr, tmp_path):

@@ -53,16 +53,26 @@ def _rows_for(name: str, preset: str, modes: list[str], samplers: list[str], ste
     return rows
 
 
+def _opt(v: float | None) -> str:
+    return "-" if v is None else f"{v:.2f}"
+
+
+def _tail(r: dict[str, Any]) -> str:
+    """The tail statistic with its name: '12.30 (p99)' or '950.1 (max of 35)'."""
+    stat = r.get("tail_stat", "p99")
+    return f"{r.get('tail_ms', r.get('p99_ms')):.2f} ({stat})"
+
+
 def _table(rows: list[dict[str, Any]]) -> str:
     ref = {(r["policy"], r["preset"], r["variant"]): r["median_ms"] for r in rows if r["mode"] == "reference"}
-    head = ("| policy | preset | variant | mode | params | median ms | p90 | p99 | min | calls/s | speed-up | "
-            "10 Hz chunked | 10 Hz every step | max Hz every step |")
+    head = ("| policy | preset | variant | mode | params | median ms | p90 | tail (p99, or max of N < 100 calls) | min "
+            "| calls/s | speed-up | 10 Hz chunked | 10 Hz every step | max Hz every step |")
     lines = [head, "|" + "---|" * 14]
     for r in rows:
         base = ref.get((r["policy"], r["preset"], r["variant"]))
         speed = f"{base / r['median_ms']:.2f}x" if base and r["mode"] != "reference" else "-"
         lines.append(f"| {r['policy']} | {r['preset']} | {r['variant']} | {r['mode']} | {r['params'] / 1e6:.2f} M | "
-                     f"{r['median_ms']:.2f} | {r['p90_ms']:.2f} | {r['p99_ms']:.2f} | {r['min_ms']:.2f} | "
+                     f"{r['median_ms']:.2f} | {_opt(r.get('p90_ms'))} | {_tail(r)} | {r['min_ms']:.2f} | "
                      f"{r['calls_per_s']:.1f} | {speed} | {'yes' if r['realtime_chunked'] else 'no'} | "
                      f"{'yes' if r['realtime_every_step'] else 'no'} | {r['max_rate_every_step_hz']:.1f} |")
     return "\n".join(lines)
@@ -97,7 +107,7 @@ def run_latency_benchmark(policies: list[str] | None = None, presets: list[str] 
                           list(steps or DEFAULT_STEPS), dev, timing, rate_hz)
     out_dir = Path(out) if out else Path("runs") / f"latency-{datetime.now():%Y%m%d-%H%M%S}"
     record = {"type": "latency-benchmark", "device": str(dev), "rate_hz": rate_hz, "timing": timing.__dict__,
-              "rows": rows, "verdict_rule": verdicts.__doc__, **provenance()}
+              "rows": rows, "verdict_rule": verdicts.__doc__, **provenance(str(dev))}
     write_json(out_dir / "latency.json", record)
     table = _table(rows)
     with atomic_path(out_dir / "latency.md") as tmp:

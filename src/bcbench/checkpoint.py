@@ -116,18 +116,20 @@ def load_runner(run_dir: str | Path, use_ema: bool = True, device: str = "cpu") 
     return PolicyRunner(model, norm, device, extra=extra)
 
 
-def configure_runner(runner: Any, sampler: str | None = None, steps: int | None = None, seed: int = 0) -> str:
-    """Seed a trained runner's inference noise and, for diffusion, pick the sampler and step count.
+def configure_runner(runner: Any, sampler: str | None = None, steps: int | None = None, seed: int = 0,
+                     spacing: str | None = None) -> str:
+    """Seed a trained runner's inference noise and, for diffusion, pick the sampler, steps and spacing.
 
-    Returns a tag for output names ("ddim10-" for diffusion, "" otherwise). Sampler options on a
-    policy without a sampler are an error.
+    Returns a tag for output names ("ddim10-" for diffusion with trailing spacing, "ddim10-leading-" with
+    leading, "" otherwise). Sampler options on a policy without a sampler are an error.
     """
     runner.model.reset_noise(seed)  # stochastic policies: the evaluation seed fixes the noise
     if hasattr(runner.model, "set_sampler"):
         kind, k = sampler or runner.model.sampler_kind, steps or runner.model.sampler_steps
-        runner.model.set_sampler(kind, k)
-        runner.extra.update({"sampler": kind, "steps": k})
-        return f"{kind}{k}-"
-    if sampler or steps:
-        raise BCBenchError(f"--sampler/--steps apply to diffusion policies, not to '{runner.name}'")
+        runner.model.set_sampler(kind, k, spacing)
+        spacing = runner.model.sampler_spacing
+        runner.extra.update({"sampler": kind, "steps": k, "spacing": spacing})
+        return f"{kind}{k}-" + ("" if spacing == "trailing" else f"{spacing}-")
+    if sampler or steps or spacing:
+        raise BCBenchError(f"--sampler/--steps/--spacing apply to diffusion policies, not to '{runner.name}'")
     return ""

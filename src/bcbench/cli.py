@@ -32,6 +32,16 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {value}")
+    return value
+
+
 def _nonneg_int(text: str) -> int:
     try:
         value = int(text)
@@ -112,7 +122,7 @@ def _load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
         from bcbench.checkpoint import configure_runner, load_runner
 
         runner = load_runner(args.checkpoint, use_ema=not args.no_ema, device=args.device)
-        tag = configure_runner(runner, args.sampler, args.steps, args.seed)
+        tag = configure_runner(runner, args.sampler, args.steps, args.seed, args.spacing)
         if args.mode != "default":
             from bcbench.fast import make_runner
 
@@ -122,8 +132,8 @@ def _load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
         return runner, Path(args.checkpoint) / f"eval-{tag}{args.episodes}ep-{stamp}"
     if not args.policy:
         raise BCBenchError("choose --policy NAME or --checkpoint RUN_DIR")
-    if args.sampler or args.steps:
-        raise BCBenchError("--sampler/--steps need a diffusion --checkpoint")
+    if args.sampler or args.steps or args.spacing:
+        raise BCBenchError("--sampler/--steps/--spacing need a diffusion --checkpoint")
     if is_learned(args.policy):
         raise BCBenchError(f"'{args.policy}' is a learned policy: train it (`bcbench train --policy {args.policy}`) "
                            "and evaluate with --checkpoint RUN_DIR")
@@ -172,7 +182,7 @@ def _parse_sets(items: list[str] | None) -> dict[str, Any]:
 def cmd_train(args: argparse.Namespace) -> int:
     from bcbench.train import Trainer, TrainOptions, new_run
 
-    opts = TrainOptions(minutes=args.minutes, threads=args.threads, device=args.device, data=args.data,
+    opts = TrainOptions(max_minutes=args.max_minutes, threads=args.threads, device=args.device, data=args.data,
                         progress=not args.quiet)
     if args.resume:
         run_dir = Path(args.resume)
@@ -181,6 +191,11 @@ def cmd_train(args: argparse.Namespace) -> int:
             raise BCBenchError("choose --policy NAME (or --resume RUN_DIR)")
         overrides = _parse_sets(args.set)
         if args.pretrained:
+            from bcbench.policies import make_config
+
+            if not hasattr(make_config(args.policy, args.config), "pretrained"):
+                raise BCBenchError(f"--pretrained applies to policies with an ImageNet-style ResNet to initialise "
+                                   f"(resnet50), not to '{args.policy}'")
             overrides["pretrained"] = args.pretrained
         if args.seed is not None:
             overrides["seed"] = args.seed
@@ -306,7 +321,9 @@ def _add_train_eval_commands(sub: Any, policies: list[str]) -> None:
                         "quick_linear and paper_linear (linear betas)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a config field, e.g. --set optim.epochs=2 --set hidden=64 (repeatable)")
-    p.add_argument("--minutes", type=float, help="wall-clock budget; stops cleanly at the next step and saves")
+    p.add_argument("--max-minutes", type=_positive_float, metavar="M",
+                   help="safety stop only (the budget is the config's epochs / optim.max_steps): stops at the next "
+                        "step, saves, and marks the run 'stopped by time: schedule not finished'")
     p.add_argument("--out", metavar="DIR", help="run directory (default runs/train-POLICY-CONFIG-TIME)")
     p.add_argument("--resume", metavar="RUN_DIR", help="continue a run from its newest checkpoint")
     p.add_argument("--pretrained", metavar="PATH", help="torchvision-format ImageNet weights (local file)")
@@ -367,6 +384,9 @@ def _add_eval_command(sub: Any, policies: list[str]) -> None:
                         "(approximate); default = inference_mode with precomputed sampler constants")
     p.add_argument("--sampler", choices=["ddpm", "ddim"], help="diffusion only: sampler (default: the run's)")
     p.add_argument("--steps", type=_positive_int, help="diffusion only: denoising steps, 1..100 (default: the run's)")
+    p.add_argument("--spacing", choices=["trailing", "leading"],
+                   help="diffusion only: timestep spacing (default trailing: every step count starts from pure "
+                        "noise; leading is diffusers' and the study's default)")
     p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="where the policy runs (default cpu)")
     p.add_argument("--episodes", type=_positive_int, default=40, help="episodes (default 40, as the study)")
     p.add_argument("--seed-start", type=_nonneg_int, default=100_000,

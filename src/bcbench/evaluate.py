@@ -73,6 +73,7 @@ class EpisodeResult:
     success: bool = False
     length: int = 0
     initial_state: list[float] = field(default_factory=list)
+    final_state: list[float] = field(default_factory=list)  # agent x, y, block x, y, angle at the end
     video: str | None = None
 
 
@@ -108,7 +109,8 @@ def _worker(conn: Any, video_size: int) -> None:
                     if ep in videos:
                         videos[ep].add(envs[ep].render(), step=None, reward=float(reward),
                                        score=max(score, float(reward)))
-                    out[ep] = (obs, float(reward), bool(terminated), float(info["coverage"]))
+                    state = [*map(float, info["pos_agent"]), *map(float, info["block_pose"])]
+                    out[ep] = (obs, float(reward), bool(terminated), float(info["coverage"]), state)
                 conn.send(("ok", out))
             elif cmd == "close":  # payload: [episode]
                 paths = {}
@@ -202,7 +204,7 @@ def run_episodes(policy: Any, cfg: EvalConfig, out_dir: Path | None = None, prog
         resets = [(i, r.seed, str(video_dir / f"episode_{i:03d}_seed_{r.seed}.mp4") if i < cfg.video else None)
                   for i, r in results.items()]
         for ep, (obs, coverage, state) in pool.call("reset", _split(resets, n_workers, key=lambda x: x[0])).items():
-            controller.reset(ep, obs)
+            controller.reset(ep, obs, seed=results[ep].seed)
             results[ep].initial_state = state
             results[ep].final_coverage = results[ep].max_coverage = coverage
         active = sorted(results)
@@ -217,8 +219,9 @@ def run_episodes(policy: Any, cfg: EvalConfig, out_dir: Path | None = None, prog
             payload = {ep: (actions[ep], results[ep].score) for ep in active}
             stepped = pool.call("step", _split(payload, n_workers))
             finished = []
-            for ep, (obs, reward, terminated, coverage) in stepped.items():
+            for ep, (obs, reward, terminated, coverage, state) in stepped.items():
                 r = results[ep]
+                r.final_state = state
                 r.length += 1
                 r.score = max(r.score, reward)
                 r.final_coverage, r.max_coverage = coverage, max(r.max_coverage, coverage)
@@ -268,7 +271,7 @@ def evaluate(policy: Any, cfg: EvalConfig, out_dir: str | Path | None = None, pr
         "eval_config": asdict(cfg),
         "summary": summary,
         "episodes": [asdict(e) for e in episodes],
-        **provenance(),
+        **provenance(str(getattr(policy, "device", "cpu"))),
         **(extra or {}),
     }
     if out is not None:

@@ -32,9 +32,10 @@ class ReferenceRunner(PolicyRunner):
         model = self.model
         if hasattr(model, "set_sampler"):
             cond = model.encode(o["image"], o["agent_pos"])
-            sched = make_diffusers_sampler(model.noise_scheduler, model.sampler_kind, model.sampler_steps)
-            gen = model.noise_generator(cond.device)
-            x = torch.randn((cond.shape[0], model.config.pred_horizon, 2), generator=gen, device=cond.device)
+            sched = make_diffusers_sampler(model.noise_scheduler, model.sampler_kind, model.sampler_steps,
+                                           model.sampler_spacing)
+            x = model.randn(o, (cond.shape[0], model.config.pred_horizon, 2), cond.device)
+            gen = model.generators(o, cond.device)  # diffusers draws row by row from a list, as randn does
             chunk = run_diffusers(sched, lambda x, t: model.unet(x, torch.tensor(t, device=x.device), cond), x, gen)
         else:
             chunk = model.predict_action_chunk(o)
@@ -237,9 +238,8 @@ class FastRunner(PolicyRunner):
             films = [a + b for a, b in zip(obs_terms, step_terms[index[t]], strict=True)]
             return m.unet.forward_films(x, films)
 
-        gen = m.noise_generator(cond.device)
-        x = torch.randn((cond.shape[0], m.config.pred_horizon, 2), generator=gen, device=cond.device)
-        chunk = run_plan(m.plan, denoise, x, gen)
+        x = m.randn(o, (cond.shape[0], m.config.pred_horizon, 2), cond.device)
+        chunk = run_plan(m.plan, denoise, x, lambda shape: m.randn(o, shape, cond.device))
         return self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()
 
     def describe(self) -> dict[str, Any]:

@@ -1,25 +1,24 @@
-"""The study's five findings, each judged on this run's evidence: supported, not supported, inconclusive.
+"""The study's five findings, each judged on this run's evidence: supported, contradicted or inconclusive.
 
-Rules (with 95% bootstrap intervals on mean scores; "significantly" = the intervals do not overlap):
-1. Accuracy does not rise in proportion to inference time: among pairs of evaluated settings where one
-   is at least 3x slower, supported if some slower one is not significantly better; not supported if every
-   such slower setting is significantly better; inconclusive without such pairs.
-2. 10 denoising steps score as well as 100: DDPM-10 vs DDPM-100 of the same model (cosine betas);
-   supported if their intervals overlap, not supported if not, inconclusive if either is missing.
-3. DDIM changes neither accuracy nor time meaningfully: DDIM-k vs DDPM-k for every k present in both;
-   supported if every score interval overlaps and every latency ratio lies in [0.8, 1.25].
-4. ResNet-50 > BCT > CNN-MLP in score: supported if both orderings are significant; not supported if either
-   is significantly reversed; inconclusive otherwise.
-5. BeT fails: supported if BeT is not significantly better than the random baseline (or scores < 0.05
-   without a random baseline), not supported if it is significantly better.
+Every verdict rests on one pre-specified paired comparison (or a fixed set of them): the per-seed score
+differences of two settings evaluated on the same episode seeds, with a 95% paired-bootstrap interval of
+their mean, set against an equivalence margin m (default 0.05 mean score, `margin` in the study spec).
+A claim is supported when the interval lies inside the margin or beyond it in the claimed direction,
+contradicted when it lies wholly on the other side, and inconclusive otherwise. A finding that rests on
+a policy whose learning curve had not reached its plateau reads "undertrained" instead of a verdict.
+Each finding's `rule` states its test in one sentence (printed in the report).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, field
 
-SUPPORTED, NOT_SUPPORTED, INCONCLUSIVE = "supported", "not supported", "inconclusive"
+import numpy as np
+
+SUPPORTED, CONTRADICTED, INCONCLUSIVE, UNDERTRAINED = "supported", "contradicted", "inconclusive", "undertrained"
+DEFAULT_MARGIN = 0.05
+SLOWER = 10.0  # finding 1 compares the slowest setting with the settings at least this many times faster
+N_BOOT = 10_000
 
 
 @dataclass
@@ -28,11 +27,13 @@ class Point:
 
     name: str
     policy: str
-    variant: str  # "default" or e.g. "ddpm10"
+    variant: str  # "default" or e.g. "ddpm10", "ddim10-leading"
     score: float
     ci: tuple[float, float]
     latency_ms: float | None
     beta_schedule: str | None = None
+    scores: dict[int, float] = field(default_factory=dict)  # episode seed -> score
+    converged: bool | None = None  # False: the learning curve had not reached its plateau
 
 
 @dataclass
@@ -41,15 +42,30 @@ class Finding:
     claim: str
     verdict: str
     evidence: str
+    rule: str = ""
 
 
-def _overlap(a: Point, b: Point) -> bool:
-    return not (a.ci[1] < b.ci[0] or b.ci[1] < a.ci[0])
+def paired_diffs(a: Point, others: list[Point]) -> tuple[np.ndarray, np.ndarray]:
+    """Per-seed scores on the seeds every setting shares: a's (n,) and the others' (k, n)."""
+    seeds = sorted(set(a.scores).intersection(*(o.scores for o in others)))
+    return (np.array([a.scores[s] for s in seeds]), np.array([[o.scores[s] for s in seeds] for o in others]))
 
 
-def _better(a: Point, b: Point) -> bool:
-    """a significantly better than b."""
-    return a.ci[0] > b.ci[1]
+def paired_interval(a: Point, others: list[Point], seed: int = 0) -> tuple[float, float, float, int]:
+    """Mean of a - max(others) over shared seeds and its 95% paired-bootstrap interval; also n seeds.
+
+    With several `others` the maximum is taken inside every resample, so choosing the best of them is part
+    of what the interval accounts for.
+    """
+    x, ys = paired_diffs(a, others)
+    n = x.size
+    if n == 0:
+        return float("nan"), float("nan"), float("nan"), 0
+    est = float(x.mean() - ys.mean(axis=1).max())
+    idx = np.random.default_rng(seed).integers(0, n, size=(N_BOOT, n))
+    boot = x[idx].mean(axis=1) - ys[:, idx].mean(axis=2).max(axis=0)  # (N_BOOT,)
+    lo, hi = np.quantile(boot, [0.025, 0.975])
+    return est, float(lo), float(hi), n
 
 
 def _fmt(p: Point) -> str:
@@ -57,87 +73,130 @@ def _fmt(p: Point) -> str:
     return f"{p.name} {p.score:.3f} [{p.ci[0]:.3f}, {p.ci[1]:.3f}]{lat}"
 
 
+def _fmt_diff(est: float, lo: float, hi: float, n: int) -> str:
+    return f"paired difference {est:+.3f} [{lo:+.3f}, {hi:+.3f}] over {n} seeds"
+
+
+def _undertrained(points: list[Point]) -> list[str]:
+    return sorted({p.name for p in points if p.converged is False})
+
+
+def _finish(number: int, claim: str, rule: str, verdict: str, evidence: str, used: list[Point]) -> Finding:
+    late = _undertrained(used)
+    if late:
+        return Finding(number, claim, UNDERTRAINED, f"{evidence} (not judged: {', '.join(late)} had not reached "
+                       "its plateau)", rule)
+    return Finding(number, claim, verdict, evidence, rule)
+
+
+def _at_most(lo: float, hi: float, bound: float) -> str:
+    """Claim 'difference <= bound': supported below it, contradicted above it."""
+    return SUPPORTED if hi < bound else (CONTRADICTED if lo > bound else INCONCLUSIVE)
+
+
+def _at_least(lo: float, hi: float, bound: float) -> str:
+    """Claim 'difference >= bound': supported above it, contradicted below it."""
+    return SUPPORTED if lo > bound else (CONTRADICTED if hi < bound else INCONCLUSIVE)
+
+
+def _combine(verdicts: list[str]) -> str:
+    """Several comparisons behind one claim: any contradicted -> contradicted; all supported -> supported."""
+    if CONTRADICTED in verdicts:
+        return CONTRADICTED
+    return SUPPORTED if set(verdicts) == {SUPPORTED} else INCONCLUSIVE
+
+
 def _dp(points: list[Point], sampler: str, steps: int, schedule: str = "squaredcos_cap_v2") -> Point | None:
-    for p in points:
-        if p.policy == "diffusion" and p.variant == f"{sampler}{steps}" and (p.beta_schedule or schedule) == schedule:
-            return p
+    """A cosine-beta DP setting, trailing spacing preferred over leading."""
+    for variant in (f"{sampler}{steps}", f"{sampler}{steps}-leading"):
+        for p in points:
+            if p.policy == "diffusion" and p.variant == variant and (p.beta_schedule or schedule) == schedule:
+                return p
     return None
 
 
-def finding_1(points: list[Point]) -> Finding:
+def finding_1(points: list[Point], m: float) -> Finding:
     claim = "Accuracy does not rise in proportion to inference time"
-    timed = [p for p in points if p.latency_ms and p.policy not in ("random", "scripted")]
-    pairs = [(s, f) for s in timed for f in timed if s.latency_ms >= 3 * f.latency_ms]
-    if not pairs:
-        return Finding(1, claim, INCONCLUSIVE, "no two timed learned settings differ by 3x in latency")
-    counter = [(s, f) for s, f in pairs if not _better(s, f)]
-    if counter:
-        s, f = max(counter, key=lambda sf: sf[0].latency_ms / sf[1].latency_ms)
-        ratio = s.latency_ms / f.latency_ms
-        return Finding(1, claim, SUPPORTED, f"{_fmt(s)} is {ratio:.0f}x slower than {_fmt(f)} but not "
-                       f"significantly better ({len(counter)} of {len(pairs)} such pairs)")
-    return Finding(1, claim, NOT_SUPPORTED,
-                   f"in all {len(pairs)} pairs the >=3x slower setting scores significantly higher")
+    rule = (f"The slowest timed learned setting minus the best of those at least {SLOWER:g}x faster (best chosen "
+            f"inside each bootstrap resample): supported if the interval lies below +{m}, contradicted if above.")
+    timed = [p for p in points if p.latency_ms and p.policy not in ("random", "scripted") and p.scores]
+    if not timed:
+        return Finding(1, claim, INCONCLUSIVE, "no timed learned settings", rule)
+    slow = max(timed, key=lambda p: p.latency_ms)
+    fast = [p for p in timed if p.latency_ms * SLOWER <= slow.latency_ms]
+    if not fast:
+        return Finding(1, claim, INCONCLUSIVE, f"no setting is {SLOWER:g}x faster than {_fmt(slow)}", rule)
+    est, lo, hi, n = paired_interval(slow, fast)
+    best = max(fast, key=lambda p: p.score)
+    evidence = (f"{_fmt(slow)} against the best of {len(fast)} settings >= {SLOWER:g}x faster ({_fmt(best)}): "
+                f"{_fmt_diff(est, lo, hi, n)}")
+    return _finish(1, claim, rule, _at_most(lo, hi, m), evidence, [slow, *fast])
 
 
-def finding_2(points: list[Point]) -> Finding:
+def finding_2(points: list[Point], m: float) -> Finding:
     claim = "10 denoising steps score as well as 100"
+    rule = f"DDPM-10 minus DDPM-100 (cosine model): supported if the interval lies above -{m}, contradicted if below."
     p10, p100 = _dp(points, "ddpm", 10), _dp(points, "ddpm", 100)
     if p10 is None or p100 is None:
-        return Finding(2, claim, INCONCLUSIVE, "DDPM-10 and DDPM-100 of the cosine model are not both evaluated")
-    verdict = SUPPORTED if _overlap(p10, p100) else (NOT_SUPPORTED if _better(p100, p10) else SUPPORTED)
-    return Finding(2, claim, verdict, f"{_fmt(p10)} vs {_fmt(p100)}")
+        return Finding(2, claim, INCONCLUSIVE, "DDPM-10 and DDPM-100 of the cosine model are not both evaluated", rule)
+    est, lo, hi, n = paired_interval(p10, [p100])
+    evidence = f"{_fmt(p10)} vs {_fmt(p100)}: {_fmt_diff(est, lo, hi, n)}"
+    return _finish(2, claim, rule, _at_least(lo, hi, -m), evidence, [p10, p100])
 
 
-def finding_3(points: list[Point]) -> Finding:
+def finding_3(points: list[Point], m: float) -> Finding:
     claim = "DDIM changes neither accuracy nor inference time meaningfully"
-    pairs = []
-    for k in range(1, 101):
-        a, b = _dp(points, "ddim", k), _dp(points, "ddpm", k)
-        if a and b:
-            pairs.append((a, b))
+    rule = (f"DDIM-k minus DDPM-k for every k evaluated with both (cosine model): supported if every interval lies "
+            f"inside (-{m}, +{m}) and every latency ratio in [0.8, 1.25]; contradicted if any interval lies wholly "
+            "outside the margin or any ratio outside that range.")
+    pairs = [(a, b) for k in range(1, 101) if (a := _dp(points, "ddim", k)) and (b := _dp(points, "ddpm", k))]
     if not pairs:
-        return Finding(3, claim, INCONCLUSIVE, "no step count evaluated with both DDIM and DDPM (cosine model)")
-    notes, ok = [], True
+        return Finding(3, claim, INCONCLUSIVE, "no step count evaluated with both DDIM and DDPM (cosine model)", rule)
+    notes, verdicts = [], []
     for a, b in pairs:
-        same_score = _overlap(a, b)
+        est, lo, hi, n = paired_interval(a, [b])
         ratio = a.latency_ms / b.latency_ms if a.latency_ms and b.latency_ms else None
-        same_time = ratio is None or 0.8 <= ratio <= 1.25
-        ok = ok and same_score and same_time
-        notes.append(f"{_fmt(a)} vs {_fmt(b)}" + (f" (time ratio {ratio:.2f})" if ratio else ""))
-    return Finding(3, claim, SUPPORTED if ok else NOT_SUPPORTED, "; ".join(notes))
+        if lo > m or hi < -m or (ratio is not None and not 0.8 <= ratio <= 1.25):
+            verdicts.append(CONTRADICTED)
+        else:
+            verdicts.append(SUPPORTED if -m < lo and hi < m else INCONCLUSIVE)
+        time_note = f", time ratio {ratio:.2f}" if ratio else ""
+        notes.append(f"{a.name} vs {b.name}: {_fmt_diff(est, lo, hi, n)}{time_note}")
+    return _finish(3, claim, rule, _combine(verdicts), "; ".join(notes), [p for ab in pairs for p in ab])
 
 
-def finding_4(points: list[Point]) -> Finding:
+def finding_4(points: list[Point], m: float) -> Finding:
     claim = "ResNet-50 > BCT > CNN-MLP in score"
+    rule = (f"ResNet-50 minus BCT and BCT minus CNN-MLP: supported if both intervals lie above +{m}, contradicted "
+            f"if either lies below +{m} (not better by a meaningful amount).")
     by = {p.policy: p for p in points if p.variant == "default"}
     r, b, c = by.get("resnet50"), by.get("bct"), by.get("cnn_mlp")
     if not (r and b and c):
-        return Finding(4, claim, INCONCLUSIVE, "ResNet-50, BCT and CNN-MLP are not all evaluated")
-    evidence = f"{_fmt(r)}; {_fmt(b)}; {_fmt(c)}"
-    if _better(r, b) and _better(b, c):
-        return Finding(4, claim, SUPPORTED, evidence)
-    if _better(b, r) or _better(c, b):
-        return Finding(4, claim, NOT_SUPPORTED, evidence + " (an ordering is significantly reversed)")
-    return Finding(4, claim, INCONCLUSIVE, evidence + " (intervals overlap)")
+        return Finding(4, claim, INCONCLUSIVE, "ResNet-50, BCT and CNN-MLP are not all evaluated", rule)
+    d1, d2 = paired_interval(r, [b]), paired_interval(b, [c])
+    v1, v2 = _at_least(d1[1], d1[2], m), _at_least(d2[1], d2[2], m)
+    evidence = (f"{_fmt(r)}; {_fmt(b)}; {_fmt(c)}; ResNet-50 - BCT: {_fmt_diff(*d1)}; BCT - CNN-MLP: "
+                f"{_fmt_diff(*d2)}")
+    return _finish(4, claim, rule, _combine([v1, v2]), evidence, [r, b, c])
 
 
-def finding_5(points: list[Point]) -> Finding:
-    claim = "BeT fails (scores about zero)"
+def finding_5(points: list[Point], m: float) -> Finding:
+    claim = "BeT fails (scores no better than chance)"
+    rule = f"BeT minus the random baseline: supported if the interval lies below +{m}, contradicted if above."
     by = {p.policy: p for p in points if p.variant == "default"}
     bet, rnd = by.get("bet"), by.get("random")
-    if bet is None:
-        return Finding(5, claim, INCONCLUSIVE, "BeT is not evaluated")
-    if rnd is None:
-        return Finding(5, claim, SUPPORTED if bet.score < 0.05 else NOT_SUPPORTED, _fmt(bet) + " (no random baseline)")
-    verdict = NOT_SUPPORTED if _better(bet, rnd) else SUPPORTED
-    return Finding(5, claim, verdict, f"{_fmt(bet)} vs {_fmt(rnd)}")
+    if bet is None or rnd is None:
+        return Finding(5, claim, INCONCLUSIVE, "BeT and the random baseline are not both evaluated", rule)
+    est, lo, hi, n = paired_interval(bet, [rnd])
+    evidence = f"{_fmt(bet)} vs {_fmt(rnd)}: {_fmt_diff(est, lo, hi, n)}"
+    return _finish(5, claim, rule, _at_most(lo, hi, m), evidence, [bet])
 
 
-def judge(points: list[Point]) -> list[Finding]:
-    return [f(points) for f in (finding_1, finding_2, finding_3, finding_4, finding_5)]
+def judge(points: list[Point], margin: float = DEFAULT_MARGIN) -> list[Finding]:
+    return [f(points, margin) for f in (finding_1, finding_2, finding_3, finding_4, finding_5)]
 
 
-def points_from_rows(rows: list[Any], mode: str = "reference") -> list[Point]:
+def points_from_rows(rows: list, mode: str = "reference") -> list[Point]:
     return [Point(r.label + ("" if r.variant == "default" else f" {r.variant.upper()}"), r.policy, r.variant, r.score,
-                  tuple(r.est("mean_score")["ci95"]), r.latency_ms(mode), r.beta_schedule) for r in rows]
+                  tuple(r.est("mean_score")["ci95"]), r.latency_ms(mode), r.beta_schedule, dict(r.scores),
+                  getattr(r, "converged", None)) for r in rows]

@@ -9,17 +9,17 @@ from __future__ import annotations
 
 import base64
 import html
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 from bcbench.figures import figure3, figure4, figure5
-from bcbench.findings import judge, points_from_rows
+from bcbench.findings import DEFAULT_MARGIN, judge, points_from_rows
 from bcbench.results import STUDY_REFERENCE, Row, load_rows
 from bcbench.stats import fmt_estimate
-from bcbench.utils.io import atomic_path
+from bcbench.utils.io import atomic_path, read_json
 
-COLUMNS = ["policy", "params", "mean score [95% CI]", "> 0.5", "> 0.9", "success", "latency ref. median / p99 (ms)",
+COLUMNS = ["policy", "params", "mean score [95% CI]", "> 0.5", "> 0.9", "success",
+           "latency ref. median / tail (ms; tail = p99 from >= 100 calls, else max of N)",
            "latency fast median (ms)", "max rate, every-step re-plan (Hz)", "training", "hardware",
            "study (A100): score / >0.5 / >0.9 / ms"]
 
@@ -46,7 +46,10 @@ def _train_cell(r: Row) -> str:
         return "none (baseline)"
     minutes = (t.get("train_time_s") or t.get("train_time_s_this_session") or 0) / 60
     sps = t.get("samples_per_s")
-    return f"{t.get('epochs', 0):.2f} epochs, {minutes:.1f} min" + (f", {sps:.0f} samples/s" if sps else "")
+    cell = f"{t.get('epochs', 0):.2f} epochs, {minutes:.1f} min" + (f", {sps:.0f} samples/s" if sps else "")
+    if t.get("stopped") not in (None, "finished"):
+        cell += f" ({t['stopped']})"  # e.g. "stopped by time: schedule not finished"
+    return cell
 
 
 def _hw_cell(r: Row) -> str:
@@ -60,16 +63,48 @@ def table_rows(rows: list[Row]) -> list[list[str]]:
     order = ["random", "scripted", "cnn_mlp", "resnet50", "bet", "bct", "diffusion"]
     for r in sorted(rows, key=lambda r: (order.index(r.policy) if r.policy in order else 99, r.label,
                                           r.sampler or "", r.steps or 0)):
-        p99 = r.latency_ms("reference", "p99_ms")
+        ref = r.latency.get("reference") or {}
+        tail = "-" if not ref else f"{_ms(ref.get('tail_ms', ref.get('p99_ms')))} ({ref.get('tail_stat', 'p99')})"
         fast = r.latency.get("fast", {})
         rate = fast.get("max_rate_every_step_hz") or (r.latency.get("reference") or {}).get("max_rate_every_step_hz")
         name = r.label + ("" if r.variant == "default" else f" {r.variant.upper()}")
         out.append([name, f"{r.params / 1e6:.2f} M", fmt_estimate(r.est("mean_score")),
                     fmt_estimate(r.est("share_above_0.5"), pct=True), fmt_estimate(r.est("share_above_0.9"), pct=True),
-                    fmt_estimate(r.est("success_rate"), pct=True), f"{_ms(r.latency_ms('reference'))} / {_ms(p99)}",
+                    fmt_estimate(r.est("success_rate"), pct=True), f"{_ms(r.latency_ms('reference'))} / {tail}",
                     _ms(fast.get("median_ms")), "-" if rate is None else f"{rate:.1f}", _train_cell(r), _hw_cell(r),
                     _study_cell(r)])
     return out
+
+
+FINDINGS_INTRO = ("Each verdict rests on paired comparisons: per-seed score differences of two settings evaluated on "
+                  "the same episode seeds, with a 95% paired-bootstrap interval of their mean, against an equivalence "
+                  "margin of {m} mean score. Supported: the interval lies inside the margin or beyond it in the "
+                  "claimed direction; contradicted: wholly on the other side; inconclusive: otherwise.")
+
+
+def _spec(results: Path) -> dict[str, Any]:
+    f = results / "spec.json"
+    return read_json(f) if f.exists() else {}
+
+
+def _spacing_note(rows: list[Row]) -> str:
+    spacings = sorted({r.spacing for r in rows if r.spacing})
+    if not spacings:
+        return ""
+    return ("Diffusion Policy timestep spacing: " + ", ".join(spacings) + " (trailing: every step count starts "
+            "from pure noise at t = 99; leading: diffusers' and the study's default, which starts K = 1 at t = 0 "
+            "and K = 40 at t = 78; variants marked -LEADING use it).")
+
+
+def provenance_notes(rows: list[Row]) -> list[str]:
+    """The commits the results were produced at, with a warning when several or a dirty tree."""
+    commits = sorted({r.git_commit or "unknown" for r in rows})
+    notes = [f"Produced at commit{'s' if len(commits) > 1 else ''}: " + ", ".join(commits) + "."]
+    if len(commits) > 1:
+        notes.append("Warning: these results mix several commits; numbers from different code may not be comparable.")
+    if any(c.endswith("-dirty") for c in commits):
+        notes.append("Warning: some results come from a working tree with uncommitted changes.")
+    return notes
 
 
 def _md_table(header: list[str], rows: list[list[str]]) -> str:
@@ -92,15 +127,18 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     figs = {"Figure 5: accuracy against inference time": figure5(rows, out / "fig5_accuracy_vs_latency.png"),
             "Figure 3: Diffusion Policy against denoising iterations": figure3(rows, out / "fig3_denoising_steps.png"),
             "Figure 4: DDPM-cosine, DDIM-cosine, DDIM-linear": figure4(rows, out / "fig4_samplers.png")}
-    findings = judge(points_from_rows(rows))
+    margin = _spec(results).get("margin", DEFAULT_MARGIN)
+    findings = judge(points_from_rows(rows), margin)
     table = table_rows(rows)
-    created = datetime.now(UTC).isoformat(timespec="seconds")
-    intro = (f"Results directory `{results}`; {len(rows)} evaluated settings; generated {created}. "
+    intro = (f"Results directory `{results.name}`; {len(rows)} evaluated settings. "
              "Scores: mean over the evaluation episodes of the max reward min(coverage/0.95, 1), with 95% bootstrap "
-             "intervals. Latency: one call at batch 1, raw observation in, chunk out (median and p99). The study's "
-             "numbers were measured by the study on an A100; ours on the hardware named in each row.")
-    md = ["# bcbench report", "", intro, "", "## The study's findings on this evidence", ""]
-    md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}" for f in findings]
+             "intervals. Latency: one call at batch 1, raw observation in, chunk out (median, and the p99 from at "
+             "least 100 calls or else the maximum, labelled 'max of N'). The study's numbers were measured by the "
+             "study on an A100; ours on the hardware named in each row. " + _spacing_note(rows))
+    notes = provenance_notes(rows)
+    md = ["# bcbench report", "", intro, "", *[f"> {n}" for n in notes], "",
+          "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
+    md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
     md += ["", "## Results", "", _md_table(COLUMNS, table), ""]
     for title, path in figs.items():
         if path:
@@ -110,18 +148,20 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
         tmp.write_text("\n".join(md) + "\n")
     html_path = out / "report.html"
     with atomic_path(html_path) as tmp:
-        tmp.write_text(_html(intro, findings, table, figs))
+        tmp.write_text(_html(intro + " " + " ".join(notes), findings, table, figs, FINDINGS_INTRO.format(m=margin)))
     return {"markdown": str(md_path), "html": str(html_path), "dir": str(out)}
 
 
-def _html(intro: str, findings: list[Any], table: list[list[str]], figs: dict[str, Path | None]) -> str:
+def _html(intro: str, findings: list[Any], table: list[list[str]], figs: dict[str, Path | None],
+          rules_intro: str) -> str:
     css = ("body{font-family:system-ui,sans-serif;max-width:1400px;margin:2em auto;padding:0 1em;color:#222}"
            "table{border-collapse:collapse;font-size:12px}td,th{border:1px solid #ccc;padding:3px 6px;text-align:left}"
-           "th{background:#f3f3f3}.supported{color:#176b2c}.not{color:#a11}.inconclusive{color:#8a6d00}"
+           "th{background:#f3f3f3}.supported{color:#176b2c}.contradicted{color:#a11}.inconclusive{color:#8a6d00}"
+           ".undertrained{color:#666}"
            "img{max-width:100%;border:1px solid #eee}")
     items = "".join(
         f"<li><b>{html.escape(f.claim)}</b>: <span class='{f.verdict.split()[0]}'>{html.escape(f.verdict)}</span>. "
-        f"{html.escape(f.evidence)}</li>" for f in findings)
+        f"{html.escape(f.evidence)}<br><i>Rule: {html.escape(f.rule)}</i></li>" for f in findings)
     images = ""
     for title, path in figs.items():
         if path:
@@ -130,7 +170,8 @@ def _html(intro: str, findings: list[Any], table: list[list[str]], figs: dict[st
             images += f"<h2>{t}</h2><img alt='{t}' src='data:image/png;base64,{data}'>"
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>bcbench report</title><style>{css}</style>"
             f"</head><body><h1>bcbench report</h1><p>{html.escape(intro)}</p><h2>The study's findings on this "
-            f"evidence</h2><ol>{items}</ol><h2>Results</h2>{_html_table(COLUMNS, table)}{images}</body></html>\n")
+            f"evidence</h2><p>{html.escape(rules_intro)}</p><ol>{items}</ol><h2>Results</h2>"
+            f"{_html_table(COLUMNS, table)}{images}</body></html>\n")
 
 
 EXPORTED = ("spec.json", "index.jsonl", "run.json", "train_summary.json", "normalizer.json", "metrics.jsonl")

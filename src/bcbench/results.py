@@ -35,9 +35,12 @@ class Row:
     variant: str  # "default", "ddpm10", ...
     sampler: str | None
     steps: int | None
+    spacing: str | None  # diffusion: trailing or leading (files from before spacing was recorded: leading)
     beta_schedule: str | None
     params: int
     summary: dict[str, Any]
+    scores: dict[int, float] = field(default_factory=dict)  # episode seed -> score, for paired comparisons
+    git_commit: str | None = None
     latency: dict[str, Any] = field(default_factory=dict)  # mode -> stats
     train: dict[str, Any] = field(default_factory=dict)
     hardware: dict[str, Any] = field(default_factory=dict)
@@ -68,15 +71,19 @@ def _row_from_eval(path: Path) -> Row:
     variant = (study.get("variant") or {})
     sampler = pol.get("sampler") or variant.get("sampler")
     steps = pol.get("steps") or variant.get("steps")
+    # spacing was recorded from the commit that made trailing the default; earlier files used leading
+    spacing = (pol.get("spacing") or variant.get("spacing") or "leading") if sampler else None
     # a study names its files by variant (eval-ddim10.json); a lone `bcbench eval` writes eval.json
     named = path.stem.startswith("eval-")
-    vkey = path.stem[len("eval-"):] if named else (f"{sampler}{steps}" if sampler else "default")
+    vkey = path.stem[len("eval-"):] if named else (
+        f"{sampler}{steps}" + ("" if spacing == "trailing" else f"-{spacing}") if sampler else "default")
     cfg = pol.get("config", {})
     run_dir = path.parent
     row = Row(key=f"{run_dir.name}:{vkey}", label=study.get("label") or pol["name"], policy=pol["name"],
-              preset=pol.get("preset"), variant=vkey, sampler=sampler, steps=steps,
+              preset=pol.get("preset"), variant=vkey, sampler=sampler, steps=steps, spacing=spacing,
               beta_schedule=cfg.get("beta_schedule"), params=int(pol.get("parameters", 0)), summary=ev["summary"],
-              hardware=ev.get("hardware", {}), source=str(path))
+              scores={int(e["seed"]): float(e["score"]) for e in ev.get("episodes", [])},
+              git_commit=ev.get("git_commit"), hardware=ev.get("hardware", {}), source=str(path))
     lat = run_dir / f"latency-{vkey}.json"
     if lat.exists():
         row.latency = read_json(lat)["modes"]

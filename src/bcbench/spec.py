@@ -7,14 +7,18 @@
     val_fraction = 0.1      # the study's 90/10 split
     latency = true          # time each variant at batch 1
     threads = 2             # torch threads for training and timing
+    device = "cpu"          # where training, evaluation and timing run: cpu, cuda or auto
+    margin = 0.05           # equivalence margin of the findings' verdicts (mean score)
 
     [[run]]
     policy = "diffusion"
     config = "quick"        # preset; diffusion also has quick_linear / paper_linear
-    minutes = 25            # training budget (optional; the preset's own budget still applies)
+    steps = 3000            # training budget in optimiser steps (optional; default: the preset's epochs)
+    max_minutes = 60        # safety stop (optional): a run that hits it is marked "schedule not finished"
     seeds = [0]             # one training run per seed
     set = { "optim.epochs" = 8 }                    # config overrides (optional)
-    eval = [{ sampler = "ddpm", steps = [10, 100] }, { sampler = "ddim", steps = [10] }]
+    eval = [{ sampler = "ddpm", steps = [10, 100] }, { sampler = "ddim", steps = [10], spacing = "leading" }]
+                            # spacing: trailing (default; every K starts from pure noise) or leading
 
 Validation happens before anything runs and names the offending entry in one line.
 """
@@ -31,20 +35,23 @@ from typing import Any
 from bcbench.errors import BCBenchError
 
 STUDY_KEYS = {"name", "episodes", "seed_start", "val_fraction", "latency", "threads", "max_steps", "rate_hz",
-              "latency_min_calls", "latency_min_seconds"}
-RUN_KEYS = {"policy", "config", "minutes", "seeds", "set", "eval", "label"}
+              "latency_min_calls", "latency_min_seconds", "device", "margin"}
+RUN_KEYS = {"policy", "config", "steps", "max_minutes", "seeds", "set", "eval", "label"}
 
 
 @dataclass(frozen=True)
 class Variant:
-    """One evaluation setting of a trained run (sampler and steps for diffusion, else the default)."""
+    """One evaluation setting of a trained run (sampler, steps, spacing for diffusion, else the default)."""
 
     sampler: str | None = None
     steps: int | None = None
+    spacing: str | None = None
 
     @property
     def key(self) -> str:
-        return "default" if self.sampler is None else f"{self.sampler}{self.steps}"
+        if self.sampler is None:
+            return "default"
+        return f"{self.sampler}{self.steps}" + ("" if self.spacing in (None, "trailing") else f"-{self.spacing}")
 
 
 @dataclass
@@ -52,7 +59,7 @@ class RunSpec:
     policy: str
     config: str
     seed: int
-    minutes: float | None
+    max_minutes: float | None  # safety stop only: budgets are steps (`steps`) or epochs (`set`)
     overrides: dict[str, Any]
     variants: list[Variant]
     label: str
@@ -86,8 +93,10 @@ class StudySpec:
     threads: int | None = None
     max_steps: int = 300
     rate_hz: float = 10.0
-    latency_min_calls: int = 15
+    latency_min_calls: int = 100
     latency_min_seconds: float = 2.0
+    device: str = "cpu"  # where training, evaluation and timing run: cpu, cuda or auto
+    margin: float = 0.05  # equivalence margin (mean score) of the findings' verdicts
     runs: list[RunSpec] = field(default_factory=list)
     source: str = ""
 
@@ -106,16 +115,19 @@ def _variants(i: int, run: dict[str, Any], policy: str) -> list[Variant]:
         raise BCBenchError(f"{_where(i, run)}: 'eval' must be a non-empty list of {{sampler, steps}} tables")
     out = []
     for e in entries:
-        if not isinstance(e, dict) or set(e) - {"sampler", "steps"} or "sampler" not in e:
-            raise BCBenchError(f"{_where(i, run)}: each eval entry needs sampler (and steps), got {e}")
+        if not isinstance(e, dict) or set(e) - {"sampler", "steps", "spacing"} or "sampler" not in e:
+            raise BCBenchError(f"{_where(i, run)}: each eval entry needs sampler (and steps, spacing), got {e}")
         if e["sampler"] not in ("ddpm", "ddim"):
             raise BCBenchError(f"{_where(i, run)}: sampler must be ddpm or ddim, got '{e['sampler']}'")
+        spacing = e.get("spacing", "trailing")
+        if spacing not in ("trailing", "leading"):
+            raise BCBenchError(f"{_where(i, run)}: spacing must be trailing or leading, got '{spacing}'")
         steps = e.get("steps", [100])
         steps = steps if isinstance(steps, list) else [steps]
         for k in steps:
             if not isinstance(k, int) or not 1 <= k <= 100:
                 raise BCBenchError(f"{_where(i, run)}: steps must be whole numbers in 1..100, got {k!r}")
-            out.append(Variant(e["sampler"], k))
+            out.append(Variant(e["sampler"], k, spacing))
     return out
 
 
@@ -124,6 +136,9 @@ def _run_specs(i: int, run: Any) -> list[RunSpec]:
 
     if not isinstance(run, dict):
         raise BCBenchError(f"[[run]] #{i + 1} must be a table")
+    if "minutes" in run:
+        raise BCBenchError(f"{_where(i, run)}: 'minutes' is no longer a training budget: give 'steps' (optimiser "
+                           "steps) or set optim.epochs; 'max_minutes' is a safety stop")
     unknown = sorted(set(run) - RUN_KEYS)
     if unknown:
         allowed = ", ".join(sorted(RUN_KEYS))
@@ -135,13 +150,18 @@ def _run_specs(i: int, run: Any) -> list[RunSpec]:
     overrides = run.get("set", {})
     if not isinstance(overrides, dict):
         raise BCBenchError(f"{_where(i, run)}: 'set' must be a table of config overrides")
+    if "steps" in run:
+        steps = run["steps"]
+        if not isinstance(steps, int) or isinstance(steps, bool) or steps < 1:
+            raise BCBenchError(f"{_where(i, run)}: steps must be a whole number >= 1, got {steps!r}")
+        overrides = {**overrides, "optim.max_steps": steps}
     try:
         make_config(policy, config, overrides)
     except BCBenchError as exc:
         raise BCBenchError(f"{_where(i, run)}: {exc}") from None
-    minutes = run.get("minutes")
+    minutes = run.get("max_minutes")
     if minutes is not None and (not isinstance(minutes, int | float) or minutes <= 0):
-        raise BCBenchError(f"{_where(i, run)}: minutes must be a positive number, got {minutes!r}")
+        raise BCBenchError(f"{_where(i, run)}: max_minutes must be a positive number, got {minutes!r}")
     seeds = run.get("seeds", [0])
     if not isinstance(seeds, list) or not seeds or not all(isinstance(s, int) and s >= 0 for s in seeds):
         raise BCBenchError(f"{_where(i, run)}: seeds must be a non-empty list of whole numbers >= 0")
@@ -165,7 +185,9 @@ def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
                          ("val_fraction", float, lambda v: 0 < v < 1), ("latency", bool, lambda v: True),
                          ("threads", int, lambda v: v >= 1), ("max_steps", int, lambda v: 1 <= v <= 10_000),
                          ("rate_hz", float, lambda v: v > 0), ("latency_min_calls", int, lambda v: v >= 1),
-                         ("latency_min_seconds", float, lambda v: v >= 0)):
+                         ("latency_min_seconds", float, lambda v: v >= 0),
+                         ("device", str, lambda v: v in ("cpu", "cuda", "auto")),
+                         ("margin", float, lambda v: 0 < v < 1)):
         if key in study:
             v = study[key]
             good = isinstance(v, typ) or (typ is float and isinstance(v, int) and not isinstance(v, bool))

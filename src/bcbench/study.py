@@ -25,13 +25,16 @@ from bcbench.errors import BCBenchError
 from bcbench.spec import RunSpec, StudySpec, Variant
 from bcbench.utils.io import append_jsonl, read_json, write_json
 
-DONE_TRAINING = ("finished", "time budget")
+DONE_TRAINING = ("finished", "stopped by time: schedule not finished")  # the latter is marked in the report
 
 
 class StudyRunner:
     def __init__(self, spec: StudySpec, out: str | Path, data: str | None = None, progress: bool = True) -> None:
         self.spec, self.out, self.data, self.progress = spec, Path(out), data, progress
         self.executed = 0  # stages executed (not skipped) in this process
+        from bcbench.train import pick_device
+
+        self.device = str(pick_device(spec.device))  # training, evaluation and timing all run here
         self._kill_after = int(os.environ.get("BCBENCH_TEST_KILL_AFTER_STAGES", "0"))  # test hook
 
     # ------------------------------------------------------------------ layout
@@ -65,8 +68,8 @@ class StudyRunner:
     def _train(self, run: RunSpec) -> None:
         from bcbench.train import Trainer, TrainOptions, new_run
 
-        opts = TrainOptions(minutes=run.minutes, threads=self.spec.threads, data=self.data,
-                            val_fraction=self.spec.val_fraction, progress=self.progress)
+        opts = TrainOptions(max_minutes=run.max_minutes, threads=self.spec.threads, data=self.data,
+                            val_fraction=self.spec.val_fraction, progress=self.progress, device=self.device)
         d = self.run_dir(run)
         if not (d / "run.json").exists():
             new_run(run.policy, run.config, {**run.overrides, "seed": run.seed}, d, opts)
@@ -74,14 +77,14 @@ class StudyRunner:
         if summary["stopped"] not in DONE_TRAINING:
             raise KeyboardInterrupt  # Ctrl-C during training: the checkpoint is saved; stop the study here
 
-    def _policy(self, run: RunSpec, variant: Variant, device: str = "cpu") -> Any:
+    def _policy(self, run: RunSpec, variant: Variant) -> Any:
         from bcbench.checkpoint import configure_runner, load_runner
         from bcbench.policies import make_policy
 
         if not run.learned:
             return make_policy(run.policy, run.config, seed=run.seed)
-        runner = load_runner(self.run_dir(run), use_ema=True, device=device)
-        configure_runner(runner, variant.sampler, variant.steps, run.seed)
+        runner = load_runner(self.run_dir(run), use_ema=True, device=self.device)
+        configure_runner(runner, variant.sampler, variant.steps, run.seed, variant.spacing)
         return runner
 
     def _eval(self, run: RunSpec, variant: Variant) -> None:

@@ -28,13 +28,16 @@ from bcbench.policies.config import OptimConfig, config_to_dict, with_overrides
 from bcbench.utils.io import append_jsonl, read_json, read_jsonl, write_json, write_jsonl
 from bcbench.utils.system import provenance
 
+STOPPED_BY_TIME = "stopped by time: schedule not finished"
+
 
 @dataclass
 class TrainOptions:
     """How to run, as opposed to what to train (that is the policy config)."""
 
-    minutes: float | None = None
-    """wall-clock budget; training stops cleanly at the next step after it and saves"""
+    max_minutes: float | None = None
+    """safety stop only (budgets are steps or epochs, in the config): past it training stops at the next step,
+    saves, and the run is marked 'stopped by time: schedule not finished'"""
     threads: int | None = None
     """torch intra-op threads (default: torch's choice)"""
     device: str = "auto"
@@ -100,7 +103,7 @@ def precise_batchnorm(model: torch.nn.Module, batches: Any) -> None:
 
 def make_optimizer(model: torch.nn.Module, o: OptimConfig) -> torch.optim.Optimizer:
     cls = torch.optim.AdamW if o.optimizer == "adamw" else torch.optim.Adam
-    return cls(model.parameters(), lr=o.lr, betas=o.betas, weight_decay=o.weight_decay)
+    return cls(model.optim_groups(o.weight_decay), lr=o.lr, betas=o.betas, weight_decay=o.weight_decay)
 
 
 def make_scheduler(opt: torch.optim.Optimizer, o: OptimConfig, total_steps: int) -> Any:
@@ -266,8 +269,7 @@ class Trainer:
         from tqdm import tqdm
 
         stop = _StopFlag()
-        budgets = [m for m in (self.opts.minutes, self.o.max_minutes) if m]
-        deadline = time.monotonic() + 60 * min(budgets) if budgets else None
+        deadline = time.monotonic() + 60 * self.opts.max_minutes if self.opts.max_minutes else None
         seed, bs = self.cfg.seed, self.o.batch_size
         self.model.train()
         bar = tqdm(total=self.total_steps, initial=self.step, desc=f"train {self.model.name}", unit="step",
@@ -317,7 +319,7 @@ class Trainer:
                 if kill_at and self.step == kill_at:
                     os.kill(os.getpid(), signal.SIGKILL)
                 if stop.requested or (deadline and time.monotonic() > deadline):
-                    reason = "interrupted" if stop.requested else "time budget"
+                    reason = "interrupted" if stop.requested else STOPPED_BY_TIME
                     break
         bar.close()
         if self.step % self.steps_per_epoch != 0:  # stopped mid-epoch: recalibrate BN and validate now

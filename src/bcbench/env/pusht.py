@@ -15,7 +15,11 @@ import numpy as np
 
 os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
 
-from gym_pusht.envs.pusht import PushTEnv as _GymPushTEnv
+from bcbench.utils.system import require_known_version
+
+require_known_version("gym-pusht")  # the exact reset below overrides one of its internals
+
+from gym_pusht.envs.pusht import PushTEnv as _GymPushTEnv  # noqa: E402
 
 WORLD_SIZE = 512.0
 MAX_STEPS = 300  # Diffusion Policy's episode limit

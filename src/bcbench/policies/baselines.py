@@ -12,6 +12,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
+import torch
 
 from bcbench.env.pusht import WORLD_SIZE, goal_centroid
 from bcbench.errors import BCBenchError
@@ -62,6 +63,10 @@ class _Baseline:
         self.action_horizon = config.action_horizon
         self.rng = np.random.default_rng(config.seed)
 
+    @property
+    def noise_seed(self) -> int:
+        return self.config.seed
+
     def describe(self) -> dict[str, Any]:
         return {"name": self.name, "parameters": 0, "config": asdict(self.config)}
 
@@ -69,9 +74,13 @@ class _Baseline:
 class RandomPolicy(_Baseline):
     name = "random"
 
-    def predict_action_chunk(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        b = obs["agent_pos"].shape[0]
-        return self.rng.uniform(0.0, WORLD_SIZE, size=(b, self.pred_horizon, 2)).astype(np.float32)
+    def predict_action_chunk(self, obs: dict[str, Any]) -> np.ndarray:
+        gens = obs.get("generators")  # per-episode streams from the controller: rows independent of batching
+        if gens is None:
+            b = obs["agent_pos"].shape[0]
+            return self.rng.uniform(0.0, WORLD_SIZE, size=(b, self.pred_horizon, 2)).astype(np.float32)
+        u = torch.cat([torch.rand((1, self.pred_horizon, 2), generator=g, dtype=torch.float64) for g in gens])
+        return (u.numpy() * WORLD_SIZE).astype(np.float32)
 
 
 def block_centroid(image: np.ndarray) -> np.ndarray | None:

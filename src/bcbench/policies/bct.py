@@ -59,8 +59,7 @@ class BCTConfig(PolicyConfig):
         if name == "quick":  # 1/4-width encoder, a small transformer: 15 minutes on 2 cores
             return cls(encoder_width=16, d_model=128, n_heads=4, n_layers=2, ffn_dim=512,
                        optim=OptimConfig(optimizer="adamw", lr=1e-3, weight_decay=1e-4, schedule="cosine",
-                                         warmup_steps=100, epochs=4, batch_size=64, max_minutes=14,
-                                         checkpoint_every=200))
+                                         warmup_steps=100, epochs=4, batch_size=64, checkpoint_every=200))
         raise BCBenchError(f"unknown config '{name}' for bct (choose quick or paper)")
 
 

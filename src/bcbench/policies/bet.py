@@ -1,4 +1,8 @@
-"""Behavior Transformer (BeT; Shafiullah et al., NeurIPS 2022), predicting a chunk of binned actions.
+"""A chunked variant of the Behavior Transformer (BeT; Shafiullah et al., NeurIPS 2022).
+
+BeT as published predicts one action per step from a window of observations; this variant predicts a
+16-step chunk of binned actions from the newest token and runs in the same receding-horizon controller
+as the other policies (the study does not say which it ran). Everything else follows BeT:
 
 Actions are discretised by k-means over the training split (fitted once, saved with the weights as a
 buffer). A minGPT-style causal transformer reads one token per observation (ResNet-18 features of the
@@ -64,7 +68,7 @@ class BeTConfig(PolicyConfig):
             return cls(encoder_width=16, n_bins=32, d_model=96, n_heads=4, n_layers=3,
                        optim=OptimConfig(optimizer="adamw", lr=1e-3, weight_decay=0.1, betas=(0.9, 0.95),
                                          schedule="cosine", warmup_steps=100, epochs=4, batch_size=64,
-                                         grad_clip=1.0, max_minutes=14, checkpoint_every=200))
+                                         grad_clip=1.0, checkpoint_every=200))
         raise BCBenchError(f"unknown config '{name}' for bet (choose quick or paper)")
 
 
@@ -141,6 +145,14 @@ class BeTPolicy(BCPolicy):
         out = self.head(h).view(-1, c.pred_horizon, c.n_bins, 3)
         return out[..., 0], out[..., 1:]  # logits (B, Tp, k), offsets (B, Tp, k, 2)
 
+    def optim_groups(self, weight_decay: float) -> list[dict[str, Any]]:
+        """minGPT's parameter groups: weight decay on matrices and convolution kernels only, never on biases,
+        norm scales or the position embedding."""
+        decay, no_decay = [], []
+        for name, p in self.named_parameters():
+            (decay if p.ndim >= 2 and name != "pos" else no_decay).append(p)
+        return [{"params": decay, "weight_decay": weight_decay}, {"params": no_decay, "weight_decay": 0.0}]
+
     def encode_actions(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(..., 2) -> nearest bin (...,) and the residual offset (..., 2): bin centre + offset = action."""
         bins = torch.cdist(action.reshape(-1, 2), self.centres).argmin(-1).view(action.shape[:-1])
@@ -156,8 +168,12 @@ class BeTPolicy(BCPolicy):
 
     def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
         logits, offsets = self._heads(obs)
-        probs = F.softmax(logits, dim=-1).flatten(0, 1)  # (B*Tp, k)
-        gen = self.noise_generator(logits.device)
-        bins = torch.multinomial(probs, 1, generator=gen).view(logits.shape[:2])  # sample, as BeT does
+        probs = F.softmax(logits, dim=-1)  # (B, Tp, k)
+        gens = self.generators(obs, logits.device)
+        if isinstance(gens, torch.Generator):  # one stream for the batch
+            bins = torch.multinomial(probs.flatten(0, 1), 1, generator=gens).view(logits.shape[:2])
+        else:  # row i from episode i's own stream (sampled on its generator's device)
+            bins = torch.stack([torch.multinomial(p.to(g.device), 1, generator=g).view(-1).to(p.device)
+                                for p, g in zip(probs, gens, strict=True)])  # sample a bin, as BeT does
         chosen = offsets.gather(2, bins[..., None, None].expand(-1, -1, 1, 2)).squeeze(2)
         return self.centres[bins] + chosen  # (B, Tp, 2)

@@ -33,12 +33,10 @@ class OptimConfig:
     plateau_patience: int = 2
     """epochs without improvement before the plateau schedule reduces the rate"""
     epochs: int = 10
-    """passes over the training windows"""
+    """passes over the training windows: the training budget (with max_steps); the learning-rate schedule is
+    sized to the steps that will run, so it always finishes"""
     max_steps: int | None = None
     """stop after this many optimiser steps (overrides epochs when smaller)"""
-    max_minutes: float | None = None
-    """wall-clock budget of one training session (the quick presets set one, so a loaded laptop still
-    finishes in time); `bcbench train --minutes` takes the smaller of the two"""
     batch_size: int = 64
     """windows per optimiser step"""
     grad_clip: float | None = None
@@ -64,8 +62,6 @@ class OptimConfig:
             raise BCBenchError(f"need lr > 0 and weight_decay >= 0, got {self.lr}, {self.weight_decay}")
         if self.epochs < 1 or self.batch_size < 1 or self.checkpoint_every < 1 or self.log_every < 1:
             raise BCBenchError("epochs, batch_size, checkpoint_every and log_every must be >= 1")
-        if self.max_minutes is not None and self.max_minutes <= 0:
-            raise BCBenchError(f"max_minutes must be > 0, got {self.max_minutes}")
         if self.max_steps is not None and self.max_steps < 1:
             raise BCBenchError(f"max_steps must be >= 1, got {self.max_steps}")
         if not 0 < self.ema_max_decay < 1:
@@ -103,10 +99,17 @@ def config_to_dict(cfg: Any) -> dict[str, Any]:
     return dataclasses.asdict(cfg)
 
 
+# Fields that runs written by earlier versions carry and that no longer mean anything: dropped on load.
+# OptimConfig.max_minutes was a wall-clock training budget; budgets are steps now (the safety stop is
+# `bcbench train --max-minutes`).
+_RETIRED = {("OptimConfig", "max_minutes")}
+
+
 def config_from_dict(cls: type, data: dict[str, Any]) -> Any:
     """Rebuild a (nested) config dataclass from its dict; unknown keys are an error."""
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
+    data = {k: v for k, v in data.items() if (cls.__name__, k) not in _RETIRED}
     unknown = sorted(set(data) - names)
     if unknown:
         raise BCBenchError(f"unknown field(s) for {cls.__name__}: {', '.join(unknown)}")

@@ -4,7 +4,8 @@ Vision: ResNet-18 with GroupNorm(C/16) instead of BatchNorm, no fc, global avera
 the To=2 frame features and normalised agent positions form the global condition 2 x (512 + 2) = 1028.
 Action: a 1-D conditional U-Net predicts the noise added to the normalised 16x2 chunk (epsilon
 prediction, 100 training timesteps, squared-cosine or linear betas, samples clipped to [-1, 1]).
-Sampling: DDPM or DDIM with any step count, chosen at evaluation time (`set_sampler`); the observation is
+Sampling: DDPM or DDIM with any step count and timestep spacing, chosen at evaluation time (`set_sampler`);
+the observation is
 encoded once per call and only the U-Net runs K times.
 """
 
@@ -19,7 +20,7 @@ from bcbench.errors import BCBenchError
 from bcbench.policies.config import OptimConfig, PolicyConfig
 from bcbench.policies.encoders import RESNET18_LAYERS, FrameFeatures, count_parameters
 from bcbench.policies.learned import BCPolicy
-from bcbench.policies.samplers import make_train_scheduler, plan, run_plan
+from bcbench.policies.samplers import DEFAULT_SPACING, check_spacing, make_train_scheduler, plan, run_plan
 from bcbench.policies.unet1d import ConditionalUnet1D
 
 STUDY_PARAMETERS = {"encoder": 11_176_512, "unet": 79_947_266, "total": 91_123_778}
@@ -54,6 +55,9 @@ class DiffusionConfig(PolicyConfig):
     """default sampler at evaluation: ddpm or ddim (bcbench eval --sampler overrides)"""
     sampling_steps: int = 100
     """default denoising steps at evaluation (bcbench eval --steps overrides)"""
+    sampling_spacing: str = DEFAULT_SPACING
+    """timesteps visited at evaluation: trailing (always starts at t = 99) or leading (diffusers' and the
+    study's default; see bcbench.policies.samplers); bcbench eval --spacing overrides"""
     optim: OptimConfig = field(default_factory=_paper_optim)
 
     def __post_init__(self) -> None:
@@ -63,6 +67,7 @@ class DiffusionConfig(PolicyConfig):
             raise BCBenchError(f"beta_schedule must be squaredcos_cap_v2 or linear, got '{self.beta_schedule}'")
         if self.sampler not in ("ddpm", "ddim") or not 1 <= self.sampling_steps <= self.num_train_timesteps:
             raise BCBenchError("sampler must be ddpm or ddim with 1 <= sampling_steps <= num_train_timesteps")
+        check_spacing(self.sampling_spacing)
         if self.crop is not None and not 8 <= self.crop <= self.image_size:
             raise BCBenchError(f"crop must be in 8..{self.image_size} or None, got {self.crop}")
         if any(d % self.n_groups for d in self.down_dims) or self.encoder_width % 16:
@@ -79,12 +84,12 @@ class DiffusionConfig(PolicyConfig):
         if base == "paper":
             return cls(beta_schedule=betas)
         # CPU-sized: 1/4-width ResNet-18 with one block per stage, a 64/128/256 U-Net, a higher learning
-        # rate, and a 29-minute budget on 2 cores.
+        # rate, 8 epochs (2,736 steps, about 15 minutes on 2 cores).
         return cls(encoder_width=16, encoder_layers=(1, 1, 1, 1), down_dims=(64, 128, 256), step_embed_dim=64,
                    beta_schedule=betas,
                    optim=OptimConfig(optimizer="adamw", lr=5e-4, betas=(0.95, 0.999), weight_decay=1e-6,
                                      schedule="cosine", warmup_steps=200, epochs=8, batch_size=64, ema=True,
-                                     ema_power=0.75, ema_max_decay=0.9999, max_minutes=29, checkpoint_every=200))
+                                     ema_power=0.75, ema_max_decay=0.9999, checkpoint_every=200))
 
 
 class DiffusionPolicy(BCPolicy):
@@ -101,12 +106,13 @@ class DiffusionPolicy(BCPolicy):
         ac = self.noise_scheduler.alphas_cumprod.float()
         self.register_buffer("sqrt_ac", ac.sqrt(), persistent=False)  # for add_noise, on the model's device
         self.register_buffer("sqrt_1m_ac", (1 - ac).sqrt(), persistent=False)
-        self.set_sampler(c.sampler, c.sampling_steps)
+        self.set_sampler(c.sampler, c.sampling_steps, c.sampling_spacing)
 
-    def set_sampler(self, kind: str, steps: int) -> None:
-        """Choose DDPM/DDIM and the number of denoising steps for inference (no retraining)."""
-        self.plan = plan(self.noise_scheduler, kind, steps)
-        self.sampler_kind, self.sampler_steps = kind, steps
+    def set_sampler(self, kind: str, steps: int, spacing: str | None = None) -> None:
+        """Choose DDPM/DDIM, the number of denoising steps and their spacing for inference (no retraining)."""
+        spacing = spacing or self.config.sampling_spacing
+        self.plan = plan(self.noise_scheduler, kind, steps, spacing)
+        self.sampler_kind, self.sampler_steps, self.sampler_spacing = kind, steps, spacing
 
     def encode(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:
         """image (B, To, 3, H, W), agent_pos (B, To, 2) -> global condition (B, To * (F + 2))."""
@@ -123,10 +129,10 @@ class DiffusionPolicy(BCPolicy):
 
     def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
         cond = self.encode(obs["image"], obs["agent_pos"])  # once per call
-        b = cond.shape[0]
-        gen = self.noise_generator(cond.device)
-        x = torch.randn((b, self.config.pred_horizon, 2), generator=gen, device=cond.device)
-        return run_plan(self.plan, lambda x, t: self.unet(x, torch.tensor(t, device=x.device), cond), x, gen)
+        shape = (cond.shape[0], self.config.pred_horizon, 2)
+        x = self.randn(obs, shape, cond.device)  # (B, Tp, 2) pure noise
+        return run_plan(self.plan, lambda x, t: self.unet(x, torch.tensor(t, device=x.device), cond), x,
+                        lambda shape: self.randn(obs, shape, cond.device))
 
     def parameter_breakdown(self) -> dict[str, int]:
         return {"encoder": count_parameters(self.encoder), "unet": count_parameters(self.unet),

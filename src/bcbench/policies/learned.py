@@ -4,6 +4,10 @@ A `BCPolicy` is an nn.Module that works entirely in normalised units:
     compute_loss(batch)          batch: image (B, To, 3, H, W) in [0, 1], agent_pos (B, To, 2) and
                                  action (B, Tp, 2) in [-1, 1]  ->  scalar loss
     predict_action_chunk(obs)    obs: image, agent_pos as above  ->  (B, Tp, 2) in [-1, 1]
+Stochastic policies (Diffusion Policy, BeT) draw their noise with `BCPolicy.randn` / `generators`: when
+the observation carries `generators` (one torch.Generator per row, made by the controller from the
+policy seed and the episode seed), row i's noise comes from its own stream only, so an episode's actions
+do not depend on which other episodes share its batch; without them one policy-wide stream is used.
 A `PolicyRunner` wraps one with its normalizer: raw observations in (uint8 frames, agent position in
 pixels), a chunk of target positions in pixels out. The chunk starts at the oldest observation (the
 training windows' alignment), so the runner's `chunk_start` is obs_horizon - 1.
@@ -41,6 +45,27 @@ class BCPolicy(nn.Module):
             self.generator = torch.Generator(device=device).manual_seed(seed)
         return self.generator
 
+    def generators(self, obs: dict[str, Any], device: torch.device) -> list[torch.Generator] | torch.Generator:
+        """Per-row streams of this call (the controller's, one per episode), else the policy-wide stream."""
+        gens = obs.get("generators")
+        return list(gens) if gens is not None else self.noise_generator(device)
+
+    def randn(self, obs: dict[str, Any], shape: tuple[int, ...], device: torch.device) -> torch.Tensor:
+        """Standard normal noise of `shape` = (B, ...): row i from obs["generators"][i] when given.
+
+        Row by row, each of shape (1, ...), exactly as diffusers' `randn_tensor` draws with a list of generators.
+        """
+        gens = self.generators(obs, device)
+        if isinstance(gens, torch.Generator):
+            return torch.randn(shape, generator=gens, device=gens.device).to(device)
+        if len(gens) != shape[0]:
+            raise ValueError(f"{len(gens)} noise generators for a batch of {shape[0]}")
+        return torch.cat([torch.randn((1, *shape[1:]), generator=g, device=g.device) for g in gens]).to(device)
+
+    def optim_groups(self, weight_decay: float) -> list[dict[str, Any]]:
+        """Parameter groups for the optimiser (one group, decay on everything, unless a policy says otherwise)."""
+        return [{"params": list(self.parameters()), "weight_decay": weight_decay}]
+
     def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         raise NotImplementedError
 
@@ -65,11 +90,19 @@ class PolicyRunner:
         self.chunk_start = cfg.obs_horizon - 1
         self.extra = extra or {}
 
-    def prepare(self, obs: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
+    def prepare(self, obs: dict[str, Any]) -> dict[str, Any]:
         image = torch.from_numpy(np.ascontiguousarray(obs["image"])).to(self.device)  # (B, To, H, W, 3) uint8
         image = image.permute(0, 1, 4, 2, 3).float().div_(255.0)  # (B, To, 3, H, W)
         agent_pos = torch.as_tensor(obs["agent_pos"], dtype=torch.float32, device=self.device)  # (B, To, 2)
-        return {"image": image, "agent_pos": self.normalizer.normalize("agent_pos", agent_pos)}
+        out: dict[str, Any] = {"image": image, "agent_pos": self.normalizer.normalize("agent_pos", agent_pos)}
+        if obs.get("generators") is not None:
+            out["generators"] = obs["generators"]  # per-episode noise streams, from the controller
+        return out
+
+    @property
+    def noise_seed(self) -> int:
+        """The seed the controller combines with each episode's seed for that episode's noise stream."""
+        return int(self.model.config.seed if self.model.noise_seed is None else self.model.noise_seed)
 
     @torch.inference_mode()
     def predict_action_chunk(self, obs: dict[str, np.ndarray]) -> np.ndarray:

@@ -55,7 +55,7 @@ class ResNet50Config(PolicyConfig):
         if name == "quick":  # same topology at 1/8 width, one block per stage: trains in 15 min on 2 cores
             return cls(width=8, layers=(1, 1, 1, 1), head_channels=(128, 128, 64, 32), hidden=256,
                        optim=OptimConfig(optimizer="adam", lr=1e-3, schedule="plateau", epochs=4, batch_size=64,
-                                         max_minutes=14, plateau_patience=1, checkpoint_every=200))
+                                         plateau_patience=1, checkpoint_every=200))
         raise BCBenchError(f"unknown config '{name}' for resnet50 (choose quick or paper)")
 
 

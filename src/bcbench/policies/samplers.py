@@ -1,23 +1,46 @@
 """DDPM and DDIM sampling for any number of steps, with coefficients precomputed once.
 
 Training uses diffusers' `DDPMScheduler` (Ho et al., 2020) with 100 steps. At evaluation any K in 1..100
-works without retraining: DDPM (ancestral sampling over the strided timesteps, as diffusers' DDPM does for
-K < 100) or DDIM (Song et al., 2021; deterministic, eta = 0). Both use diffusers' own timestep spacing
-("leading") and formulas; `bcbench` evaluates them from per-step constants instead of calling
-`scheduler.step` each time, and a test checks the two agree to float tolerance given the same noise.
+works without retraining: DDPM (ancestral sampling over K of the 100 timesteps, as diffusers' DDPM does
+for K < 100) or DDIM (Song et al., 2021; deterministic, eta = 0).
+
+Timestep spacing (Lin et al., 2024, "Common diffusion noise schedules and sample steps are flawed",
+Table 2) decides which K timesteps are visited:
+- `trailing` (bcbench's default): round(arange(100, 0, -100/K)) - 1. The first timestep is always 99,
+  so every K starts from pure noise, and the last step lands on the clean sample.
+- `leading` (diffusers' and the study's default): arange(K) * (100 // K), reversed. The first timestep is
+  (K - 1) * (100 // K): for K = 1 that is t = 0, so DDIM-1 returns clipped noise, and K = 40 starts at
+  t = 78 (sqrt(alpha_bar) = 0.32), i.e. from a half-denoised state that was never sampled.
+Both are diffusers' own formulas (except that diffusers' trailing spacing gives K + 1 timesteps, the last
+t = -1, for K in {29, 31, 58, 62, 97}; bcbench keeps the first K): DDPM steps to the next timestep of the
+list, DDIM to t - 100 // K (as diffusers does; with trailing spacing and K not dividing 100 this is within
+one timestep of the next one).
+bcbench evaluates them from per-step constants instead of calling `scheduler.step` each time; tests check
+the two agree to 1e-5 given the same noise.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
 
 from bcbench.errors import BCBenchError
 
+SPACINGS = ("trailing", "leading")
+DEFAULT_SPACING = "trailing"
+
+# Draws standard normal noise of a given shape (per-episode streams live behind it; see BCPolicy.randn).
+NoiseFn = Callable[[tuple[int, ...]], torch.Tensor]
+
 
 def make_train_scheduler(num_train_timesteps: int, beta_schedule: str):
     from diffusers import DDPMScheduler
+
+    from bcbench.utils.system import require_known_version
+
+    require_known_version("diffusers")  # the plan below reproduces its formulas and spacings
 
     if beta_schedule not in ("squaredcos_cap_v2", "linear"):
         raise BCBenchError(f"beta_schedule must be squaredcos_cap_v2 or linear, got '{beta_schedule}'")
@@ -25,13 +48,22 @@ def make_train_scheduler(num_train_timesteps: int, beta_schedule: str):
                          prediction_type="epsilon", variance_type="fixed_small")
 
 
-def make_diffusers_sampler(train_scheduler, kind: str, steps: int):
-    """diffusers' scheduler for sampling (the 'reference' way), timesteps set for `steps`."""
+def check_spacing(spacing: str) -> str:
+    if spacing not in SPACINGS:
+        raise BCBenchError(f"timestep spacing must be one of {', '.join(SPACINGS)}, got '{spacing}'")
+    return spacing
+
+
+def make_diffusers_sampler(train_scheduler, kind: str, steps: int, spacing: str = DEFAULT_SPACING):
+    """diffusers' scheduler for sampling (the 'reference' way), timesteps set for `steps` and `spacing`."""
     from diffusers import DDIMScheduler, DDPMScheduler
 
     cls = {"ddpm": DDPMScheduler, "ddim": DDIMScheduler}[kind]
-    sched = cls.from_config(train_scheduler.config)
+    sched = cls.from_config(train_scheduler.config, timestep_spacing=check_spacing(spacing))
     sched.set_timesteps(steps)
+    # diffusers (0.42.1) builds trailing timesteps with a float arange, which for K in {29, 31, 58, 62, 97}
+    # yields K + 1 of them, the last being t = -1 (alphas_cumprod[-1] is the *noisiest* level): keep K.
+    sched.timesteps = sched.timesteps[:steps]
     return sched
 
 
@@ -40,6 +72,7 @@ class SamplerPlan:
     """Per-step constants: x0 = clip((x - a_k eps) * b_k); x <- c_k x0 + d_k (x or eps) + s_k z."""
 
     kind: str
+    spacing: str
     timesteps: list[int]
     a: list[float]
     b: list[float]
@@ -48,21 +81,23 @@ class SamplerPlan:
     s: list[float]
 
 
-def plan(train_scheduler, kind: str, steps: int) -> SamplerPlan:
+def plan(train_scheduler, kind: str, steps: int, spacing: str = DEFAULT_SPACING) -> SamplerPlan:
     """Constants of `kind` sampling with `steps` steps, from the training scheduler's alphas."""
     n = int(train_scheduler.config.num_train_timesteps)
     if kind not in ("ddpm", "ddim"):
         raise BCBenchError(f"sampler must be ddpm or ddim, got '{kind}'")
     if not 1 <= steps <= n:
         raise BCBenchError(f"steps must be in 1..{n}, got {steps}")
-    ref = make_diffusers_sampler(train_scheduler, kind, steps)  # only for its timesteps: one source of truth
+    ref = make_diffusers_sampler(train_scheduler, kind, steps, spacing)  # only for its timesteps: one source of truth
     ac = train_scheduler.alphas_cumprod.double()
-    ratio = n // steps
-    p = SamplerPlan(kind, [int(t) for t in ref.timesteps], [], [], [], [], [])
-    for t in p.timesteps:
-        prev = t - ratio
+    one = torch.tensor(1.0, dtype=torch.float64)
+    p = SamplerPlan(kind, spacing, [int(t) for t in ref.timesteps], [], [], [], [], [])
+    for k, t in enumerate(p.timesteps):
+        # diffusers' DDPM steps to the next timestep of the list (-1 after the last), its DDIM by a fixed stride
+        last = k + 1 == len(p.timesteps)
+        prev = (-1 if last else p.timesteps[k + 1]) if kind == "ddpm" else t - n // steps
         a_t = ac[t]
-        a_prev = ac[prev] if prev >= 0 else torch.tensor(1.0, dtype=torch.float64)
+        a_prev = ac[prev] if prev >= 0 else one
         p.a.append(float((1 - a_t).sqrt()))
         p.b.append(float(1 / a_t.sqrt()))
         if kind == "ddpm":
@@ -78,23 +113,25 @@ def plan(train_scheduler, kind: str, steps: int) -> SamplerPlan:
     return p
 
 
-def run_plan(p: SamplerPlan, denoise, x: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
-    """Denoise `x` (pure noise) with `denoise(x, t) -> eps`; noise drawn in diffusers' order from generator."""
+def run_plan(p: SamplerPlan, denoise, x: torch.Tensor, noise: NoiseFn) -> torch.Tensor:
+    """Denoise `x` (pure noise) with `denoise(x, t) -> eps`; DDPM's fresh noise comes from `noise(shape)`."""
     for k, t in enumerate(p.timesteps):
         eps = denoise(x, t)
         x0 = ((x - p.a[k] * eps) * p.b[k]).clamp_(-1.0, 1.0)
         if p.kind == "ddpm":
             x = p.c[k] * x0 + p.d[k] * x
             if t > 0:
-                z = torch.randn(x.shape, generator=generator, device=x.device, dtype=x.dtype)
-                x = x + p.s[k] * z
+                x = x + p.s[k] * noise(tuple(x.shape)).to(dtype=x.dtype)
         else:
             x = p.c[k] * x0 + p.d[k] * eps
     return x
 
 
-def run_diffusers(sched, denoise, x: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
-    """The reference loop: call diffusers' `step` for every timestep (what the public code does)."""
+def run_diffusers(sched, denoise, x: torch.Tensor, generator=None) -> torch.Tensor:
+    """The reference loop: call diffusers' `step` for every timestep (what the public code does).
+
+    `generator` is a torch.Generator or a list of them, one per batch row (diffusers draws row by row then).
+    """
     for t in sched.timesteps:
         eps = denoise(x, int(t))
         x = sched.step(eps, t, x, generator=generator).prev_sample

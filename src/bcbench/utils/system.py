@@ -38,6 +38,25 @@ def git_commit(repo: Path | None = None) -> str | None:
         return None
 
 
+# Versions the code was checked against: the exact reset relies on gym-pusht's PushTEnv internals
+# (`_set_state`, `_get_coverage`), the samplers on diffusers' scheduler formulas and timestep spacing.
+KNOWN_GOOD = {"gym-pusht": ("0.1.8",), "diffusers": ("0.42.1",)}
+
+
+def require_known_version(package: str) -> None:
+    """Fail with one clear line when `package` is at a version bcbench was not checked against."""
+    from bcbench.errors import BCBenchError
+
+    try:
+        have = metadata.version(package)
+    except metadata.PackageNotFoundError:
+        raise BCBenchError(f"{package} is not installed (run `make install`)") from None
+    if have not in KNOWN_GOOD[package] and not os.environ.get("BCBENCH_ALLOW_UNTESTED_VERSIONS"):
+        raise BCBenchError(f"{package} {have} is not a version bcbench was checked against "
+                           f"({', '.join(KNOWN_GOOD[package])}); install that one (`make install`) or set "
+                           "BCBENCH_ALLOW_UNTESTED_VERSIONS=1 to try anyway")
+
+
 def versions() -> dict[str, str | None]:
     out: dict[str, str | None] = {"python": platform.python_version()}
     for name in _PACKAGES:
@@ -48,21 +67,27 @@ def versions() -> dict[str, str | None]:
     return out
 
 
-def hardware() -> dict[str, Any]:
+def hardware(device: str | None = None) -> dict[str, Any]:
+    """The machine, and the device the measured work ran on (a GPU's name only when it ran there)."""
     import torch  # imported here so that data-only commands start fast
 
+    device = device or "cpu"
     info: dict[str, Any] = {
+        "device": device,
         "cpu_model": cpu_model(),
         "cpu_count": os.cpu_count(),
         "torch_threads": torch.get_num_threads(),
         "platform": platform.platform(),
         "gpu": None,
     }
-    if torch.cuda.is_available():
-        info["gpu"] = torch.cuda.get_device_name(0)
+    if device.startswith("cuda") and torch.cuda.is_available():
+        info["gpu"] = torch.cuda.get_device_name(torch.device(device))
     return info
 
 
-def provenance() -> dict[str, Any]:
-    """Everything a result file records about where it came from."""
-    return {"git_commit": git_commit(), "hardware": hardware(), "versions": versions()}
+def provenance(device: str | None = None) -> dict[str, Any]:
+    """Everything a result file records about where it came from: commit (and whether the tree was clean),
+    the device the work ran on, library versions."""
+    commit = git_commit()
+    return {"git_commit": commit, "git_clean": None if commit is None else not commit.endswith("-dirty"),
+            "hardware": hardware(device), "versions": versions()}

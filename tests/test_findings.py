@@ -1,0 +1,101 @@
+"""The findings' verdicts on constructed per-seed evidence: every finding reaches all three outcomes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bcbench.findings import (
+    CONTRADICTED,
+    INCONCLUSIVE,
+    SUPPORTED,
+    UNDERTRAINED,
+    Point,
+    judge,
+    paired_interval,
+)
+
+N = 100
+BASE = np.random.default_rng(0).uniform(0.2, 0.8, N)  # a policy's per-seed scores
+Z = np.random.default_rng(1).standard_normal(N)
+NOISY = 0.3 * (Z - Z.mean()) / Z.std()  # zero-mean noise: a paired interval of about +-0.06
+
+
+def pt(name: str, policy: str, scores: np.ndarray, ms: float | None = 10.0, variant: str = "default",
+       beta: str | None = None, converged: bool | None = None) -> Point:
+    return Point(name, policy, variant, float(np.mean(scores)), (0.0, 1.0), ms, beta,
+                 {100_000 + i: float(s) for i, s in enumerate(scores)}, converged)
+
+
+def verdict(points: list[Point], number: int) -> str:
+    return judge(points)[number - 1].verdict
+
+
+def test_paired_interval_covers_a_known_difference_and_pairs_by_seed():
+    a, b = pt("a", "x", BASE + 0.1 + NOISY), pt("b", "x", BASE)
+    est, lo, hi, n = paired_interval(a, [b])
+    assert n == N and est == pytest.approx(0.1) and lo < 0.1 < hi and hi - lo < 0.2
+    shifted = Point("c", "x", "default", 0, (0, 1), None, None, {s + 1: v for s, v in b.scores.items()})
+    assert paired_interval(a, [shifted])[3] == N - 1  # only seeds both have count
+
+
+# (scores of the claimed-better-or-equal side relative to the other) for the three outcomes
+EQUAL, FAR, EDGE = 0.0, 0.3, 0.05
+
+
+@pytest.mark.parametrize("shift, noise, expected", [(EQUAL, 0.0, SUPPORTED), (FAR, 0.0, CONTRADICTED),
+                                                    (EDGE, NOISY, INCONCLUSIVE)])
+def test_finding_1_slowest_against_the_best_faster(shift, noise, expected):
+    fast = [pt("cnn", "cnn_mlp", BASE, ms=2.0), pt("bct", "bct", BASE - 0.2, ms=12.0)]
+    slow = pt("dp100", "diffusion", BASE + shift + noise, ms=1000.0, variant="ddpm100")
+    assert verdict([*fast, slow], 1) == expected
+
+
+@pytest.mark.parametrize("shift, noise, expected", [(EQUAL, 0.0, SUPPORTED), (-FAR, 0.0, CONTRADICTED),
+                                                    (-EDGE, NOISY, INCONCLUSIVE)])
+def test_finding_2_ten_steps_against_a_hundred(shift, noise, expected):
+    pts = [pt("dp10", "diffusion", BASE + shift + noise, 100.0, "ddpm10"),
+           pt("dp100", "diffusion", BASE, 1000.0, "ddpm100")]
+    assert verdict(pts, 2) == expected
+
+
+@pytest.mark.parametrize("shift, noise, ms, expected", [(EQUAL, 0.0, 100.0, SUPPORTED),
+                                                        (-FAR, 0.0, 100.0, CONTRADICTED),
+                                                        (EQUAL, 0.0, 50.0, CONTRADICTED),
+                                                        (EDGE, NOISY, 100.0, INCONCLUSIVE)])
+def test_finding_3_ddim_against_ddpm(shift, noise, ms, expected):
+    pts = [pt("ddim10", "diffusion", BASE + shift + noise, ms, "ddim10"),
+           pt("ddpm10", "diffusion", BASE, 100.0, "ddpm10")]
+    assert verdict(pts, 3) == expected
+
+
+@pytest.mark.parametrize("r_minus_b, b_minus_c, noise, expected", [(FAR, FAR, 0.0, SUPPORTED),
+                                                                   (FAR, EQUAL, 0.0, CONTRADICTED),
+                                                                   (FAR, -FAR, 0.0, CONTRADICTED),
+                                                                   (EDGE, FAR, NOISY, INCONCLUSIVE)])
+def test_finding_4_ordering(r_minus_b, b_minus_c, noise, expected):
+    c = BASE - 0.3
+    b = c + b_minus_c
+    pts = [pt("cnn", "cnn_mlp", c), pt("bct", "bct", b), pt("r50", "resnet50", b + r_minus_b + noise)]
+    assert verdict(pts, 4) == expected
+
+
+@pytest.mark.parametrize("shift, noise, expected", [(EQUAL, 0.0, SUPPORTED), (FAR, 0.0, CONTRADICTED),
+                                                    (EDGE, NOISY, INCONCLUSIVE)])
+def test_finding_5_bet_against_random(shift, noise, expected):
+    rnd = BASE * 0.2
+    assert verdict([pt("random", "random", rnd), pt("bet", "bet", rnd + shift + noise)], 5) == expected
+
+
+def test_missing_evidence_is_inconclusive_and_undertrained_is_not_judged():
+    assert [f.verdict for f in judge([])] == [INCONCLUSIVE] * 5
+    pts = [pt("random", "random", BASE * 0.2), pt("bet", "bet", BASE * 0.2, converged=False)]
+    f5 = judge(pts)[4]
+    assert f5.verdict == UNDERTRAINED and "plateau" in f5.evidence
+    assert all(f.rule for f in judge(pts))  # every finding states its rule
+
+
+def test_margin_moves_the_verdict():
+    pts = [pt("dp10", "diffusion", BASE - 0.1, 100.0, "ddpm10"), pt("dp100", "diffusion", BASE, 1000.0, "ddpm100")]
+    assert judge(pts, margin=0.05)[1].verdict == CONTRADICTED
+    assert judge(pts, margin=0.15)[1].verdict == SUPPORTED
