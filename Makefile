@@ -29,7 +29,8 @@ demo: install
 	$(VENV)/bin/bcbench eval --policy scripted --episodes 4 --video 2 --quiet --out runs/demo/videos
 	$(VENV)/bin/bcbench study studies/demo.toml --out runs/demo/study
 	@echo ""
-	@echo "demo done:"
+	@echo "demo done. Its models are smoke-sized (a minute or two of training each): the report marks them"
+	@echo "not converged and gives no verdicts on them. The converged CPU study: results/cpu/report/report.html"
 	@echo "  report (open in a browser): runs/demo/study/report/report.html  (Markdown: report.md)"
 	@echo "  simulator replay check:     runs/demo/replay.json"
 	@echo "  rollout videos:             runs/demo/videos/videos/"

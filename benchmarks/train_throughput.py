@@ -1,53 +1,109 @@
-"""Training samples/s of every learned policy at its quick and paper size on this machine.
+"""Training samples/s of every learned policy's CPU config: the old settings beside the new, in one run.
 
-    .venv/bin/python benchmarks/train_throughput.py [--steps 3] [--threads 2] [--policy NAME ...]
+    .venv/bin/python benchmarks/train_throughput.py [--steps 8] [--threads 2] [--policy NAME ...] [--out DIR]
 
-One optimiser step = forward, loss, backward, Adam update on a batch of 64 random windows of the real
-shapes (2 frames of 96x96, 16x2 chunk); the median over --steps steps after one warm-up step. Data loading
-is not included (see batch_build.py: about 2.5 ms per batch of 64).
+old: fp32, batch 64, contiguous weights (what the trainer did before the cpu profile);
+new: the config's precision (auto = bf16 autocast on CPUs with AVX512-BF16/AMX), its batch (256 in the cpu
+     profile), channels-last 2-D convolutions.
+One optimiser step = a batch gathered from the real training windows (when the dataset is beside the repo;
+random tensors of the real shapes otherwise), forward, loss, backward, the config's optimiser, EMA if the
+config keeps one. Median samples/s over --steps steps after two warm-up steps, the same code as `bcbench
+train` (bcbench.training). Stop anything else running first: timings from a busy machine mean nothing.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
 
-from bcbench.policies import learned_policies, make_policy
+from bcbench.policies import learned_policies, make_config
+from bcbench.policies.config import config_to_dict
+from bcbench.train import make_optimizer
+from bcbench.training import EMA, autocast, channels_last_convs, resolve_precision
+from bcbench.utils.io import atomic_path, write_json
+from bcbench.utils.system import provenance
+
+
+def get_batch(batch: int, step: int, ds) -> dict[str, torch.Tensor]:
+    """Real windows (gathering them is part of a training step), else random tensors of the real shapes."""
+    rng = np.random.default_rng(step)
+    if ds is not None:
+        return {k: torch.from_numpy(v) for k, v in ds.get_batch(rng.integers(0, len(ds), batch)).items()}
+    g = torch.Generator().manual_seed(step)
+    return {"image": torch.rand(batch, 2, 3, 96, 96, generator=g), "agent_pos": torch.rand(batch, 2, 2) * 2 - 1,
+            "action": torch.rand(batch, 16, 2) * 2 - 1}
+
+
+def samples_per_s(name: str, cfg, precision: str, batch: int, channels_last: bool, steps: int, ds) -> float:
+    from bcbench.policies import REGISTRY
+
+    torch.manual_seed(0)
+    model = REGISTRY[name][1](cfg).train()
+    if channels_last:
+        channels_last_convs(model)
+    opt = make_optimizer(model, cfg.optim)
+    ema = EMA(model, cfg.optim.ema_power, cfg.optim.ema_max_decay) if cfg.optim.ema else None
+    prec = resolve_precision(precision, torch.device("cpu"))
+    times = []
+    for i in range(steps + 2):
+        t = time.perf_counter()
+        b = get_batch(batch, i, ds)
+        with autocast(torch.device("cpu"), prec):
+            loss = model.compute_loss(b)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        if ema is not None:
+            ema.update(model, i + 1)
+        if i >= 2:
+            times.append(time.perf_counter() - t)
+    return batch / float(np.median(times))
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--steps", type=int, default=3)
-    ap.add_argument("--threads", type=int, default=None)
-    ap.add_argument("--batch", type=int, default=64)
+    ap.add_argument("--steps", type=int, default=8)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--config", default="cpu", help="policy preset (default cpu)")
     ap.add_argument("--policy", action="append")
+    ap.add_argument("--out", default="results/train-throughput")
     args = ap.parse_args()
-    if args.threads:
-        torch.set_num_threads(args.threads)
-    g = torch.Generator().manual_seed(0)
-    b = args.batch
-    batch = {"image": torch.rand(b, 2, 3, 96, 96, generator=g), "agent_pos": torch.rand(b, 2, 2, generator=g) * 2 - 1,
-             "action": torch.rand(b, 16, 2, generator=g) * 2 - 1}
-    print(f"| policy | preset | parameters | samples/s (batch {b}, {torch.get_num_threads()} threads) |")
+    torch.set_num_threads(args.threads)
+    ds = None
+    try:
+        from bcbench.data import load_replay_buffer, make_datasets, resolve_dataset
+
+        ds = make_datasets(load_replay_buffer(resolve_dataset(None)))[0]
+    except Exception as exc:  # no dataset: random tensors of the same shapes
+        print(f"(dataset not found, random batches: {exc})")
+    rows = []
+    print(f"| policy ({args.config}) | old: fp32, batch 64 | new: precision, batch, channels-last | speed-up |")
     print("|---|---|---|---|")
     for name in args.policy or learned_policies():
-        for preset in ("quick", "paper"):
-            torch.manual_seed(0)
-            model = make_policy(name, preset).train()
-            opt = torch.optim.Adam(model.parameters(), lr=1e-4)
-            times = []
-            for i in range(args.steps + 1):
-                t = time.perf_counter()
-                loss = model.compute_loss(batch)
-                opt.zero_grad()
-                loss.backward()
-                opt.step()
-                if i:
-                    times.append(time.perf_counter() - t)
-            print(f"| {name} | {preset} | {model.num_parameters():,} | {b / np.median(times):.1f} |", flush=True)
+        cfg = make_config(name, args.config)
+        old_cfg = dataclasses.replace(cfg, optim=dataclasses.replace(cfg.optim, batch_size=64, precision="fp32"))
+        old = samples_per_s(name, old_cfg, "fp32", 64, False, args.steps, ds)
+        prec = resolve_precision(cfg.optim.precision, torch.device("cpu"))
+        new = samples_per_s(name, cfg, cfg.optim.precision, cfg.optim.batch_size, True, args.steps, ds)
+        rows.append({"policy": name, "config": args.config, "old_samples_per_s": old, "new_samples_per_s": new,
+                     "new_precision": prec, "new_batch": cfg.optim.batch_size, "speedup": new / old,
+                     "policy_config": config_to_dict(cfg)})
+        print(f"| {name} | {old:.0f} | {new:.0f} ({prec}, batch {cfg.optim.batch_size}) | {new / old:.2f}x |",
+              flush=True)
+    out = Path(args.out)
+    write_json(out / "throughput.json", {"type": "train-throughput", "steps": args.steps, "real_data": ds is not None,
+                                         "rows": rows, **provenance("cpu")})
+    with atomic_path(out / "throughput.md") as tmp:
+        tmp.write_text("| policy | old samples/s (fp32, batch 64) | new samples/s | precision, batch | speed-up |\n"
+                       "|---|---|---|---|---|\n" + "".join(
+                           f"| {r['policy']} ({r['config']}) | {r['old_samples_per_s']:.0f} | "
+                           f"{r['new_samples_per_s']:.0f} | {r['new_precision']}, {r['new_batch']} | "
+                           f"{r['speedup']:.2f}x |\n" for r in rows))
 
 
 if __name__ == "__main__":

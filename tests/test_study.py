@@ -95,16 +95,25 @@ def test_config_hash_changes_with_the_config():
     assert a.key(0.1) != b.key(0.1) and a.key(0.1) != a.key(0.2) and a.key(0.1) == a.key(0.1)
 
 
+KILL_AFTER_3_STAGES = """
+import os, signal, sys
+from bcbench.spec import load_spec
+from bcbench.study import run_study
+kill = lambda runner: os.kill(os.getpid(), signal.SIGKILL) if runner.executed == 3 else None
+run_study(load_spec(sys.argv[1]), sys.argv[2], sys.argv[3], progress=False, on_stage=kill)
+"""
+
+
 def test_study_killed_then_rerun_resumes_without_redoing(synthetic_zarr, tmp_path):
     spec = tmp_path / "tiny.toml"
     spec.write_text(_spec_text(tmp_path))
     out = tmp_path / "out"
     cmd = [EXE, "study", str(spec), "--out", str(out), "--data", str(synthetic_zarr), "--quiet"]
-    env = {**os.environ, "BCBENCH_TEST_KILL_AFTER_STAGES": "3"}
-    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
+    proc = subprocess.run([sys.executable, "-c", KILL_AFTER_3_STAGES, str(spec), str(out), str(synthetic_zarr)],
+                          capture_output=True, text=True, timeout=600)
     assert proc.returncode == -9, proc.stderr  # SIGKILL after 3 finished stages
     index = [json.loads(x) for x in (out / "index.jsonl").read_text().splitlines()]
-    assert [i["stage"] for i in index] == ["eval", "latency", "train"]
+    assert [i["stage"] for i in index] == ["eval", "train", "eval"]  # timing comes after every evaluation
     first_files = {i["file"]: (out / i["file"]).stat().st_mtime_ns for i in index}
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr

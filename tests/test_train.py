@@ -13,7 +13,7 @@ import torch
 from bcbench.checkpoint import latest_checkpoint, load_runner
 from bcbench.errors import BCBenchError
 from bcbench.policies import learned_policies
-from bcbench.train import Trainer, TrainOptions, new_run
+from bcbench.train import TrainOptions, new_run, prepare, train
 from bcbench.utils.io import read_jsonl
 from tests.tiny import tiny_overrides
 
@@ -38,23 +38,28 @@ def _weights(run_dir):
     return load_file(str(latest_checkpoint(run_dir) / "model.safetensors"))
 
 
-def test_sigkill_then_resume_gives_identical_weights(synthetic_zarr, tmp_path, one_thread):
-    overrides = tiny_overrides("cnn_mlp", epochs=6, checkpoint_every=3)
-    full = new_run("cnn_mlp", "quick", overrides, tmp_path / "full", _opts(synthetic_zarr))
-    summary = Trainer(full, _opts(synthetic_zarr)).fit()
-    assert summary["stopped"] == "finished" and summary["step"] >= 9
+KILL_AT_STEP = """
+import os, signal, sys
+from bcbench.train import TrainOptions, train
+opts = TrainOptions(data=sys.argv[2], threads=1, progress=False)
+train(sys.argv[1], opts, on_step=lambda r: os.kill(os.getpid(), signal.SIGKILL) if r.state.step == 7 else None)
+"""
 
-    sets = [a for k, v in overrides.items() for a in ("--set", f"{k}={json.dumps(v)}")]
-    killed = tmp_path / "killed"
-    proc = subprocess.run(
-        [EXE, "train", "--policy", "cnn_mlp", "--out", str(killed), "--data", str(synthetic_zarr), "--threads", "1",
-         "--quiet", *sets],
-        env={**os.environ, "BCBENCH_TEST_KILL_AT_STEP": "7"}, capture_output=True, text=True, timeout=300,
-    )
+
+def test_sigkill_then_resume_gives_identical_weights(synthetic_zarr, tmp_path, one_thread):
+    """fp32: a run killed with SIGKILL after step 7 and resumed from step 6 ends bit-identical."""
+    overrides = tiny_overrides("cnn_mlp", epochs=6, checkpoint_every=3, precision="fp32")
+    full = new_run("cnn_mlp", "quick", overrides, tmp_path / "full", _opts(synthetic_zarr))
+    summary = train(full, _opts(synthetic_zarr))
+    assert summary["stopped"] == "finished" and summary["step"] >= 9 and summary["precision"] == "fp32"
+
+    killed = new_run("cnn_mlp", "quick", overrides, tmp_path / "killed", _opts(synthetic_zarr))
+    proc = subprocess.run([sys.executable, "-c", KILL_AT_STEP, str(killed), str(synthetic_zarr)],
+                          capture_output=True, text=True, timeout=300)
     assert proc.returncode == -9, proc.stderr  # died by SIGKILL, after the checkpoint of step 6
     assert json.loads((killed / "checkpoints" / "latest.json").read_text())["step"] == 6
-    resumed = Trainer(killed, _opts(synthetic_zarr)).fit()
-    assert resumed["step"] == summary["step"]
+    resumed = train(killed, _opts(synthetic_zarr))
+    assert resumed["step"] == summary["step"] and resumed["samples"] == summary["samples"]
     a, b = _weights(full), _weights(killed)
     assert a.keys() == b.keys()
     for k in a:
@@ -80,7 +85,7 @@ def test_nan_loss_stops_with_clear_error_and_keeps_checkpoint(synthetic_zarr, tm
 
     monkeypatch.setattr(CNNMLPPolicy, "compute_loss", poisoned)
     with pytest.raises(BCBenchError, match=r"loss is nan at step 3.*last good checkpoint"):
-        Trainer(run, _opts(synthetic_zarr)).fit()
+        train(run, _opts(synthetic_zarr))
     ckpt = latest_checkpoint(run)
     assert ckpt is not None and ckpt.name == "step_0000002"
     assert load_runner(run).model.num_parameters() > 0  # the last good checkpoint loads
@@ -89,14 +94,14 @@ def test_nan_loss_stops_with_clear_error_and_keeps_checkpoint(synthetic_zarr, tm
 @pytest.mark.parametrize("name", learned_policies())
 def test_checkpoint_roundtrip_every_policy(name, synthetic_zarr, tmp_path, one_thread):
     run = new_run(name, "quick", tiny_overrides(name, max_steps=2, ema=True), tmp_path / name, _opts(synthetic_zarr))
-    trainer = Trainer(run, _opts(synthetic_zarr))
-    trainer.fit()
+    states = {}
+    train(run, _opts(synthetic_zarr), on_step=lambda r: states.update(model=r.model, ema=r.ema))
     runner = load_runner(run, use_ema=False)
-    for k, v in trainer.model.state_dict().items():
+    for k, v in states["model"].state_dict().items():
         assert torch.equal(v, runner.model.state_dict()[k]), k
     ema_runner = load_runner(run, use_ema=True)
     assert ema_runner.describe()["weights"] == "ema"
-    ema_state = trainer.ema.model.state_dict()
+    ema_state = states["ema"].model.state_dict()
     for k, v in ema_runner.model.state_dict().items():
         assert torch.equal(v, ema_state[k]), k
 
@@ -104,7 +109,7 @@ def test_checkpoint_roundtrip_every_policy(name, synthetic_zarr, tmp_path, one_t
 def test_safety_stop_marks_the_schedule_unfinished(synthetic_zarr, tmp_path, one_thread):
     opts = TrainOptions(data=str(synthetic_zarr), threads=1, progress=False, max_minutes=1e-6)
     run = new_run("cnn_mlp", "quick", tiny_overrides("cnn_mlp", epochs=50), tmp_path / "budget", opts)
-    s = Trainer(run, opts).fit()
+    s = train(run, opts)
     assert s["stopped"] == "stopped by time: schedule not finished" and s["step"] == 1
     assert latest_checkpoint(run).name == "step_0000001"
 
@@ -113,7 +118,7 @@ def test_step_budget_sizes_the_schedule(synthetic_zarr, tmp_path, one_thread):
     """A step budget ends the run on time with its cosine schedule annealed to zero."""
     opts = TrainOptions(data=str(synthetic_zarr), threads=1, progress=False)
     run = new_run("bct", "quick", tiny_overrides("bct", epochs=50, max_steps=6, warmup_steps=2), tmp_path / "s", opts)
-    s = Trainer(run, opts).fit()
+    s = train(run, opts)
     assert s["stopped"] == "finished" and s["step"] == s["total_steps"] == 6
     lrs = [m["lr"] for m in read_jsonl(run / "metrics.jsonl") if "lr" in m]
     assert lrs[-1] == pytest.approx(0.0, abs=1e-12) and max(lrs) == pytest.approx(1e-3)
@@ -175,3 +180,24 @@ def test_precise_batchnorm_sets_exact_population_statistics():
     var = torch.stack([b["x"].var(0, unbiased=True) for b in batches]).mean(0)
     torch.testing.assert_close(net.bn.running_var, var, rtol=1e-5, atol=1e-5)
     assert net.bn.momentum == 0.1 and net.training  # momentum and mode restored
+
+
+def test_bf16_autocast_trains_and_is_recorded(synthetic_zarr, tmp_path, one_thread):
+    from bcbench.training import cpu_has_bf16
+
+    run = new_run("diffusion", "quick", tiny_overrides("diffusion", max_steps=3, precision="bf16"), tmp_path / "b",
+                  _opts(synthetic_zarr))
+    s = train(run, _opts(synthetic_zarr))
+    assert s["precision"] == "bf16" and s["step"] == 3 and s["val_loss"] == s["val_loss"]  # finite, not NaN
+    auto = prepare(new_run("cnn_mlp", "quick", tiny_overrides("cnn_mlp"), tmp_path / "a", _opts(synthetic_zarr)),
+                   _opts(synthetic_zarr))
+    assert auto.precision == ("bf16" if cpu_has_bf16() else "fp32")
+
+
+def test_periodic_rollouts_log_a_learning_curve(synthetic_zarr, tmp_path, one_thread):
+    opts = TrainOptions(data=str(synthetic_zarr), threads=1, progress=False, eval_every=2, eval_episodes=2)
+    run = new_run("cnn_mlp", "quick", tiny_overrides("cnn_mlp", max_steps=4, epochs=10), tmp_path / "lc", opts)
+    train(run, opts)
+    evals = [m for m in read_jsonl(run / "metrics.jsonl") if "eval_score" in m]
+    assert [m["step"] for m in evals] == [2, 4] and all(m["eval_seed_start"] == 200_000 for m in evals)
+    assert all(m["samples"] == m["step"] * 4 and m["wall_time_s"] > 0 for m in evals)

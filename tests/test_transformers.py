@@ -11,7 +11,7 @@ from bcbench.data import load_replay_buffer
 from bcbench.policies import make_policy
 from bcbench.policies.bct import STUDY_PARAMETERS as BCT_STUDY
 from bcbench.policies.bet import kmeans
-from bcbench.train import Trainer, TrainOptions, new_run
+from bcbench.train import TrainOptions, new_run, prepare, train
 from tests.tiny import tiny_overrides
 
 
@@ -80,13 +80,12 @@ def test_bct_paper_size_within_one_percent():
 def test_bet_checkpoint_keeps_kmeans_centres(synthetic_zarr, tmp_path):
     opts = TrainOptions(data=str(synthetic_zarr), threads=1, progress=False)
     run = new_run("bet", "quick", tiny_overrides("bet", max_steps=2), tmp_path / "bet", opts)
-    trainer = Trainer(run, opts)
-    centres = trainer.model.centres.clone()
+    centres = prepare(run, opts).model.centres.clone()
     assert centres.abs().sum() > 0  # fitted before training
     assert centres.min() >= -1 - 1e-5 and centres.max() <= 1 + 1e-5  # fitted on normalised actions
-    trainer.fit()
+    train(run, opts)
     runner = load_runner(run)
-    torch.testing.assert_close(runner.model.centres, trainer.model.centres)
+    torch.testing.assert_close(runner.model.centres, centres)
     obs = {"image": np.zeros((2, 2, 96, 96, 3), np.uint8), "agent_pos": np.full((2, 2, 2), 200.0, np.float32)}
     assert runner.predict_action_chunk(obs).shape == (2, 16, 2)
 

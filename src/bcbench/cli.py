@@ -180,12 +180,14 @@ def _parse_sets(items: list[str] | None) -> dict[str, Any]:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from bcbench.train import Trainer, TrainOptions, new_run
+    from bcbench.train import TrainOptions, new_run, train
 
     opts = TrainOptions(max_minutes=args.max_minutes, threads=args.threads, device=args.device, data=args.data,
-                        progress=not args.quiet)
+                        eval_every=args.eval_every, eval_episodes=args.eval_episodes, progress=not args.quiet)
     if args.resume:
         run_dir = Path(args.resume)
+        if args.precision or args.set or args.pretrained:
+            raise BCBenchError("--precision, --set and --pretrained define a new run; a resumed run keeps its config")
     else:
         if not args.policy:
             raise BCBenchError("choose --policy NAME (or --resume RUN_DIR)")
@@ -199,11 +201,14 @@ def cmd_train(args: argparse.Namespace) -> int:
             overrides["pretrained"] = args.pretrained
         if args.seed is not None:
             overrides["seed"] = args.seed
+        if args.precision:
+            overrides["optim.precision"] = args.precision
         run_dir = new_run(args.policy, args.config, overrides, args.out, opts)
     print(f"run directory: {run_dir}")
-    s = Trainer(run_dir, opts).fit()
+    s = train(run_dir, opts)
+    sps = f"{s['samples_per_s']:.0f}" if s["samples_per_s"] else "-"
     print(f"{s['policy']} ({s['preset']}): stopped ({s['stopped']}) at step {s['step']}/{s['total_steps']} "
-          f"= {s['epochs']:.2f} epochs; {s['samples_per_s']:.0f} samples/s on {s['device']} ({s['threads']} threads)")
+          f"= {s['epochs']:.2f} epochs; {sps} samples/s on {s['device']} ({s['threads']} threads, {s['precision']})")
     print(f"  validation loss {s['val_loss']:.5f} (best {s['best_val_loss']:.5f}); parameters {s['parameters']:,}")
     print(f"  evaluate: bcbench eval --checkpoint {run_dir} --episodes 40")
     return 0
@@ -317,8 +322,8 @@ def _add_train_eval_commands(sub: Any, policies: list[str]) -> None:
     p = sub.add_parser("train", help="train a policy (resumable; checkpoints, metrics.jsonl)")
     p.add_argument("--policy", choices=policies, help="registered policy to train")
     p.add_argument("--config", default="quick",
-                   help="preset: quick (2-core CPU) or paper (the study's sizes); diffusion also has "
-                        "quick_linear and paper_linear (linear betas)")
+                   help="preset: quick (minutes on a 2-core CPU), cpu (trained to its plateau on 2 cores) or paper "
+                        "(the study's sizes); diffusion also has quick_linear, cpu_linear, paper_linear (linear betas)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a config field, e.g. --set optim.epochs=2 --set hidden=64 (repeatable)")
     p.add_argument("--max-minutes", type=_positive_float, metavar="M",
@@ -328,6 +333,13 @@ def _add_train_eval_commands(sub: Any, policies: list[str]) -> None:
     p.add_argument("--resume", metavar="RUN_DIR", help="continue a run from its newest checkpoint")
     p.add_argument("--pretrained", metavar="PATH", help="torchvision-format ImageNet weights (local file)")
     p.add_argument("--seed", type=_nonneg_int, help="seed (default: the config's, 0)")
+    p.add_argument("--precision", choices=["auto", "fp32", "bf16"],
+                   help="forward-pass precision (default: the config's, auto = bf16 autocast where the hardware "
+                        "computes bf16 natively, else fp32)")
+    p.add_argument("--eval-every", type=_positive_int, metavar="STEPS",
+                   help="closed-loop rollouts every STEPS steps and at the end (the learning curve in metrics.jsonl)")
+    p.add_argument("--eval-episodes", type=_positive_int, default=20, metavar="N",
+                   help="episodes per periodic rollout, on validation seeds 200000+ (default 20)")
     p.add_argument("--threads", type=_positive_int, help="torch threads (default: torch's choice)")
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"], help="default auto")
     _add_data_flag(p)
@@ -355,7 +367,7 @@ def _add_study_commands(sub: Any) -> None:
 
     p = sub.add_parser("latency", help="time one policy call at batch 1 for every policy, reference vs fast")
     p.add_argument("--policy", action="append", help="only these policies (repeatable; default all learned)")
-    p.add_argument("--config", action="append", choices=["quick", "paper"], help="presets (default both)")
+    p.add_argument("--config", action="append", choices=["quick", "cpu", "paper"], help="presets (default both)")
     p.add_argument("--mode", action="append", choices=["reference", "fast", "fast-jit", "fast-int8"],
                    help="modes (default reference and fast; fast-int8 is approximate, reported apart)")
     p.add_argument("--sampler", action="append", choices=["ddpm", "ddim"], help="diffusion samplers (default both)")
@@ -376,7 +388,7 @@ def _add_study_commands(sub: Any) -> None:
 def _add_eval_command(sub: Any, policies: list[str]) -> None:
     p = sub.add_parser("eval", help="evaluate a policy over seeded Push-T episodes (JSON result, videos)")
     p.add_argument("--policy", choices=policies, help="registered policy to evaluate")
-    p.add_argument("--config", default="quick", choices=["quick", "paper"], help="policy preset (default quick)")
+    p.add_argument("--config", default="quick", choices=["quick", "cpu", "paper"], help="policy preset (default quick)")
     p.add_argument("--checkpoint", metavar="RUN_DIR", help="evaluate a trained run instead of --policy")
     p.add_argument("--no-ema", action="store_true", help="use the raw weights even if the run kept an EMA")
     p.add_argument("--mode", default="default", choices=["default", "reference", "fast", "fast-jit", "fast-int8"],

@@ -147,3 +147,34 @@ def latency_bars(records: list[dict[str, Any]], path: Path, title: str) -> Path 
     ax.set_title(title)
     ax.grid(alpha=0.3, axis="x", which="both")
     return _save(fig, path)
+
+
+def learning_curves(rows: list[Any], path: Path) -> Path | None:
+    """Rollout score (validation seeds) and validation loss against training samples, one line per trained run."""
+    runs: dict[str, Any] = {}
+    for r in rows:  # one curve per training run (its variants share it)
+        if r.curve is not None and (r.curve.score or r.curve.val_loss):
+            runs.setdefault(r.key.split(":")[0], r)
+    if not runs:
+        return None
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, 4.5))
+    for r in runs.values():
+        c, colour = r.curve, COLOURS.get(r.policy, "k")
+        mark = "" if r.converged else " (not converged)"
+        if c.score:
+            ax.plot(c.samples, c.score, marker="o", ms=3, color=colour, label=f"{r.label}{mark}")
+            ax.fill_between(c.samples, c.lo, c.hi, color=colour, alpha=0.12)
+        if c.val_loss:
+            ax2.plot(c.val_samples, c.val_loss, color=colour, label=r.label)
+    ax.set_xlabel("training samples")
+    ax.set_ylabel("mean score on validation seeds (95% CI)")
+    ax.set_ylim(-0.05, 1.05)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    ax.set_title("Learning curves: closed-loop score")
+    ax2.set_xlabel("training samples")
+    ax2.set_ylabel("validation loss (held-out episodes)")
+    ax2.set_yscale("log")
+    ax2.grid(alpha=0.3, which="both")
+    ax2.set_title("Validation loss")
+    return _save(fig, path)

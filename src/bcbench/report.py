@@ -12,7 +12,7 @@ import html
 from pathlib import Path
 from typing import Any
 
-from bcbench.figures import figure3, figure4, figure5
+from bcbench.figures import figure3, figure4, figure5, learning_curves
 from bcbench.findings import DEFAULT_MARGIN, judge, points_from_rows
 from bcbench.results import STUDY_REFERENCE, Row, load_rows
 from bcbench.stats import fmt_estimate
@@ -96,6 +96,19 @@ def _spacing_note(rows: list[Row]) -> str:
             "and K = 40 at t = 78; variants marked -LEADING use it).")
 
 
+def convergence_lines(rows: list[Row]) -> list[str]:
+    """One line per trained run: whether its learning curve reached its plateau, and why."""
+    seen, out = set(), []
+    for r in rows:
+        run = r.key.split(":")[0]
+        if r.converged is None or run in seen:
+            continue
+        seen.add(run)
+        state = "converged" if r.converged else "**not converged**"
+        out.append(f"- {r.label}: {state}: {r.convergence}; {_train_cell(r)}")
+    return out or ["- no trained runs"]
+
+
 def provenance_notes(rows: list[Row]) -> list[str]:
     """The commits the results were produced at, with a warning when several or a dirty tree."""
     commits = sorted({r.git_commit or "unknown" for r in rows})
@@ -121,13 +134,14 @@ def _html_table(header: list[str], rows: list[list[str]]) -> str:
 
 def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> dict[str, str]:
     results = Path(results)
-    rows = load_rows(results, extra_dirs)
+    margin = _spec(results).get("margin", DEFAULT_MARGIN)
+    rows = load_rows(results, extra_dirs, margin)
     out = results / "report"
     out.mkdir(parents=True, exist_ok=True)
     figs = {"Figure 5: accuracy against inference time": figure5(rows, out / "fig5_accuracy_vs_latency.png"),
             "Figure 3: Diffusion Policy against denoising iterations": figure3(rows, out / "fig3_denoising_steps.png"),
-            "Figure 4: DDPM-cosine, DDIM-cosine, DDIM-linear": figure4(rows, out / "fig4_samplers.png")}
-    margin = _spec(results).get("margin", DEFAULT_MARGIN)
+            "Figure 4: DDPM-cosine, DDIM-cosine, DDIM-linear": figure4(rows, out / "fig4_samplers.png"),
+            "Learning curves": learning_curves(rows, out / "learning_curves.png")}
     findings = judge(points_from_rows(rows), margin)
     table = table_rows(rows)
     intro = (f"Results directory `{results.name}`; {len(rows)} evaluated settings. "
@@ -139,7 +153,8 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     md = ["# bcbench report", "", intro, "", *[f"> {n}" for n in notes], "",
           "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
     md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
-    md += ["", "## Results", "", _md_table(COLUMNS, table), ""]
+    md += ["", "## Results", "", _md_table(COLUMNS, table), "", "## Training: converged?", "",
+           *convergence_lines(rows), ""]
     for title, path in figs.items():
         if path:
             md += [f"## {title}", "", f"![{title}]({path.name})", ""]
@@ -148,12 +163,13 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
         tmp.write_text("\n".join(md) + "\n")
     html_path = out / "report.html"
     with atomic_path(html_path) as tmp:
-        tmp.write_text(_html(intro + " " + " ".join(notes), findings, table, figs, FINDINGS_INTRO.format(m=margin)))
+        tmp.write_text(_html(intro + " " + " ".join(notes), findings, table, figs, FINDINGS_INTRO.format(m=margin),
+                             convergence_lines(rows)))
     return {"markdown": str(md_path), "html": str(html_path), "dir": str(out)}
 
 
 def _html(intro: str, findings: list[Any], table: list[list[str]], figs: dict[str, Path | None],
-          rules_intro: str) -> str:
+          rules_intro: str, training: list[str]) -> str:
     css = ("body{font-family:system-ui,sans-serif;max-width:1400px;margin:2em auto;padding:0 1em;color:#222}"
            "table{border-collapse:collapse;font-size:12px}td,th{border:1px solid #ccc;padding:3px 6px;text-align:left}"
            "th{background:#f3f3f3}.supported{color:#176b2c}.contradicted{color:#a11}.inconclusive{color:#8a6d00}"
@@ -162,6 +178,7 @@ def _html(intro: str, findings: list[Any], table: list[list[str]], figs: dict[st
     items = "".join(
         f"<li><b>{html.escape(f.claim)}</b>: <span class='{f.verdict.split()[0]}'>{html.escape(f.verdict)}</span>. "
         f"{html.escape(f.evidence)}<br><i>Rule: {html.escape(f.rule)}</i></li>" for f in findings)
+    train_items = "".join(f"<li>{html.escape(t[2:].replace('**', ''))}</li>" for t in training)
     images = ""
     for title, path in figs.items():
         if path:
@@ -171,7 +188,7 @@ def _html(intro: str, findings: list[Any], table: list[list[str]], figs: dict[st
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>bcbench report</title><style>{css}</style>"
             f"</head><body><h1>bcbench report</h1><p>{html.escape(intro)}</p><h2>The study's findings on this "
             f"evidence</h2><p>{html.escape(rules_intro)}</p><ol>{items}</ol><h2>Results</h2>"
-            f"{_html_table(COLUMNS, table)}{images}</body></html>\n")
+            f"{_html_table(COLUMNS, table)}<h2>Training: converged?</h2><ul>{train_items}</ul>{images}</body></html>\n")
 
 
 EXPORTED = ("spec.json", "index.jsonl", "run.json", "train_summary.json", "normalizer.json", "metrics.jsonl")

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bcbench.curves import Curve, load_curve, plateau
 from bcbench.errors import BCBenchError
 from bcbench.utils.io import read_json
 
@@ -41,6 +42,9 @@ class Row:
     summary: dict[str, Any]
     scores: dict[int, float] = field(default_factory=dict)  # episode seed -> score, for paired comparisons
     git_commit: str | None = None
+    curve: Curve | None = None  # learned policies: rollout scores and validation loss while training
+    converged: bool | None = None  # None: not trained here (baselines)
+    convergence: str = ""  # why (see bcbench.curves.plateau)
     latency: dict[str, Any] = field(default_factory=dict)  # mode -> stats
     train: dict[str, Any] = field(default_factory=dict)
     hardware: dict[str, Any] = field(default_factory=dict)
@@ -62,7 +66,7 @@ class Row:
         return f"{self.policy}:{self.variant}" if self.sampler else self.policy
 
 
-def _row_from_eval(path: Path) -> Row:
+def _row_from_eval(path: Path, margin: float = 0.05) -> Row:
     ev = read_json(path)
     if ev.get("type") != "evaluation":
         raise BCBenchError(f"{path} is not an evaluation result")
@@ -89,10 +93,12 @@ def _row_from_eval(path: Path) -> Row:
         row.latency = read_json(lat)["modes"]
     if (run_dir / "train_summary.json").exists():
         row.train = read_json(run_dir / "train_summary.json")
+        row.curve = load_curve(run_dir)
+        row.converged, row.convergence = plateau(row.curve, margin)
     return row
 
 
-def load_rows(results: str | Path, extra_dirs: list[str] | None = None) -> list[Row]:
+def load_rows(results: str | Path, extra_dirs: list[str] | None = None, margin: float = 0.05) -> list[Row]:
     """Every evaluation under `results` (and the extra folders), newest file per key."""
     results = Path(results)
     if not results.is_dir():
@@ -103,7 +109,7 @@ def load_rows(results: str | Path, extra_dirs: list[str] | None = None) -> list[
     rows: dict[str, Row] = {}
     for f in files:
         try:
-            row = _row_from_eval(f)
+            row = _row_from_eval(f, margin)
         except (KeyError, ValueError, BCBenchError):
             continue  # not an evaluation file of ours
         rows[row.key] = row

@@ -15,6 +15,7 @@
     config = "quick"        # preset; diffusion also has quick_linear / paper_linear
     steps = 3000            # training budget in optimiser steps (optional; default: the preset's epochs)
     max_minutes = 60        # safety stop (optional): a run that hits it is marked "schedule not finished"
+    eval_every = 500        # learning curve: rollouts every 500 steps on validation seeds (optional)
     seeds = [0]             # one training run per seed
     set = { "optim.epochs" = 8 }                    # config overrides (optional)
     eval = [{ sampler = "ddpm", steps = [10, 100] }, { sampler = "ddim", steps = [10], spacing = "leading" }]
@@ -35,8 +36,8 @@ from typing import Any
 from bcbench.errors import BCBenchError
 
 STUDY_KEYS = {"name", "episodes", "seed_start", "val_fraction", "latency", "threads", "max_steps", "rate_hz",
-              "latency_min_calls", "latency_min_seconds", "device", "margin"}
-RUN_KEYS = {"policy", "config", "steps", "max_minutes", "seeds", "set", "eval", "label"}
+              "latency_min_calls", "latency_min_seconds", "device", "margin", "curve_episodes"}
+RUN_KEYS = {"policy", "config", "steps", "max_minutes", "seeds", "set", "eval", "label", "eval_every"}
 
 
 @dataclass(frozen=True)
@@ -63,6 +64,7 @@ class RunSpec:
     overrides: dict[str, Any]
     variants: list[Variant]
     label: str
+    eval_every: int | None = None  # rollouts every this many training steps: the learning curve
 
     @property
     def learned(self) -> bool:
@@ -97,6 +99,7 @@ class StudySpec:
     latency_min_seconds: float = 2.0
     device: str = "cpu"  # where training, evaluation and timing run: cpu, cuda or auto
     margin: float = 0.05  # equivalence margin (mean score) of the findings' verdicts
+    curve_episodes: int = 20  # episodes per learning-curve rollout (validation seeds 200000+)
     runs: list[RunSpec] = field(default_factory=list)
     source: str = ""
 
@@ -167,7 +170,10 @@ def _run_specs(i: int, run: Any) -> list[RunSpec]:
         raise BCBenchError(f"{_where(i, run)}: seeds must be a non-empty list of whole numbers >= 0")
     variants = _variants(i, run, policy)
     label = run.get("label", f"{policy} ({config})")
-    return [RunSpec(policy, config, s, minutes, overrides, variants, label) for s in seeds]
+    every = run.get("eval_every")
+    if every is not None and (not isinstance(every, int) or isinstance(every, bool) or every < 1):
+        raise BCBenchError(f"{_where(i, run)}: eval_every must be a whole number of steps >= 1, got {every!r}")
+    return [RunSpec(policy, config, s, minutes, overrides, variants, label, every) for s in seeds]
 
 
 def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
@@ -187,7 +193,7 @@ def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
                          ("rate_hz", float, lambda v: v > 0), ("latency_min_calls", int, lambda v: v >= 1),
                          ("latency_min_seconds", float, lambda v: v >= 0),
                          ("device", str, lambda v: v in ("cpu", "cuda", "auto")),
-                         ("margin", float, lambda v: 0 < v < 1)):
+                         ("margin", float, lambda v: 0 < v < 1), ("curve_episodes", int, lambda v: v >= 1)):
         if key in study:
             v = study[key]
             good = isinstance(v, typ) or (typ is float and isinstance(v, int) and not isinstance(v, bool))

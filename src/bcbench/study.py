@@ -13,9 +13,8 @@ it stopped; a training stage resumes from its newest checkpoint. Every file is w
 
 from __future__ import annotations
 
-import os
-import signal
 import time
+from collections.abc import Callable
 from dataclasses import asdict
 from datetime import UTC, datetime
 from pathlib import Path
@@ -29,13 +28,14 @@ DONE_TRAINING = ("finished", "stopped by time: schedule not finished")  # the la
 
 
 class StudyRunner:
-    def __init__(self, spec: StudySpec, out: str | Path, data: str | None = None, progress: bool = True) -> None:
-        self.spec, self.out, self.data, self.progress = spec, Path(out), data, progress
-        self.executed = 0  # stages executed (not skipped) in this process
+    def __init__(self, spec: StudySpec, out: str | Path, data: str | None = None, progress: bool = True,
+                 on_stage: Callable[[StudyRunner], None] | None = None) -> None:
         from bcbench.train import pick_device
 
+        self.spec, self.out, self.data, self.progress = spec, Path(out), data, progress
+        self.executed = 0  # stages executed (not skipped) in this process
+        self.on_stage = on_stage  # called after each executed stage (progress reporting, tests)
         self.device = str(pick_device(spec.device))  # training, evaluation and timing all run here
-        self._kill_after = int(os.environ.get("BCBENCH_TEST_KILL_AFTER_STAGES", "0"))  # test hook
 
     # ------------------------------------------------------------------ layout
     def run_dir(self, run: RunSpec) -> Path:
@@ -43,13 +43,15 @@ class StudyRunner:
         return self.out / "runs" / key
 
     def stages(self) -> list[tuple[str, RunSpec, Variant | None]]:
+        """Every run's training and evaluations first, then all timing: timing is done last, in one stretch,
+        so a machine kept quiet for it is not disturbed by the study's own training in between."""
         out: list[tuple[str, RunSpec, Variant | None]] = []
         for run in self.spec.runs:
             if run.learned:
                 out.append(("train", run, None))
             out += [("eval", run, v) for v in run.variants]
-            if self.spec.latency:
-                out += [("latency", run, v) for v in run.variants]
+        if self.spec.latency:
+            out += [("latency", run, v) for run in self.spec.runs for v in run.variants]
         return out
 
     def result_file(self, stage: str, run: RunSpec, variant: Variant | None) -> Path:
@@ -66,14 +68,15 @@ class StudyRunner:
 
     # ------------------------------------------------------------------ stages
     def _train(self, run: RunSpec) -> None:
-        from bcbench.train import Trainer, TrainOptions, new_run
+        from bcbench.train import TrainOptions, new_run, train
 
         opts = TrainOptions(max_minutes=run.max_minutes, threads=self.spec.threads, data=self.data,
-                            val_fraction=self.spec.val_fraction, progress=self.progress, device=self.device)
+                            val_fraction=self.spec.val_fraction, progress=self.progress, device=self.device,
+                            eval_every=run.eval_every, eval_episodes=self.spec.curve_episodes)
         d = self.run_dir(run)
         if not (d / "run.json").exists():
             new_run(run.policy, run.config, {**run.overrides, "seed": run.seed}, d, opts)
-        summary = Trainer(d, opts).fit()
+        summary = train(d, opts)
         if summary["stopped"] not in DONE_TRAINING:
             raise KeyboardInterrupt  # Ctrl-C during training: the checkpoint is saved; stop the study here
 
@@ -138,16 +141,16 @@ class StudyRunner:
             })
             self.executed += 1
             bar.update()
-            if self._kill_after and self.executed >= self._kill_after:
-                os.kill(os.getpid(), signal.SIGKILL)
+            if self.on_stage is not None:
+                self.on_stage(self)
         bar.close()
         return {"stages": len(stages), "skipped": skipped, "executed": self.executed,
                 "seconds": time.monotonic() - t0, "out": str(self.out)}
 
 
 def run_study(spec: StudySpec, out: str | Path | None = None, data: str | None = None,
-              progress: bool = True) -> dict[str, Any]:
+              progress: bool = True, on_stage: Callable[[StudyRunner], None] | None = None) -> dict[str, Any]:
     out = Path(out) if out else Path("runs") / "studies" / spec.name
     if not spec.runs:
         raise BCBenchError("the study has no runs")
-    return StudyRunner(spec, out, data, progress).run()
+    return StudyRunner(spec, out, data, progress, on_stage).run()

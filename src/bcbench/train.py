@@ -1,18 +1,22 @@
-"""One training loop for every policy: seeded, resumable to the exact weights, budgeted, NaN-safe.
+"""One flat training loop for every policy: seeded, resumable to the exact weights, step-budgeted, NaN-safe.
 
-Data order is a pure function of (seed, epoch), so a run resumed from step k draws the same batches as
-an uninterrupted one; the torch RNG state (noise, augmentation) is checkpointed with the optimiser,
-scheduler and EMA. Validation runs under a forked, fixed-seed RNG, so it never perturbs training.
+    prepare(run_dir, opts)  builds the model, data, optimiser and schedule of a run directory and resumes
+                            from its newest checkpoint (a `Run`);
+    train(run_dir, opts)    runs the loop below to the step budget and returns the summary.
+
+Data order is a pure function of (seed, epoch), so a run resumed from step k draws the same batches as an
+uninterrupted one; the torch RNG state (noise, augmentation), the optimiser, the schedule, the EMA weights
+and a small `TrainState` are checkpointed together. Validation and periodic rollouts run under a forked,
+fixed-seed RNG, so they never perturb training. The budget is optimiser steps (epochs or max_steps); the
+learning-rate schedule is sized to them, so it always finishes; a wall-clock limit is a safety stop only.
 """
 
 from __future__ import annotations
 
-import copy
 import math
-import os
-import signal
 import time
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, fields
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -25,10 +29,24 @@ from bcbench.data import MinMaxNormalizer, load_replay_buffer, make_datasets, re
 from bcbench.errors import BCBenchError
 from bcbench.policies import REGISTRY
 from bcbench.policies.config import OptimConfig, config_to_dict, with_overrides
+from bcbench.training import (
+    EMA,
+    StopFlag,
+    autocast,
+    channels_last_convs,
+    has_batchnorm,
+    precise_batchnorm,
+    resolve_precision,
+)
 from bcbench.utils.io import append_jsonl, read_json, read_jsonl, write_json, write_jsonl
 from bcbench.utils.system import provenance
 
 STOPPED_BY_TIME = "stopped by time: schedule not finished"
+VALIDATION_SEED_START = 200_000  # rollouts during training: disjoint from the test seeds 100000+
+PRECISE_BN_BATCHES = 50
+
+__all__ = ["EMA", "STOPPED_BY_TIME", "TrainOptions", "TrainState", "new_run", "pick_device", "precise_batchnorm",
+           "prepare", "train"]
 
 
 @dataclass
@@ -48,57 +66,63 @@ class TrainOptions:
     """share of episodes held out for validation (the study's 90/10)"""
     split_seed: int = 0
     """seed of the episode split"""
+    eval_every: int | None = None
+    """closed-loop rollouts every this many optimiser steps (and at the end): the learning curve"""
+    eval_episodes: int = 20
+    """episodes per periodic rollout, on validation seeds 200000+ (never the test seeds 100000+)"""
     progress: bool = True
     """show a progress bar"""
 
-
-class EMA:
-    """Exponential moving average of weights with Diffusion Policy's warm-up: decay = 1 - (1 + step)^-power."""
-
-    def __init__(self, model: torch.nn.Module, power: float, max_decay: float) -> None:
-        self.model = copy.deepcopy(model).eval().requires_grad_(False)
-        self.power, self.max_decay = power, max_decay
-
-    def decay(self, step: int) -> float:
-        return float(min(self.max_decay, max(0.0, 1.0 - (1.0 + step) ** -self.power)))
-
-    @torch.no_grad()
-    def update(self, model: torch.nn.Module, step: int) -> None:
-        d = self.decay(step)
-        for e, p in zip(self.model.parameters(), model.parameters(), strict=True):
-            e.mul_(d).add_(p.detach(), alpha=1.0 - d)
-        for e, b in zip(self.model.buffers(), model.buffers(), strict=True):
-            e.copy_(b)  # BatchNorm statistics are not averaged (as in Diffusion Policy's EMAModel)
+    def __post_init__(self) -> None:
+        if self.max_minutes is not None and not self.max_minutes > 0:
+            raise BCBenchError(f"--max-minutes must be > 0, got {self.max_minutes}")
+        if self.eval_every is not None and self.eval_every < 1:
+            raise BCBenchError(f"--eval-every must be >= 1, got {self.eval_every}")
+        if self.eval_episodes < 1:
+            raise BCBenchError(f"--eval-episodes must be >= 1, got {self.eval_episodes}")
 
 
-def has_batchnorm(model: torch.nn.Module) -> bool:
-    return any(isinstance(m, torch.nn.modules.batchnorm._BatchNorm) for m in model.modules())
+@dataclass
+class TrainState:
+    """What the loop changes besides weights, optimiser and RNG; saved with every checkpoint."""
+
+    step: int = 0
+    samples: int = 0  # training windows seen
+    train_time_s: float = 0.0  # optimiser-step time summed over every session of the run
+    best_val: float = float("inf")
+    last_val: float = float("nan")
+
+    def state_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def load_state_dict(self, d: dict[str, Any]) -> None:
+        for f in fields(self):
+            if f.name in d:
+                setattr(self, f.name, type(getattr(self, f.name))(d[f.name]))
 
 
-@torch.no_grad()
-def precise_batchnorm(model: torch.nn.Module, batches: Any) -> None:
-    """Recompute BatchNorm running statistics as exact averages over `batches` ("precise BN").
+@dataclass
+class Run:
+    """A run directory made ready to train: model, EMA, optimiser, schedule, data, state."""
 
-    The momentum estimates kept during training average only the last few batches; these policies turned
-    out to be very sensitive to that noise (CNN-MLP's held-out loss in eval mode was 6x its loss with batch
-    statistics, and exact averages closed the gap). Weights are untouched; only the BN buffers change.
-    """
-    bns = [m for m in model.modules() if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)]
-    if not bns:
-        return
-    momenta = [bn.momentum for bn in bns]
-    for bn in bns:
-        bn.reset_running_stats()
-        bn.momentum = None  # None = cumulative moving average, i.e. the exact mean over the batches seen
-    was_training = model.training
-    model.train()
-    with torch.random.fork_rng():  # augmentation noise here must not shift the training RNG stream
-        torch.manual_seed(0)
-        for batch in batches:
-            model.compute_loss(batch)
-    for bn, mom in zip(bns, momenta, strict=True):
-        bn.momentum = mom
-    model.train(was_training)
+    run_dir: Path
+    meta: dict[str, Any]  # run.json
+    model: Any
+    ema: EMA | None
+    optimizer: torch.optim.Optimizer
+    scheduler: Any
+    train_ds: Any
+    val_ds: Any
+    normalizer: MinMaxNormalizer
+    device: torch.device
+    precision: str  # resolved: fp32 or bf16
+    steps_per_epoch: int
+    total_steps: int
+    state: TrainState
+
+    @property
+    def o(self) -> OptimConfig:
+        return self.model.config.optim
 
 
 def make_optimizer(model: torch.nn.Module, o: OptimConfig) -> torch.optim.Optimizer:
@@ -133,7 +157,7 @@ def pick_device(name: str) -> torch.device:
 
 def new_run(policy: str, preset: str, overrides: dict[str, Any], out: str | Path | None,
             opts: TrainOptions) -> Path:
-    """Create a run directory with its run.json; returns it (training starts with `train_run`)."""
+    """Create a run directory with its run.json; returns it (training starts with `train`)."""
     if policy not in REGISTRY:
         raise BCBenchError(f"unknown policy '{policy}' (registered: {', '.join(sorted(REGISTRY))})")
     config_cls, _ = REGISTRY[policy]
@@ -153,225 +177,224 @@ def new_run(policy: str, preset: str, overrides: dict[str, Any], out: str | Path
     return run_dir
 
 
-class Trainer:
-    """Trains the model of one run directory, from scratch or from its newest checkpoint."""
-
-    def __init__(self, run_dir: str | Path, opts: TrainOptions) -> None:
-        self.run_dir, self.opts = Path(run_dir), opts
-        self.run = read_run(self.run_dir)
-        if opts.threads:
-            torch.set_num_threads(opts.threads)
-        self.device = pick_device(opts.device)
-        split = self.run.get("data_split", {})
-        buf = load_replay_buffer(resolve_dataset(opts.data))
-        torch.manual_seed(self.run["config"]["seed"])  # initialisation is part of the seeded run
-        self.model = build_model(self.run)
-        c = self.model.config
-        self.cfg, self.o = c, c.optim
-        self.train_ds, self.val_ds, norm = make_datasets(
-            buf, split.get("val_fraction", opts.val_fraction), split.get("split_seed", opts.split_seed),
-            c.obs_horizon, c.pred_horizon, c.action_horizon)
-        if len(self.train_ds) < self.o.batch_size:
-            raise BCBenchError(f"only {len(self.train_ds)} training windows for a batch of {self.o.batch_size}")
-        self.steps_per_epoch = len(self.train_ds) // self.o.batch_size  # drop_last: every batch is full
-        self.total_steps = self.o.epochs * self.steps_per_epoch
-        if self.o.max_steps:
-            self.total_steps = min(self.total_steps, self.o.max_steps)
-        self.model.to(self.device)
-        if self.device.type == "cuda":
-            self.model.to(memory_format=torch.channels_last)
-        self.ema = EMA(self.model, self.o.ema_power, self.o.ema_max_decay) if self.o.ema else None
-        self.optimizer = make_optimizer(self.model, self.o)
-        self.scheduler = make_scheduler(self.optimizer, self.o, self.total_steps)
-        self.step, self.best_val, self.last_val = 0, float("inf"), float("nan")
-        self.train_time_before = 0.0  # seconds of training in earlier sessions of this run
-        norm_file = self.run_dir / "normalizer.json"
-        if norm_file.exists():  # resumed: keep the statistics the weights were trained with
-            self.normalizer = MinMaxNormalizer.from_dict(read_json(norm_file))
-        else:
-            self.normalizer = norm
-            write_json(norm_file, norm.to_dict())
-        self.train_ds.normalizer = self.val_ds.normalizer = self.normalizer
-        self._resume()
-
-    def _resume(self) -> None:
-        ckpt = latest_checkpoint(self.run_dir)
-        if ckpt is None:
-            if hasattr(self.model, "prepare"):  # data-dependent set-up (BeT's k-means), fresh runs only
-                self.model.prepare(self.train_ds)
-                if self.ema is not None:
-                    self.ema.model.load_state_dict(self.model.state_dict())
-            return
-        load_weights(ckpt, self.model)
-        state = load_state(ckpt)
-        if self.ema is not None:
-            load_weights(ckpt, self.ema.model, ema=True)
-        self.optimizer.load_state_dict(state["optimizer"])
-        self.scheduler.load_state_dict(state["scheduler"])
-        torch.set_rng_state(state["torch_rng"])
-        if self.device.type == "cuda" and state.get("cuda_rng") is not None:
-            torch.cuda.set_rng_state(state["cuda_rng"])
-        self.step, self.best_val = int(state["step"]), float(state.get("best_val", float("inf")))
-        self.last_val = float(state.get("last_val", float("nan")))
-        self.train_time_before = float(state.get("train_time_s", 0.0))
-        # drop metrics logged after the checkpoint: the resumed run logs those steps again
-        metrics = self.run_dir / "metrics.jsonl"
-        kept = [m for m in read_jsonl(metrics) if m.get("step", 0) <= self.step]
-        write_jsonl(metrics, kept)
-
-    def _batch(self, ids: np.ndarray, ds: Any) -> dict[str, torch.Tensor]:
-        nb = self.device.type == "cuda"
-        return {k: torch.from_numpy(v).to(self.device, non_blocking=nb) for k, v in ds.get_batch(ids).items()}
-
-    def _loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-        if self.device.type == "cuda":
-            with torch.autocast("cuda", dtype=torch.bfloat16):
-                return self.model.compute_loss(batch)
-        return self.model.compute_loss(batch)
-
-    PRECISE_BN_BATCHES = 50
-
-    def recalibrate(self) -> None:
-        """Precise BN on the model (and the EMA model) from a fixed, seeded set of training batches."""
-        if not has_batchnorm(self.model):
-            return
-        rng = np.random.default_rng([self.cfg.seed, 4242])
-        n = min(self.PRECISE_BN_BATCHES, max(1, len(self.train_ds) // self.o.batch_size))
-        ids = [rng.integers(0, len(self.train_ds), self.o.batch_size) for _ in range(n)]
-        for model in [self.model] + ([self.ema.model] if self.ema is not None else []):
-            precise_batchnorm(model, (self._batch(i, self.train_ds) for i in ids))
-
-    @torch.no_grad()
-    def validate(self) -> float:
-        """Mean loss over every held-out window, with a fixed noise seed (comparable across epochs)."""
-        self.model.eval()
-        total, n = 0.0, 0
-        devices = [self.device.index or 0] if self.device.type == "cuda" else []
-        with torch.random.fork_rng(devices=devices):
-            torch.manual_seed(12345)
-            for s in range(0, len(self.val_ds), self.o.batch_size):
-                ids = np.arange(s, min(len(self.val_ds), s + self.o.batch_size))
-                total += float(self._loss(self._batch(ids, self.val_ds))) * len(ids)
-                n += len(ids)
-        self.model.train()
-        return total / max(1, n)
-
-    def _save(self) -> Path:
-        state = {
-            "optimizer": self.optimizer.state_dict(), "scheduler": self.scheduler.state_dict(),
-            "torch_rng": torch.get_rng_state(), "best_val": self.best_val, "last_val": self.last_val,
-            "cuda_rng": torch.cuda.get_rng_state() if self.device.type == "cuda" else None,
-            "train_time_s": self.train_time_before + self._t_train,
-        }
-        return save_checkpoint(self.run_dir, self.step, self.model, self.ema.model if self.ema else None, state)
-
-    def fit(self) -> dict[str, Any]:
-        from tqdm import tqdm
-
-        stop = _StopFlag()
-        deadline = time.monotonic() + 60 * self.opts.max_minutes if self.opts.max_minutes else None
-        seed, bs = self.cfg.seed, self.o.batch_size
-        self.model.train()
-        bar = tqdm(total=self.total_steps, initial=self.step, desc=f"train {self.model.name}", unit="step",
-                   disable=not self.opts.progress)
-        reason, run_loss, run_n, t_train, samples = "finished", 0.0, 0, 0.0, 0
-        self._t_train = 0.0
-        kill_at = int(os.environ.get("BCBENCH_TEST_KILL_AT_STEP", "0"))  # test hook: SIGKILL after this step
-        with stop:
-            while self.step < self.total_steps:
-                t0 = time.perf_counter()
-                epoch, i = divmod(self.step, self.steps_per_epoch)
-                perm = np.random.default_rng([seed, epoch]).permutation(len(self.train_ds))
-                batch = self._batch(perm[i * bs:(i + 1) * bs], self.train_ds)
-                loss = self._loss(batch)
-                if not torch.isfinite(loss):
-                    last = latest_checkpoint(self.run_dir)
-                    raise BCBenchError(f"loss is {loss.item()} at step {self.step + 1} (epoch {epoch}): training "
-                                       f"stopped; last good checkpoint: {last or 'none'}")
-                self.optimizer.zero_grad(set_to_none=True)
-                loss.backward()
-                if self.o.grad_clip:
-                    torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.o.grad_clip)
-                self.optimizer.step()
-                if self.o.schedule != "plateau":
-                    self.scheduler.step()
-                self.step += 1
-                if self.ema is not None:
-                    self.ema.update(self.model, self.step)
-                t_train += time.perf_counter() - t0
-                self._t_train = t_train
-                samples += bs
-                loss_value = loss.item()
-                run_loss, run_n = run_loss + loss_value, run_n + 1
-                lr = self.optimizer.param_groups[0]["lr"]
-                if self.step % self.o.log_every == 0:
-                    append_jsonl(self.run_dir / "metrics.jsonl", {"step": self.step, "epoch": self.step /
-                                 self.steps_per_epoch, "train_loss": run_loss / run_n, "lr": lr,
-                                 "samples_per_s": samples / t_train})
-                    run_loss, run_n = 0.0, 0
-                if self.step % self.steps_per_epoch == 0:
-                    self._end_epoch()
-                if self.step % self.o.checkpoint_every == 0 and self.step != self.total_steps:
-                    self._save()
-                bar.update()
-                bar.set_postfix(loss=f"{loss_value:.4f}", lr=f"{lr:.2e}", sps=f"{samples / t_train:.0f}",
-                                val=f"{self.last_val:.4f}")
-                if kill_at and self.step == kill_at:
-                    os.kill(os.getpid(), signal.SIGKILL)
-                if stop.requested or (deadline and time.monotonic() > deadline):
-                    reason = "interrupted" if stop.requested else STOPPED_BY_TIME
-                    break
-        bar.close()
-        if self.step % self.steps_per_epoch != 0:  # stopped mid-epoch: recalibrate BN and validate now
-            self.recalibrate()
-            self.last_val = self.validate()
-            append_jsonl(self.run_dir / "metrics.jsonl", {"step": self.step, "epoch": self.step /
-                         self.steps_per_epoch, "val_loss": self.last_val})
-        self._save()  # the final checkpoint, with precise BatchNorm statistics
-        return self._summary(reason, samples, t_train)
-
-    def _end_epoch(self) -> None:
-        self.recalibrate()
-        self.last_val = self.validate()
-        self.best_val = min(self.best_val, self.last_val)
-        if self.o.schedule == "plateau":
-            self.scheduler.step(self.last_val)
-        append_jsonl(self.run_dir / "metrics.jsonl", {"step": self.step, "epoch": self.step / self.steps_per_epoch,
-                                                      "val_loss": self.last_val})
-
-    def _summary(self, reason: str, samples: int, t_train: float) -> dict[str, Any]:
-        summary = {
-            "policy": self.model.name, "preset": self.run["preset"], "stopped": reason, "step": self.step,
-            "total_steps": self.total_steps, "epochs": self.step / self.steps_per_epoch,
-            "parameters": self.model.num_parameters(), "samples_per_s": samples / t_train if t_train else None,
-            "train_time_s_this_session": t_train, "train_time_s": self.train_time_before + t_train,
-            "val_loss": self.last_val, "best_val_loss": self.best_val,
-            "device": str(self.device), "threads": torch.get_num_threads(),
-            "train_windows": len(self.train_ds), "val_windows": len(self.val_ds),
-        }
-        write_json(self.run_dir / "train_summary.json", summary)
-        return summary
+def prepare(run_dir: str | Path, opts: TrainOptions) -> Run:
+    """Everything a run needs to train, resumed from its newest checkpoint when it has one."""
+    run_dir = Path(run_dir)
+    meta = read_run(run_dir)
+    if opts.threads:
+        torch.set_num_threads(opts.threads)
+    device = pick_device(opts.device)
+    split = meta.get("data_split", {})
+    buf = load_replay_buffer(resolve_dataset(opts.data))
+    torch.manual_seed(meta["config"]["seed"])  # initialisation is part of the seeded run
+    model = build_model(meta)
+    c, o = model.config, model.config.optim
+    train_ds, val_ds, norm = make_datasets(buf, split.get("val_fraction", opts.val_fraction),
+                                           split.get("split_seed", opts.split_seed), c.obs_horizon, c.pred_horizon,
+                                           c.action_horizon)
+    if len(train_ds) < o.batch_size:
+        raise BCBenchError(f"only {len(train_ds)} training windows for a batch of {o.batch_size}")
+    steps_per_epoch = len(train_ds) // o.batch_size  # drop_last: every batch is full
+    total_steps = min(o.epochs * steps_per_epoch, o.max_steps or math.inf)
+    # channels_last: the 2-D convolutions of the image encoders run on oneDNN's NHWC kernels (and tensor cores)
+    channels_last_convs(model.to(device))
+    ema = EMA(model, o.ema_power, o.ema_max_decay) if o.ema else None
+    optimizer = make_optimizer(model, o)
+    r = Run(run_dir, meta, model, ema, optimizer, make_scheduler(optimizer, o, total_steps), train_ds, val_ds, norm,
+            device, resolve_precision(o.precision, device), steps_per_epoch, int(total_steps), TrainState())
+    norm_file = run_dir / "normalizer.json"
+    if norm_file.exists():  # resumed: keep the statistics the weights were trained with
+        r.normalizer = MinMaxNormalizer.from_dict(read_json(norm_file))
+    else:
+        write_json(norm_file, norm.to_dict())
+    train_ds.normalizer = val_ds.normalizer = r.normalizer
+    _resume(r)
+    return r
 
 
-class _StopFlag:
-    """First Ctrl-C asks the loop to stop at the next step boundary and save; a second one aborts."""
+def _resume(r: Run) -> None:
+    ckpt = latest_checkpoint(r.run_dir)
+    if ckpt is None:
+        if hasattr(r.model, "prepare"):  # data-dependent set-up (BeT's k-means), fresh runs only
+            r.model.prepare(r.train_ds)
+            if r.ema is not None:
+                r.ema.model.load_state_dict(r.model.state_dict())
+        return
+    load_weights(ckpt, r.model)
+    state = load_state(ckpt)
+    if r.ema is not None:
+        load_weights(ckpt, r.ema.model, ema=True)
+    r.optimizer.load_state_dict(state["optimizer"])
+    r.scheduler.load_state_dict(state["scheduler"])
+    torch.set_rng_state(state["torch_rng"])
+    if r.device.type == "cuda" and state.get("cuda_rng") is not None:
+        torch.cuda.set_rng_state(state["cuda_rng"])
+    r.state.load_state_dict(state.get("train_state", {**state, "samples": int(state["step"]) * r.o.batch_size}))
+    # drop metrics logged after the checkpoint: the resumed run logs those steps again
+    metrics = r.run_dir / "metrics.jsonl"
+    write_jsonl(metrics, [m for m in read_jsonl(metrics) if m.get("step", 0) <= r.state.step])
 
-    def __init__(self) -> None:
-        self.requested = False
-        self._old: Any = None
 
-    def _handle(self, signum: int, frame: Any) -> None:
-        if self.requested:
-            raise KeyboardInterrupt
-        self.requested = True
+def _batch(r: Run, ids: np.ndarray, ds: Any) -> dict[str, torch.Tensor]:
+    nb = r.device.type == "cuda"
+    return {k: torch.from_numpy(v).to(r.device, non_blocking=nb) for k, v in ds.get_batch(ids).items()}
 
-    def __enter__(self) -> _StopFlag:
-        try:
-            self._old = signal.signal(signal.SIGINT, self._handle)
-        except ValueError:  # not the main thread: no graceful stop
-            self._old = None
-        return self
 
-    def __exit__(self, *exc: Any) -> None:
-        if self._old is not None:
-            signal.signal(signal.SIGINT, self._old)
+def recalibrate(r: Run) -> None:
+    """Precise BN on the model (and the EMA model) from a fixed, seeded set of training batches."""
+    if not has_batchnorm(r.model):
+        return
+    rng = np.random.default_rng([r.model.config.seed, 4242])
+    n = min(PRECISE_BN_BATCHES, max(1, len(r.train_ds) // r.o.batch_size))
+    ids = [rng.integers(0, len(r.train_ds), r.o.batch_size) for _ in range(n)]
+    for model in [r.model] + ([r.ema.model] if r.ema is not None else []):
+        with autocast(r.device, r.precision):
+            precise_batchnorm(model, (_batch(r, i, r.train_ds) for i in ids))
+
+
+@torch.no_grad()
+def validate(r: Run) -> float:
+    """Mean loss over every held-out window, with a fixed noise seed (comparable across epochs)."""
+    r.model.eval()
+    total, n = 0.0, 0
+    devices = [r.device.index or 0] if r.device.type == "cuda" else []
+    with torch.random.fork_rng(devices=devices), autocast(r.device, r.precision):
+        torch.manual_seed(12345)
+        for s in range(0, len(r.val_ds), r.o.batch_size):
+            ids = np.arange(s, min(len(r.val_ds), s + r.o.batch_size))
+            total += float(r.model.compute_loss(_batch(r, ids, r.val_ds))) * len(ids)
+            n += len(ids)
+    r.model.train()
+    return total / max(1, n)
+
+
+def rollout_score(r: Run, episodes: int) -> dict[str, Any]:
+    """Closed-loop score of the weights evaluated at test time (EMA if kept) on validation seeds 200000+."""
+    from bcbench.evaluate import EvalConfig, run_episodes
+    from bcbench.policies.learned import PolicyRunner
+    from bcbench.stats import estimate
+
+    model = r.ema.model if r.ema is not None else r.model
+    runner = PolicyRunner(model, r.normalizer, r.device)
+    if hasattr(model, "set_sampler"):  # learning curves sample with 10 steps: cheap, and close to the best
+        kind, steps, spacing = model.sampler_kind, model.sampler_steps, model.sampler_spacing
+        model.set_sampler(kind, min(steps, 10))
+    model.reset_noise(model.config.seed)
+    try:
+        with torch.random.fork_rng():
+            episodes_out, timing = run_episodes(runner, EvalConfig(episodes=episodes, seed_start=VALIDATION_SEED_START),
+                                                progress=False)
+    finally:
+        if hasattr(model, "set_sampler"):
+            model.set_sampler(kind, steps, spacing)
+        r.model.train()
+    scores = np.array([e.score for e in episodes_out])
+    return {"eval_score": estimate(scores), "eval_episodes": episodes, "eval_seed_start": VALIDATION_SEED_START,
+            "eval_wall_s": timing["wall_time_s"]}
+
+
+def save(r: Run) -> Path:
+    state = {"optimizer": r.optimizer.state_dict(), "scheduler": r.scheduler.state_dict(),
+             "torch_rng": torch.get_rng_state(), "train_state": r.state.state_dict(),
+             "cuda_rng": torch.cuda.get_rng_state() if r.device.type == "cuda" else None}
+    return save_checkpoint(r.run_dir, r.state.step, r.model, r.ema.model if r.ema else None, state)
+
+
+def _log(r: Run, record: dict[str, Any], t_start: float) -> None:
+    base = {"step": r.state.step, "epoch": r.state.step / r.steps_per_epoch, "samples": r.state.samples,
+            "train_time_s": round(r.state.train_time_s, 3), "wall_time_s": round(time.monotonic() - t_start, 3)}
+    append_jsonl(r.run_dir / "metrics.jsonl", {**base, **record})
+
+
+def train(run_dir: str | Path, opts: TrainOptions, on_step: Callable[[Run], None] | None = None) -> dict[str, Any]:
+    """Train the run to its step budget (or the safety stop, or Ctrl-C); returns and writes the summary."""
+    from tqdm import tqdm
+
+    r = prepare(run_dir, opts)
+    o, state, seed, bs = r.o, r.state, r.model.config.seed, r.o.batch_size
+    t_start, deadline = time.monotonic(), None
+    if opts.max_minutes:
+        deadline = t_start + 60 * opts.max_minutes
+    bar = tqdm(total=r.total_steps, initial=state.step, desc=f"train {r.model.name}", unit="step",
+               disable=not opts.progress)
+    reason, run_loss, run_n, samples_session, time_session, perm_epoch, perm = "finished", 0.0, 0, 0, 0.0, -1, None
+    r.model.train()
+    with StopFlag() as stop:
+        while state.step < r.total_steps:
+            t0 = time.perf_counter()
+            epoch, i = divmod(state.step, r.steps_per_epoch)
+            if epoch != perm_epoch:  # the epoch's order, drawn once per epoch from (seed, epoch)
+                perm, perm_epoch = np.random.default_rng([seed, epoch]).permutation(len(r.train_ds)), epoch
+            batch = _batch(r, perm[i * bs:(i + 1) * bs], r.train_ds)
+            with autocast(r.device, r.precision):
+                loss = r.model.compute_loss(batch)
+            if not torch.isfinite(loss):  # the one host sync per step: a NaN must never reach a checkpoint
+                raise BCBenchError(f"loss is {loss.item()} at step {state.step + 1} (epoch {epoch}): training "
+                                   f"stopped; last good checkpoint: {latest_checkpoint(r.run_dir) or 'none'}")
+            r.optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            if o.grad_clip:
+                torch.nn.utils.clip_grad_norm_(r.model.parameters(), o.grad_clip)
+            r.optimizer.step()
+            if o.schedule != "plateau":
+                r.scheduler.step()
+            state.step += 1
+            state.samples += bs
+            if r.ema is not None:
+                r.ema.update(r.model, state.step)
+            dt = time.perf_counter() - t0
+            state.train_time_s += dt
+            time_session += dt
+            samples_session += bs
+            last_loss = loss.item()
+            run_loss, run_n = run_loss + last_loss, run_n + 1
+            lr = r.optimizer.param_groups[0]["lr"]
+            if state.step % o.log_every == 0:
+                _log(r, {"train_loss": run_loss / run_n, "lr": lr, "samples_per_s": samples_session / time_session},
+                     t_start)
+                run_loss, run_n = 0.0, 0
+            if state.step % r.steps_per_epoch == 0:
+                _end_epoch(r, t_start)
+            if opts.eval_every and state.step % opts.eval_every == 0 and state.step != r.total_steps:
+                _log(r, rollout_score(r, opts.eval_episodes), t_start)
+            if state.step % o.checkpoint_every == 0 and state.step != r.total_steps:
+                save(r)
+            bar.update()
+            bar.set_postfix(loss=f"{last_loss:.4f}", lr=f"{lr:.2e}", sps=f"{samples_session / time_session:.0f}",
+                            val=f"{state.last_val:.4f}")
+            if on_step is not None:
+                on_step(r)
+            if stop.requested or (deadline and time.monotonic() > deadline):
+                reason = "interrupted" if stop.requested else STOPPED_BY_TIME
+                break
+    bar.close()
+    if state.step % r.steps_per_epoch != 0:  # stopped mid-epoch: recalibrate BN and validate now
+        _end_epoch(r, t_start, epoch_end=False)
+    if opts.eval_every and reason == "finished":
+        _log(r, rollout_score(r, opts.eval_episodes), t_start)  # the learning curve's last point
+    save(r)  # the final checkpoint, with precise BatchNorm statistics
+    return _summary(r, reason, samples_session, time_session)
+
+
+def _end_epoch(r: Run, t_start: float, epoch_end: bool = True) -> None:
+    recalibrate(r)
+    r.state.last_val = validate(r)
+    r.state.best_val = min(r.state.best_val, r.state.last_val)
+    if epoch_end and r.o.schedule == "plateau":
+        r.scheduler.step(r.state.last_val)
+    _log(r, {"val_loss": r.state.last_val}, t_start)
+
+
+def _summary(r: Run, reason: str, samples: int, seconds: float) -> dict[str, Any]:
+    s = r.state
+    summary = {
+        "policy": r.model.name, "preset": r.meta["preset"], "stopped": reason, "step": s.step,
+        "total_steps": r.total_steps, "epochs": s.step / r.steps_per_epoch, "samples": s.samples,
+        "parameters": r.model.num_parameters(), "samples_per_s": samples / seconds if seconds else None,
+        "train_time_s_this_session": seconds, "train_time_s": s.train_time_s,
+        "val_loss": s.last_val, "best_val_loss": s.best_val, "precision": r.precision,
+        "device": str(r.device), "threads": torch.get_num_threads(),
+        "train_windows": len(r.train_ds), "val_windows": len(r.val_ds), **provenance(str(r.device)),
+    }
+    write_json(r.run_dir / "train_summary.json", summary)
+    return summary

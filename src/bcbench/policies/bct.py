@@ -15,7 +15,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from bcbench.errors import BCBenchError
-from bcbench.policies.config import OptimConfig, PolicyConfig
+from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile
 from bcbench.policies.encoders import RESNET18_LAYERS, FrameFeatures
 from bcbench.policies.learned import BCPolicy
 
@@ -60,7 +60,9 @@ class BCTConfig(PolicyConfig):
             return cls(encoder_width=16, d_model=128, n_heads=4, n_layers=2, ffn_dim=512,
                        optim=OptimConfig(optimizer="adamw", lr=1e-3, weight_decay=1e-4, schedule="cosine",
                                          warmup_steps=100, epochs=4, batch_size=64, checkpoint_every=200))
-        raise BCBenchError(f"unknown config '{name}' for bct (choose quick or paper)")
+        if name == "cpu":  # the quick network trained to its plateau on 2 cores (see cpu_profile)
+            return cpu_profile(cls.preset("quick"), epochs=40)
+        raise BCBenchError(f"unknown config '{name}' for bct (choose quick, cpu or paper)")
 
 
 class BCTPolicy(BCPolicy):

@@ -15,7 +15,7 @@ import torch
 from torch import nn
 
 from bcbench.errors import BCBenchError
-from bcbench.policies.config import OptimConfig, PolicyConfig
+from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile
 from bcbench.policies.regressor import ChunkRegressor, TimeMerge, conv_bn_relu
 
 STUDY_PARAMETERS = 1_365_494
@@ -45,7 +45,9 @@ class CNNMLPConfig(PolicyConfig):
         if name == "quick":  # same network (it is small); 4 epochs, about 15 minutes on 2 cores
             return cls(optim=OptimConfig(optimizer="adam", lr=1e-3, schedule="plateau", epochs=4, batch_size=64,
                                          plateau_patience=1, checkpoint_every=200))
-        raise BCBenchError(f"unknown config '{name}' for cnn_mlp (choose quick or paper)")
+        if name == "cpu":  # the quick network trained to its plateau on 2 cores (see cpu_profile)
+            return cpu_profile(cls.preset("quick"), epochs=30)
+        raise BCBenchError(f"unknown config '{name}' for cnn_mlp (choose quick, cpu or paper)")
 
 
 class CNNMLPPolicy(ChunkRegressor):

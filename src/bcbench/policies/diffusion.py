@@ -17,7 +17,7 @@ import torch
 import torch.nn.functional as F
 
 from bcbench.errors import BCBenchError
-from bcbench.policies.config import OptimConfig, PolicyConfig
+from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile
 from bcbench.policies.encoders import RESNET18_LAYERS, FrameFeatures, count_parameters
 from bcbench.policies.learned import BCPolicy
 from bcbench.policies.samplers import DEFAULT_SPACING, check_spacing, make_train_scheduler, plan, run_plan
@@ -78,11 +78,14 @@ class DiffusionConfig(PolicyConfig):
     @classmethod
     def preset(cls, name: str) -> DiffusionConfig:
         base, _, schedule = name.partition("_")
-        if base not in ("quick", "paper") or schedule not in ("", "linear"):
-            raise BCBenchError(f"unknown config '{name}' for diffusion (quick, paper, quick_linear, paper_linear)")
+        if base not in ("quick", "cpu", "paper") or schedule not in ("", "linear"):
+            raise BCBenchError(f"unknown config '{name}' for diffusion (quick, cpu, paper, each with _linear)")
         betas = "linear" if schedule else "squaredcos_cap_v2"
         if base == "paper":
             return cls(beta_schedule=betas)
+        if base == "cpu":  # the quick network trained to its plateau on 2 cores: lr 1e-3 for batch 256
+            return cpu_profile(cls.preset("quick_linear" if schedule else "quick"), epochs=90, lr=1e-3,
+                               warmup_steps=100)
         # CPU-sized: 1/4-width ResNet-18 with one block per stage, a 64/128/256 U-Net, a higher learning
         # rate, 8 epochs (2,736 steps, about 15 minutes on 2 cores).
         return cls(encoder_width=16, encoder_layers=(1, 1, 1, 1), down_dims=(64, 128, 256), step_embed_dim=64,

@@ -14,7 +14,7 @@ import torch
 from torch import nn
 
 from bcbench.errors import BCBenchError
-from bcbench.policies.config import OptimConfig, PolicyConfig
+from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile
 from bcbench.policies.encoders import RESNET50_LAYERS, load_pretrained, resnet50
 from bcbench.policies.regressor import ChunkRegressor, TimeMerge, conv_bn_relu
 
@@ -56,7 +56,9 @@ class ResNet50Config(PolicyConfig):
             return cls(width=8, layers=(1, 1, 1, 1), head_channels=(128, 128, 64, 32), hidden=256,
                        optim=OptimConfig(optimizer="adam", lr=1e-3, schedule="plateau", epochs=4, batch_size=64,
                                          plateau_patience=1, checkpoint_every=200))
-        raise BCBenchError(f"unknown config '{name}' for resnet50 (choose quick or paper)")
+        if name == "cpu":  # the quick network trained to its plateau on 2 cores (see cpu_profile)
+            return cpu_profile(cls.preset("quick"), epochs=30)
+        raise BCBenchError(f"unknown config '{name}' for resnet50 (choose quick, cpu or paper)")
 
 
 class ResNet50Policy(ChunkRegressor):

@@ -1,0 +1,124 @@
+"""Pieces of the training loop that hold no loop state: precision, EMA, precise BatchNorm, Ctrl-C handling."""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import signal
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from bcbench.errors import BCBenchError
+
+PRECISIONS = ("auto", "fp32", "bf16")
+
+
+def cpu_has_bf16() -> bool:
+    """Whether this CPU computes bf16 natively (AVX512-BF16 or AMX): otherwise bf16 autocast is emulated, slower."""
+    try:
+        flags = next((ln for ln in Path("/proc/cpuinfo").read_text().splitlines() if ln.startswith("flags")), "")
+    except OSError:
+        return False
+    return any(f in flags.split() for f in ("avx512_bf16", "amx_bf16"))
+
+
+def resolve_precision(precision: str, device: torch.device) -> str:
+    """auto -> bf16 where the device computes it natively (CUDA with bf16, AVX512-BF16/AMX CPUs), else fp32."""
+    if precision not in PRECISIONS:
+        raise BCBenchError(f"precision must be one of {', '.join(PRECISIONS)}, got '{precision}'")
+    if precision != "auto":
+        return precision
+    if device.type == "cuda":
+        return "bf16" if torch.cuda.is_bf16_supported() else "fp32"
+    return "bf16" if cpu_has_bf16() else "fp32"
+
+
+def autocast(device: torch.device, precision: str) -> contextlib.AbstractContextManager:
+    """bf16 autocast for forward passes (weights and optimiser stay fp32), or nothing for fp32."""
+    if precision == "bf16":
+        return torch.autocast(device.type, dtype=torch.bfloat16)
+    return contextlib.nullcontext()
+
+
+def channels_last_convs(model: torch.nn.Module) -> torch.nn.Module:
+    """Store every 2-D convolution's weight channels-last (NHWC kernels on oneDNN and tensor cores)."""
+    for m in model.modules():
+        if isinstance(m, torch.nn.Conv2d):
+            m.to(memory_format=torch.channels_last)
+    return model
+
+
+class EMA:
+    """Exponential moving average of weights with Diffusion Policy's warm-up: decay = 1 - (1 + step)^-power."""
+
+    def __init__(self, model: torch.nn.Module, power: float, max_decay: float) -> None:
+        self.model = copy.deepcopy(model).eval().requires_grad_(False)
+        self.power, self.max_decay = power, max_decay
+        self._ema_params = list(self.model.parameters())
+        self._ema_buffers = list(self.model.buffers())
+
+    def decay(self, step: int) -> float:
+        return float(min(self.max_decay, max(0.0, 1.0 - (1.0 + step) ** -self.power)))
+
+    @torch.no_grad()
+    def update(self, model: torch.nn.Module, step: int) -> None:
+        # one fused pass over all tensors: e <- e + (1 - d)(p - e) = d e + (1 - d) p
+        torch._foreach_lerp_(self._ema_params, [p.detach() for p in model.parameters()], 1.0 - self.decay(step))
+        if self._ema_buffers:  # BatchNorm statistics are copied, not averaged (as in Diffusion Policy's EMAModel)
+            torch._foreach_copy_(self._ema_buffers, list(model.buffers()))
+
+
+def has_batchnorm(model: torch.nn.Module) -> bool:
+    return any(isinstance(m, torch.nn.modules.batchnorm._BatchNorm) for m in model.modules())
+
+
+@torch.no_grad()
+def precise_batchnorm(model: torch.nn.Module, batches: Any) -> None:
+    """Recompute BatchNorm running statistics as exact averages over `batches` ("precise BN").
+
+    The momentum estimates kept during training average only the last few batches; these policies turned
+    out to be very sensitive to that noise in eval mode, and exact averages close the gap. Weights are
+    untouched; only the BN buffers change.
+    """
+    bns = [m for m in model.modules() if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)]
+    if not bns:
+        return
+    momenta = [bn.momentum for bn in bns]
+    for bn in bns:
+        bn.reset_running_stats()
+        bn.momentum = None  # None = cumulative moving average, i.e. the exact mean over the batches seen
+    was_training = model.training
+    model.train()
+    with torch.random.fork_rng():  # augmentation noise here must not shift the training RNG stream
+        torch.manual_seed(0)
+        for batch in batches:
+            model.compute_loss(batch)
+    for bn, mom in zip(bns, momenta, strict=True):
+        bn.momentum = mom
+    model.train(was_training)
+
+
+class StopFlag:
+    """First Ctrl-C asks the loop to stop at the next step boundary and save; a second one aborts."""
+
+    def __init__(self) -> None:
+        self.requested = False
+        self._old: Any = None
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+
+    def __enter__(self) -> StopFlag:
+        try:
+            self._old = signal.signal(signal.SIGINT, self._handle)
+        except ValueError:  # not the main thread: no graceful stop
+            self._old = None
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        if self._old is not None:
+            signal.signal(signal.SIGINT, self._old)
