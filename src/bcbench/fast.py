@@ -19,6 +19,7 @@ import torch
 
 from bcbench.policies.learned import PolicyRunner
 from bcbench.policies.samplers import make_diffusers_sampler, run_diffusers, run_plan
+from bcbench.policies.unet1d import im2col
 
 
 class ReferenceRunner(PolicyRunner):
@@ -40,15 +41,6 @@ class ReferenceRunner(PolicyRunner):
         else:
             chunk = model.predict_action_chunk(o)
         return self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()
-
-
-def im2col(x: torch.Tensor, k: int, stride: int, pad: int) -> torch.Tensor:
-    """(B, Cin, T) -> (B, T', Cin * k): each output step's receptive field as one row, (channel, tap) order."""
-    if k == 1 and stride == 1:
-        return x.transpose(1, 2)
-    xp = torch.nn.functional.pad(x, (pad, pad)) if pad else x
-    u = xp.unfold(2, k, stride)  # (B, Cin, T', k)
-    return u.transpose(1, 2).reshape(x.shape[0], u.shape[2], -1)
 
 
 class MatmulConv1d(torch.nn.Module):

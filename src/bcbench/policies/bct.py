@@ -61,7 +61,7 @@ class BCTConfig(PolicyConfig):
                        optim=OptimConfig(optimizer="adamw", lr=1e-3, weight_decay=1e-4, schedule="cosine",
                                          warmup_steps=100, epochs=4, batch_size=64, checkpoint_every=200))
         if name == "cpu":  # the quick network trained to its plateau on 2 cores (see cpu_profile)
-            return cpu_profile(cls.preset("quick"), epochs=40)
+            return cpu_profile(cls.preset("quick"), epochs=30)
         raise BCBenchError(f"unknown config '{name}' for bct (choose quick, cpu or paper)")
 
 

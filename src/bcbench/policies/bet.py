@@ -70,7 +70,7 @@ class BeTConfig(PolicyConfig):
                                          schedule="cosine", warmup_steps=100, epochs=4, batch_size=64,
                                          grad_clip=1.0, checkpoint_every=200))
         if name == "cpu":  # the quick network trained to its plateau on 2 cores (see cpu_profile)
-            return cpu_profile(cls.preset("quick"), epochs=40)
+            return cpu_profile(cls.preset("quick"), epochs=30)
         raise BCBenchError(f"unknown config '{name}' for bet (choose quick, cpu or paper)")
 
 

@@ -84,7 +84,7 @@ class DiffusionConfig(PolicyConfig):
         if base == "paper":
             return cls(beta_schedule=betas)
         if base == "cpu":  # the quick network trained to its plateau on 2 cores: lr 1e-3 for batch 256
-            return cpu_profile(cls.preset("quick_linear" if schedule else "quick"), epochs=90, lr=1e-3,
+            return cpu_profile(cls.preset("quick_linear" if schedule else "quick"), epochs=60, lr=1e-3,
                                warmup_steps=100)
         # CPU-sized: 1/4-width ResNet-18 with one block per stage, a 64/128/256 U-Net, a higher learning
         # rate, 8 epochs (2,736 steps, about 15 minutes on 2 cores).

@@ -57,7 +57,7 @@ class ResNet50Config(PolicyConfig):
                        optim=OptimConfig(optimizer="adam", lr=1e-3, schedule="plateau", epochs=4, batch_size=64,
                                          plateau_patience=1, checkpoint_every=200))
         if name == "cpu":  # the quick network trained to its plateau on 2 cores (see cpu_profile)
-            return cpu_profile(cls.preset("quick"), epochs=30)
+            return cpu_profile(cls.preset("quick"), epochs=20)
         raise BCBenchError(f"unknown config '{name}' for resnet50 (choose quick, cpu or paper)")
 
 
