@@ -414,8 +414,11 @@ def _add_eval_command(sub: Any, policies: list[str]) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from bcbench.utils.system import git_commit
+
     parser = build_parser()
     args = parser.parse_args(argv)
+    git_commit()  # the code this process runs: read now, before anyone edits the tree (results carry it)
     try:
         return int(args.func(args) or 0)
     except BCBenchError as exc:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import os
 import platform
 import subprocess
@@ -22,8 +23,13 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
+@functools.cache
 def git_commit(repo: Path | None = None) -> str | None:
-    """The commit of the working tree bcbench runs from, with '-dirty' if it has changes."""
+    """The commit of the working tree bcbench runs from, with '-dirty' if it has changes.
+
+    Read once per process (at its first result) and kept: a study that runs for hours stamps every result
+    with the code it started with, not with whatever the tree holds when each file is written.
+    """
     repo = repo or Path(__file__).resolve().parents[3]
     try:
         sha = subprocess.run(
