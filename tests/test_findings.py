@@ -99,3 +99,16 @@ def test_margin_moves_the_verdict():
     pts = [pt("dp10", "diffusion", BASE - 0.1, 100.0, "ddpm10"), pt("dp100", "diffusion", BASE, 1000.0, "ddpm100")]
     assert judge(pts, margin=0.05)[1].verdict == CONTRADICTED
     assert judge(pts, margin=0.15)[1].verdict == SUPPORTED
+
+
+def test_plateau_rule_on_learning_curves():
+    from bcbench.curves import Curve, plateau
+
+    def curve(scores):
+        steps = [100 * (i + 1) for i in range(len(scores))]
+        return Curve(samples=[64 * s for s in steps], steps=steps, score=scores, lo=scores, hi=scores)
+
+    assert plateau(curve([0.1, 0.3, 0.5, 0.55, 0.6, 0.6, 0.61, 0.6]))[0]  # flat last quarter
+    rising, why = plateau(curve([0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8]))
+    assert not rising and "still rising" in why
+    assert not plateau(curve([0.5, 0.5, 0.5]))[0]  # too few points to show anything

@@ -154,7 +154,16 @@ def test_report_from_fixture_files(tmp_path):
     runs = tmp_path / "runs"
     write_json(runs / "cnn" / "eval-default.json", ev("cnn_mlp", "CNN-MLP", 0.3))
     write_json(runs / "cnn" / "latency-default.json", lat(2.0))
-    write_json(runs / "cnn" / "train_summary.json", {"epochs": 3.0, "train_time_s": 600, "samples_per_s": 150})
+    write_json(runs / "cnn" / "train_summary.json", {"epochs": 3.0, "train_time_s": 600, "samples_per_s": 150,
+                                                     "stopped": "finished"})
+    from bcbench.utils.io import append_jsonl
+
+    for step, score in ((100, 0.2), (200, 0.28), (300, 0.3), (400, 0.29)):  # a flat last quarter: converged
+        point = {"value": score, "ci95": [score - 0.1, score + 0.1]}
+        append_jsonl(runs / "cnn" / "metrics.jsonl", {"step": step, "samples": 64 * step, "val_loss": 0.1 / step,
+                                                      "eval_score": point})
+    write_json(runs / "bct" / "eval-default.json", ev("bct", "BCT", 0.3))
+    write_json(runs / "bct" / "train_summary.json", {"epochs": 0.1, "train_time_s": 6, "stopped": "finished"})
     for sampler, schedule in (("ddpm", "squaredcos_cap_v2"), ("ddim", "squaredcos_cap_v2"), ("ddim", "linear")):
         d = runs / f"dp-{schedule}"
         for k in (10, 100):
@@ -167,8 +176,12 @@ def test_report_from_fixture_files(tmp_path):
     assert "0.29 / 25.0% / 2.5% / 2.20" in md  # the study's CNN-MLP numbers beside ours
     assert "10 denoising steps score as well as 100**: *supported*" in md and "Rule: DDPM-10 minus DDPM-100" in md
     assert "Produced at commit: abc123." in md and "mix several commits" not in md
+    assert "- CNN-MLP: converged: last-quarter mean score 0.290 vs 0.300 before" in md
+    assert "- BCT: **not converged**: 0 rollout point(s)" in md
+    assert "ResNet-50 > BCT > CNN-MLP in score**: *inconclusive*" in md  # no ResNet-50: not judged at all
+    assert (tmp_path / "report" / "learning_curves.png").stat().st_size > 1000
     html = Path(paths["html"]).read_text()
-    assert html.count("data:image/png;base64,") == 3  # self-contained
+    assert html.count("data:image/png;base64,") == 4  # self-contained
 
 
 def test_export_copies_results_but_no_checkpoints(tmp_path):

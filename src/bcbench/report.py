@@ -96,6 +96,17 @@ def _spacing_note(rows: list[Row]) -> str:
             "and K = 40 at t = 78; variants marked -LEADING use it).")
 
 
+def deviation_lines(rows: list[Row]) -> list[str]:
+    """How each cpu-preset policy departs from its paper's recipe."""
+    from bcbench.policies import CPU_DEVIATIONS
+
+    cpu = sorted({r.policy for r in rows if (r.preset or "").startswith("cpu") and r.policy in CPU_DEVIATIONS})
+    if not cpu:
+        return []
+    return ["## Deviations from the papers' recipes (cpu presets)", "",
+            *[f"- {p}: {CPU_DEVIATIONS[p]}" for p in cpu], ""]
+
+
 def convergence_lines(rows: list[Row]) -> list[str]:
     """One line per trained run: whether its learning curve reached its plateau, and why."""
     seen, out = set(), []
@@ -154,7 +165,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
           "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
     md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
     md += ["", "## Results", "", _md_table(COLUMNS, table), "", "## Training: converged?", "",
-           *convergence_lines(rows), ""]
+           *convergence_lines(rows), "", *deviation_lines(rows)]
     for title, path in figs.items():
         if path:
             md += [f"## {title}", "", f"![{title}]({path.name})", ""]
