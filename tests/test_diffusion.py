@@ -142,3 +142,76 @@ def test_eval_with_sampler_from_a_checkpoint(synthetic_zarr, tmp_path):
     assert proc.returncode == 0, proc.stderr
     policy = json.loads((tmp_path / "ev" / "eval.json").read_text())["policy"]
     assert policy["sampler"] == "ddim" and policy["steps"] == 3 and policy["weights"] == "ema"
+
+
+# ----------------------------------------------------------------------------- flow matching (same network)
+
+
+@pytest.fixture(scope="module")
+def tiny_flow():
+    torch.manual_seed(0)
+    return make_policy("flow", "quick", **tiny_overrides("flow")).eval()
+
+
+@pytest.mark.parametrize("preset", ["quick", "cpu", "paper"])
+def test_flow_has_diffusions_parameter_count(preset):
+    assert make_policy("flow", preset).num_parameters() == make_policy("diffusion", preset).num_parameters()
+
+
+def test_flow_loss_decreases_on_a_tiny_batch():
+    torch.manual_seed(0)
+    model = make_policy("flow", "quick", **tiny_overrides("flow")).train()
+    batch = {**_obs(8), "action": torch.rand(8, 16, 2) * 2 - 1}
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+    losses = []
+    for _ in range(30):
+        torch.manual_seed(1)  # the same noise and times every step: a fixed regression target
+        loss = model.compute_loss(batch)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(loss.item())
+    assert losses[-1] < 0.5 * losses[0]
+
+
+@pytest.mark.parametrize("kind, calls_per_step", [("euler", 1), ("midpoint", 2)])
+@pytest.mark.parametrize("steps", [1, 2, 4])
+def test_flow_sampling_calls_and_determinism(tiny_flow, kind, steps, calls_per_step, monkeypatch):
+    tiny_flow.set_sampler(kind, steps)
+    calls = {"n": 0}
+    real = tiny_flow.unet.forward
+
+    def counted(*a, **k):
+        calls["n"] += 1
+        return real(*a, **k)
+
+    monkeypatch.setattr(tiny_flow.unet, "forward", counted)
+    with torch.no_grad():
+        tiny_flow.reset_noise(5)
+        a = tiny_flow.predict_action_chunk(_obs())
+        tiny_flow.reset_noise(5)
+        b = tiny_flow.predict_action_chunk(_obs())
+    assert calls["n"] == 2 * steps * calls_per_step  # K = 1 Euler is one network call
+    torch.testing.assert_close(a, b)
+    assert a.shape == (3, 16, 2) and a.abs().max() <= 1.0
+
+
+def test_flow_one_euler_step_is_noise_plus_velocity(tiny_flow):
+    tiny_flow.set_sampler("euler", 1)
+    with torch.no_grad():
+        obs = _obs()
+        tiny_flow.reset_noise(2)
+        out = tiny_flow.predict_action_chunk(obs)
+        tiny_flow.reset_noise(2)
+        noise = tiny_flow.randn(obs, (3, 16, 2), torch.device("cpu"))
+        v = tiny_flow.velocity(noise, torch.zeros(3), tiny_flow.encode(obs["image"], obs["agent_pos"]))
+    torch.testing.assert_close(out, (noise + v).clamp(-1, 1))
+
+
+def test_flow_rejects_diffusion_options(tiny_flow):
+    from bcbench.errors import BCBenchError
+
+    with pytest.raises(BCBenchError, match="euler or midpoint"):
+        tiny_flow.set_sampler("ddim", 10)
+    with pytest.raises(BCBenchError, match="spacing"):
+        tiny_flow.set_sampler("euler", 2, "leading")

@@ -48,7 +48,7 @@ eval = [{{ sampler = "ddpm", steps = [2] }}, {{ sampler = "ddim", steps = [2] }}
     ("", "no runs"),
     ("[[run]]\npolicy = 'nope'", "unknown policy 'nope'"),
     ("[[run]]\npolicy = 'cnn_mlp'\nconfig = 'huge'", "unknown config 'huge'"),
-    ("[[run]]\npolicy = 'cnn_mlp'\neval = [{sampler='ddim', steps=[10]}]", "apply to diffusion only"),
+    ("[[run]]\npolicy = 'cnn_mlp'\neval = [{sampler='ddim', steps=[10]}]", "apply to generative policies only"),
     ("[[run]]\npolicy = 'diffusion'\neval = [{sampler='dpm', steps=[10]}]", "sampler must be ddpm or ddim"),
     ("[[run]]\npolicy = 'diffusion'\neval = [{sampler='ddim', steps=[0]}]", "steps must be whole numbers"),
     ("[[run]]\npolicy = 'cnn_mlp'\nmax_minutes = -1", "max_minutes must be a positive number"),

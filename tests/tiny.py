@@ -23,3 +23,4 @@ TINY["bet"] = {"encoder_width": 16, "encoder_layers": [1, 1, 1, 1], "n_bins": 8,
                "n_layers": 2, "dropout": 0.0}
 TINY["bct"] = {"encoder_width": 16, "encoder_layers": [1, 1, 1, 1], "d_model": 16, "n_heads": 2, "n_layers": 2,
                "ffn_dim": 32, "dropout": 0.0}
+TINY["flow"] = {k: v for k, v in TINY["diffusion"].items() if k != "sampling_steps"} | {"sampling_steps": 3}

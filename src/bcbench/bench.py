@@ -38,7 +38,8 @@ def _rows_for(name: str, preset: str, modes: list[str], samplers: list[str], ste
     if not is_learned(name):
         stats = measure_runner(model, timing, rate_hz)
         return [{"policy": name, "preset": "-", "mode": "reference", "variant": "default", "params": 0, **stats}]
-    variants = [(s, k) for s in samplers for k in steps] if hasattr(model, "set_sampler") else [(None, None)]
+    kinds = [s for s in samplers if s in model.samplers] or list(model.samplers[:1])
+    variants = [(s, k) for s in kinds for k in steps] if model.samplers else [(None, None)]
     rows = []
     for sampler, k in variants:
         if sampler:

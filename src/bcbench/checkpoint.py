@@ -124,12 +124,15 @@ def configure_runner(runner: Any, sampler: str | None = None, steps: int | None 
     leading, "" otherwise). Sampler options on a policy without a sampler are an error.
     """
     runner.model.reset_noise(seed)  # stochastic policies: the evaluation seed fixes the noise
-    if hasattr(runner.model, "set_sampler"):
+    if runner.model.samplers:
+        if sampler and sampler not in runner.model.samplers:
+            raise BCBenchError(f"{runner.name} samples with {' or '.join(runner.model.samplers)}, not '{sampler}'")
         kind, k = sampler or runner.model.sampler_kind, steps or runner.model.sampler_steps
         runner.model.set_sampler(kind, k, spacing)
         spacing = runner.model.sampler_spacing
         runner.extra.update({"sampler": kind, "steps": k, "spacing": spacing})
-        return f"{kind}{k}-" + ("" if spacing == "trailing" else f"{spacing}-")
+        return f"{kind}{k}-" + ("" if spacing in (None, "trailing") else f"{spacing}-")
     if sampler or steps or spacing:
-        raise BCBenchError(f"--sampler/--steps/--spacing apply to diffusion policies, not to '{runner.name}'")
+        raise BCBenchError(f"--sampler/--steps/--spacing apply to generative policies (diffusion, flow), not to "
+                           f"'{runner.name}'")
     return ""

@@ -370,7 +370,8 @@ def _add_study_commands(sub: Any) -> None:
     p.add_argument("--config", action="append", choices=["quick", "cpu", "paper"], help="presets (default both)")
     p.add_argument("--mode", action="append", choices=["reference", "fast", "fast-jit", "fast-int8"],
                    help="modes (default reference and fast; fast-int8 is approximate, reported apart)")
-    p.add_argument("--sampler", action="append", choices=["ddpm", "ddim"], help="diffusion samplers (default both)")
+    p.add_argument("--sampler", action="append", choices=["ddpm", "ddim", "euler", "midpoint"],
+                   help="samplers of generative policies (default ddpm and ddim; flow: euler)")
     p.add_argument("--steps", type=_positive_int, action="append",
                    help="diffusion step counts (default 1 2 5 10 20 50 100)")
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"], help="default auto")
@@ -394,8 +395,10 @@ def _add_eval_command(sub: Any, policies: list[str]) -> None:
     p.add_argument("--mode", default="default", choices=["default", "reference", "fast", "fast-jit", "fast-int8"],
                    help="inference path of a trained policy: all give the same chunks except fast-int8 "
                         "(approximate); default = inference_mode with precomputed sampler constants")
-    p.add_argument("--sampler", choices=["ddpm", "ddim"], help="diffusion only: sampler (default: the run's)")
-    p.add_argument("--steps", type=_positive_int, help="diffusion only: denoising steps, 1..100 (default: the run's)")
+    p.add_argument("--sampler", choices=["ddpm", "ddim", "euler", "midpoint"],
+                   help="generative policies: diffusion ddpm|ddim, flow euler|midpoint (default: the run's)")
+    p.add_argument("--steps", type=_positive_int,
+                   help="generative policies: denoising (diffusion, 1..100) or integration steps (default: the run's)")
     p.add_argument("--spacing", choices=["trailing", "leading"],
                    help="diffusion only: timestep spacing (default trailing: every step count starts from pure "
                         "noise; leading is diffusers' and the study's default)")

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from bcbench.policies.diffusion import DiffusionPolicy
 from bcbench.policies.learned import PolicyRunner
 from bcbench.policies.samplers import make_diffusers_sampler, run_diffusers, run_plan
 from bcbench.policies.unet1d import im2col
@@ -31,7 +32,7 @@ class ReferenceRunner(PolicyRunner):
     def predict_action_chunk(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         o = self.prepare(obs)
         model = self.model
-        if hasattr(model, "set_sampler"):
+        if isinstance(model, DiffusionPolicy):
             cond = model.encode(o["image"], o["agent_pos"])
             sched = make_diffusers_sampler(model.noise_scheduler, model.sampler_kind, model.sampler_steps,
                                            model.sampler_spacing)
@@ -185,11 +186,11 @@ class FastRunner(PolicyRunner):
 
     def __init__(self, model: Any, normalizer: Any, device: str | torch.device = "cpu", backend: str = "eager",
                  extra: dict[str, Any] | None = None) -> None:
-        if backend == "jit" or hasattr(model, "set_sampler"):
+        if backend == "jit" or isinstance(model, DiffusionPolicy):
             model = copy.deepcopy(model)  # submodules get replaced: never touch the caller's model
         super().__init__(model, normalizer, device, extra)
         self.backend = backend
-        if backend in ("eager", "int8") and hasattr(self.model, "set_sampler"):
+        if backend in ("eager", "int8") and isinstance(self.model, DiffusionPolicy):
             matmul_convs(self.model.unet)
             if backend == "int8":
                 int8_convs(self.model.unet)
@@ -203,7 +204,7 @@ class FastRunner(PolicyRunner):
         pos = torch.zeros(1, m.config.obs_horizon, 2, device=self.device)
         with warnings.catch_warnings(), torch.no_grad():
             warnings.simplefilter("ignore")
-            if hasattr(m, "set_sampler"):
+            if isinstance(m, DiffusionPolicy):
                 cond = m.encode(image, pos)
                 m.encoder = _frozen(m.encoder, (image,))
                 unet = _frozen(m.unet, (torch.zeros(1, m.config.pred_horizon, 2, device=self.device),
@@ -216,7 +217,7 @@ class FastRunner(PolicyRunner):
     @torch.inference_mode()
     def predict_action_chunk(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         m = self.model
-        if not hasattr(m, "set_sampler") or self.backend == "jit":
+        if not isinstance(m, DiffusionPolicy) or self.backend == "jit":
             return super().predict_action_chunk(obs)
         if getattr(self, "_film", None) is None:
             self._film = SplitFiLM(m)

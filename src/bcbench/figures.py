@@ -13,7 +13,7 @@ import matplotlib.pyplot as plt
 
 BUDGETS_MS = ((100.0, "10 Hz, re-plan every step (100 ms)"), (800.0, "10 Hz, re-plan every 8 steps (800 ms)"))
 COLOURS = {"cnn_mlp": "tab:blue", "resnet50": "tab:orange", "bet": "tab:purple", "bct": "tab:green",
-           "diffusion": "tab:red", "random": "tab:gray", "scripted": "tab:brown"}
+           "diffusion": "tab:red", "flow": "tab:pink", "random": "tab:gray", "scripted": "tab:brown"}
 
 
 def _save(fig: Any, path: Path) -> Path:
@@ -69,38 +69,59 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference") -> Path | None
     return _save(fig, path)
 
 
-def _dp_rows(rows: list[Any], sampler: str, schedule: str) -> list[Any]:
+def _dp_rows(rows: list[Any], sampler: str, schedule: str, spacing: str | None = None) -> list[Any]:
+    """Diffusion Policy rows of one sampler and beta schedule; trailing spacing unless asked otherwise."""
     out = [r for r in rows if r.policy == "diffusion" and r.sampler == sampler
-           and (r.beta_schedule or "squaredcos_cap_v2") == schedule]
+           and (r.beta_schedule or "squaredcos_cap_v2") == schedule and (r.spacing or "leading") == (spacing or
+                                                                                                    "trailing")]
+    if not out and spacing is None:  # results from before trailing spacing existed
+        return _dp_rows(rows, sampler, schedule, "leading")
     return sorted(out, key=lambda r: r.steps)
 
 
+def _step_series(rows: list[Any]) -> list[tuple[str, list[Any], str]]:
+    """(label, rows sorted by steps, line style) for every family evaluated at 2+ step counts."""
+    series = [("DP DDPM", _dp_rows(rows, "ddpm", "squaredcos_cap_v2"), "-"),
+              ("DP DDIM", _dp_rows(rows, "ddim", "squaredcos_cap_v2"), "-"),
+              ("DP DDPM, leading spacing", _dp_rows(rows, "ddpm", "squaredcos_cap_v2", "leading"), ":"),
+              ("DP DDIM, leading spacing", _dp_rows(rows, "ddim", "squaredcos_cap_v2", "leading"), ":")]
+    for kind in ("euler", "midpoint"):
+        series.append((f"flow, {kind}", sorted([r for r in rows if r.policy == "flow" and r.sampler == kind],
+                                               key=lambda r: r.steps), "--"))
+    seen, out = set(), []
+    for label, s, style in series:
+        keys = tuple(r.key for r in s)
+        if len(s) >= 2 and keys not in seen:  # without trailing results the 'leading' lines would repeat
+            seen.add(keys)
+            out.append((label, s, style))
+    return out
+
+
 def figure3(rows: list[Any], path: Path, mode: str = "reference") -> Path | None:
-    """Diffusion Policy (DDPM, cosine): score, share > 0.5, share > 0.9 and latency vs denoising steps."""
-    dp = _dp_rows(rows, "ddpm", "squaredcos_cap_v2")
-    if len(dp) < 2:
+    """Score and latency against denoising / integration steps: DP's samplers (and spacings), flow matching."""
+    series = _step_series(rows)
+    if not series:
         return None
-    steps = [r.steps for r in dp]
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4))
-    metrics = (("mean_score", "mean score"), ("share_above_0.5", "share > 0.5"), ("share_above_0.9", "share > 0.9"))
-    for key, label in metrics:
-        vals = [r.est(key)["value"] for r in dp]
-        lo = [r.est(key)["ci95"][0] for r in dp]
-        hi = [r.est(key)["ci95"][1] for r in dp]
-        ax.plot(steps, vals, marker="o", label=label)
-        ax.fill_between(steps, lo, hi, alpha=0.15)
-    ax.set_xlabel("denoising iterations (DDPM)")
-    ax.set_ylabel("score / share (95% CI)")
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, 4.5))
+    for label, s, style in series:
+        steps = [r.steps for r in s]
+        lo = [r.est("mean_score")["ci95"][0] for r in s]
+        hi = [r.est("mean_score")["ci95"][1] for r in s]
+        (line,) = ax.plot(steps, [r.score for r in s], style, marker="o", label=label)
+        ax.fill_between(steps, lo, hi, alpha=0.12, color=line.get_color())
+        lat = [(r.steps, r.latency_ms(mode)) for r in s if r.latency_ms(mode) is not None]
+        if lat:
+            ax2.plot(*zip(*lat, strict=True), style, marker="o", color=line.get_color(), label=label)
+    for a in (ax, ax2):
+        a.set_xscale("log")
+        a.set_xlabel("denoising / integration steps (log scale)")
+        a.grid(alpha=0.3, which="both")
+    ax.set_ylabel("mean score (95% CI)")
     ax.set_ylim(-0.05, 1.05)
-    ax.legend()
-    ax.grid(alpha=0.3)
-    lat = [r.latency_ms(mode) for r in dp]
-    if all(v is not None for v in lat):
-        ax2.plot(steps, lat, marker="o", color="tab:red")
-        ax2.set_ylabel(f"inference time per call (ms, {mode})")
-    ax2.set_xlabel("denoising iterations (DDPM)")
-    ax2.grid(alpha=0.3)
-    fig.suptitle("Diffusion Policy against denoising iterations (the study's Fig. 3)")
+    ax.legend(fontsize=7)
+    ax2.set_yscale("log")
+    ax2.set_ylabel(f"inference time per call (ms, {mode}, median)")
+    fig.suptitle("Generative policies against sampling steps (the study's Fig. 3)")
     return _save(fig, path)
 
 

@@ -60,7 +60,7 @@ def _hw_cell(r: Row) -> str:
 
 def table_rows(rows: list[Row]) -> list[list[str]]:
     out = []
-    order = ["random", "scripted", "cnn_mlp", "resnet50", "bet", "bct", "diffusion"]
+    order = ["random", "scripted", "cnn_mlp", "resnet50", "bet", "bct", "diffusion", "flow"]
     for r in sorted(rows, key=lambda r: (order.index(r.policy) if r.policy in order else 99, r.label,
                                           r.sampler or "", r.steps or 0)):
         ref = r.latency.get("reference") or {}
@@ -150,7 +150,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     out = results / "report"
     out.mkdir(parents=True, exist_ok=True)
     figs = {"Figure 5: accuracy against inference time": figure5(rows, out / "fig5_accuracy_vs_latency.png"),
-            "Figure 3: Diffusion Policy against denoising iterations": figure3(rows, out / "fig3_denoising_steps.png"),
+            "Figure 3: generative policies against sampling steps": figure3(rows, out / "fig3_denoising_steps.png"),
             "Figure 4: DDPM-cosine, DDIM-cosine, DDIM-linear": figure4(rows, out / "fig4_samplers.png"),
             "Learning curves": learning_curves(rows, out / "learning_curves.png")}
     findings = judge(points_from_rows(rows), margin)

@@ -112,23 +112,29 @@ def _variants(i: int, run: dict[str, Any], policy: str) -> list[Variant]:
     entries = run.get("eval")
     if entries is None:
         return [Variant()]
-    if policy != "diffusion":
-        raise BCBenchError(f"{_where(i, run)}: 'eval' variants (sampler/steps) apply to diffusion only")
+    from bcbench.policies import REGISTRY
+
+    kinds = REGISTRY[policy][1].samplers if hasattr(REGISTRY[policy][1], "samplers") else ()
+    if not kinds:
+        raise BCBenchError(f"{_where(i, run)}: 'eval' variants (sampler/steps) apply to generative policies only "
+                           "(diffusion, flow)")
     if not isinstance(entries, list) or not entries:
         raise BCBenchError(f"{_where(i, run)}: 'eval' must be a non-empty list of {{sampler, steps}} tables")
     out = []
     for e in entries:
         if not isinstance(e, dict) or set(e) - {"sampler", "steps", "spacing"} or "sampler" not in e:
             raise BCBenchError(f"{_where(i, run)}: each eval entry needs sampler (and steps, spacing), got {e}")
-        if e["sampler"] not in ("ddpm", "ddim"):
-            raise BCBenchError(f"{_where(i, run)}: sampler must be ddpm or ddim, got '{e['sampler']}'")
-        spacing = e.get("spacing", "trailing")
-        if spacing not in ("trailing", "leading"):
+        if e["sampler"] not in kinds:
+            raise BCBenchError(f"{_where(i, run)}: sampler must be {' or '.join(kinds)}, got '{e['sampler']}'")
+        spacing = e.get("spacing", "trailing" if policy == "diffusion" else None)
+        if policy == "diffusion" and spacing not in ("trailing", "leading"):
             raise BCBenchError(f"{_where(i, run)}: spacing must be trailing or leading, got '{spacing}'")
+        if policy != "diffusion" and spacing is not None:
+            raise BCBenchError(f"{_where(i, run)}: spacing applies to diffusion only")
         steps = e.get("steps", [100])
         steps = steps if isinstance(steps, list) else [steps]
         for k in steps:
-            if not isinstance(k, int) or not 1 <= k <= 100:
+            if not isinstance(k, int) or isinstance(k, bool) or not 1 <= k <= 100:
                 raise BCBenchError(f"{_where(i, run)}: steps must be whole numbers in 1..100, got {k!r}")
             out.append(Variant(e["sampler"], k, spacing))
     return out

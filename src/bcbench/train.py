@@ -276,7 +276,7 @@ def rollout_score(r: Run, episodes: int) -> dict[str, Any]:
 
     model = r.ema.model if r.ema is not None else r.model
     runner = PolicyRunner(model, r.normalizer, r.device)
-    if hasattr(model, "set_sampler"):  # learning curves sample with 10 steps: cheap, and close to the best
+    if model.samplers:  # learning curves sample with 10 steps: cheap, and close to the best
         kind, steps, spacing = model.sampler_kind, model.sampler_steps, model.sampler_spacing
         model.set_sampler(kind, min(steps, 10))
     model.reset_noise(model.config.seed)
@@ -285,7 +285,7 @@ def rollout_score(r: Run, episodes: int) -> dict[str, Any]:
             episodes_out, timing = run_episodes(runner, EvalConfig(episodes=episodes, seed_start=VALIDATION_SEED_START),
                                                 progress=False)
     finally:
-        if hasattr(model, "set_sampler"):
+        if model.samplers:
             model.set_sampler(kind, steps, spacing)
         r.model.train()
     scores = np.array([e.score for e in episodes_out])

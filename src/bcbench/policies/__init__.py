@@ -15,6 +15,7 @@ from bcbench.policies.bct import BCTConfig, BCTPolicy
 from bcbench.policies.bet import BeTConfig, BeTPolicy
 from bcbench.policies.cnn_mlp import CNNMLPConfig, CNNMLPPolicy
 from bcbench.policies.diffusion import DiffusionConfig, DiffusionPolicy
+from bcbench.policies.flow import FlowConfig, FlowPolicy
 from bcbench.policies.learned import BCPolicy
 from bcbench.policies.resnet50_cnn import ResNet50Config, ResNet50Policy
 
@@ -26,6 +27,7 @@ REGISTRY: dict[str, tuple[type, type]] = {
     "bet": (BeTConfig, BeTPolicy),
     "bct": (BCTConfig, BCTPolicy),
     "diffusion": (DiffusionConfig, DiffusionPolicy),
+    "flow": (FlowConfig, FlowPolicy),
 }
 
 # How each `cpu` preset departs from the recipe of its paper (the report lists these), and why.
@@ -43,6 +45,7 @@ CPU_DEVIATIONS: dict[str, str] = {
     "diffusion": "1/4-width ResNet-18/GroupNorm with one block per stage and a 64/128/256 U-Net (5.3 M instead "
                  "of 91.1 M parameters); AdamW 1e-3 (paper 1e-4) at batch 256 (paper 64), 100 warm-up steps "
                  "(paper 500), 60 epochs (paper 100); EMA, crop, cosine schedule as the paper; bf16 autocast",
+    "flow": "diffusion's cpu network and recipe exactly (same parameters), flow-matching objective",
 }
 
 # The study's parameter counts, for `bcbench params` and the report.

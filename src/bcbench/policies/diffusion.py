@@ -97,6 +97,7 @@ class DiffusionConfig(PolicyConfig):
 
 class DiffusionPolicy(BCPolicy):
     name = "diffusion"
+    samplers = ("ddpm", "ddim")
 
     def __init__(self, config: DiffusionConfig) -> None:
         super().__init__()

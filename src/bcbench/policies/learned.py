@@ -30,6 +30,7 @@ class BCPolicy(nn.Module):
     """Base class: subclasses set `self.config` and implement the two methods."""
 
     name = "policy"
+    samplers: tuple[str, ...] = ()  # sampler kinds `set_sampler` accepts (generative policies); () = none
     config: Any
     generator: torch.Generator | None = None  # inference noise of stochastic policies (DP, BeT)
     noise_seed: int | None = None

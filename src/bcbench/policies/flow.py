@@ -1,0 +1,133 @@
+"""Flow-matching policy on Diffusion Policy's network: a few-step generative policy.
+
+Same observation encoder (ResNet-18/GroupNorm) and 1-D conditional U-Net as `diffusion`, at the same sizes
+in every profile, so the parameter counts are equal; only the objective and the sampler differ.
+Training (rectified flow; Lipman et al., 2023; Liu et al., 2023): draw Gaussian noise e and a time t in
+[0, 1], interpolate x_t = (1 - t) e + t a between the noise (t = 0) and the normalised action chunk a
+(t = 1), and regress the constant velocity a - e with the U-Net (t enters through its step embedding as
+100 t, the range of Diffusion Policy's integer steps). Sampling integrates dx/dt = v(x, t) from noise with
+K Euler steps (one network call each) or K midpoint steps (two calls each); K = 1 is a single call.
+
+Time sampling: t = 1 - s with s ~ Beta(1.5, 1), as pi0 does (Black et al., 2024). It puts more training
+weight near the noise end (t -> 0), which is where a one- or two-step sampler takes its first, largest
+step; uniform t spends as much effort near the data, where few-step sampling never evaluates the field.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import torch
+import torch.nn.functional as F
+
+from bcbench.errors import BCBenchError
+from bcbench.policies.config import OptimConfig, PolicyConfig
+from bcbench.policies.diffusion import DiffusionConfig
+from bcbench.policies.encoders import RESNET18_LAYERS, FrameFeatures, count_parameters
+from bcbench.policies.learned import BCPolicy
+from bcbench.policies.unet1d import ConditionalUnet1D
+
+INTEGRATORS = ("euler", "midpoint")
+TIME_SCALE = 100.0  # t in [0, 1] enters the U-Net's sinusoidal step embedding as 100 t
+
+
+@dataclass
+class FlowConfig(PolicyConfig):
+    encoder_width: int = 64
+    """ResNet-18 base width (as diffusion)"""
+    encoder_layers: tuple[int, ...] = RESNET18_LAYERS
+    """basic blocks per ResNet stage (as diffusion)"""
+    down_dims: tuple[int, ...] = (256, 512, 1024)
+    """U-Net channel widths per level (as diffusion)"""
+    kernel_size: int = 5
+    """U-Net convolution kernel"""
+    n_groups: int = 8
+    """GroupNorm groups in the U-Net"""
+    step_embed_dim: int = 256
+    """sinusoidal time embedding size"""
+    crop: int | None = 84
+    """random crop size at training (centre crop at evaluation); None = no crop"""
+    time_beta: tuple[float, float] = (1.5, 1.0)
+    """training times t = 1 - s, s ~ Beta(a, b): pi0's choice, weighted towards the noise end"""
+    sampler: str = "euler"
+    """integrator at evaluation: euler (one call per step) or midpoint (two)"""
+    sampling_steps: int = 10
+    """integration steps at evaluation (any K >= 1; bcbench eval --steps overrides)"""
+    optim: OptimConfig = field(default_factory=lambda: DiffusionConfig().optim)
+    """as diffusion's: AdamW, cosine with warm-up, EMA"""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.encoder_layers, self.down_dims = tuple(self.encoder_layers), tuple(self.down_dims)
+        self.time_beta = tuple(self.time_beta)
+        if self.sampler not in INTEGRATORS or self.sampling_steps < 1:
+            raise BCBenchError(f"sampler must be one of {', '.join(INTEGRATORS)} with sampling_steps >= 1")
+        if min(self.time_beta) <= 0:
+            raise BCBenchError(f"time_beta parameters must be > 0, got {self.time_beta}")
+
+    @classmethod
+    def preset(cls, name: str) -> FlowConfig:
+        """Every profile of diffusion (quick, cpu, paper): its network sizes and optimiser, flow objective."""
+        if "_" in name:
+            raise BCBenchError(f"unknown config '{name}' for flow (quick, cpu or paper; it has no beta schedule)")
+        dp = DiffusionConfig.preset(name)
+        shared = {f.name: getattr(dp, f.name) for f in dataclasses.fields(cls) if hasattr(dp, f.name)
+                  and f.name not in ("sampler", "sampling_steps")}
+        return cls(**shared)
+
+
+class FlowPolicy(BCPolicy):
+    name = "flow"
+    samplers = INTEGRATORS
+
+    def __init__(self, config: FlowConfig) -> None:
+        super().__init__()
+        self.config = c = config
+        self.encoder = FrameFeatures("group", c.encoder_width, c.encoder_layers, c.crop)
+        self.unet = ConditionalUnet1D(2, c.obs_horizon * (self.encoder.out_dim + 2), c.step_embed_dim, c.down_dims,
+                                      c.kernel_size, c.n_groups)
+        self.set_sampler(c.sampler, c.sampling_steps)
+
+    def set_sampler(self, kind: str, steps: int, spacing: str | None = None) -> None:
+        """Choose the integrator and its number of steps for inference (no retraining)."""
+        if kind not in INTEGRATORS or steps < 1:
+            raise BCBenchError(f"flow samples with {' or '.join(INTEGRATORS)} and steps >= 1, got {kind} {steps}")
+        if spacing is not None:
+            raise BCBenchError("--spacing applies to diffusion's timesteps, not to flow's uniform integration steps")
+        self.sampler_kind, self.sampler_steps, self.sampler_spacing = kind, steps, None
+
+    def encode(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:
+        """image (B, To, 3, H, W), agent_pos (B, To, 2) -> global condition (B, To * (F + 2))."""
+        return torch.cat([self.encoder(image), agent_pos], dim=-1).flatten(1)
+
+    def velocity(self, x: torch.Tensor, t: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
+        """v(x_t, t): x (B, Tp, 2), t (B,) in [0, 1]."""
+        return self.unet(x, t * TIME_SCALE, cond)
+
+    def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        cond = self.encode(batch["image"], batch["agent_pos"])
+        action = batch["action"]  # (B, Tp, 2) in [-1, 1]
+        noise = torch.randn_like(action)
+        a, b = self.config.time_beta
+        s = torch.distributions.Beta(torch.tensor(a), torch.tensor(b)).sample((action.shape[0],)).to(action.device)
+        t = (1.0 - s).clamp(0.0, 1.0)  # (B,)
+        x_t = (1 - t)[:, None, None] * noise + t[:, None, None] * action
+        return F.mse_loss(self.velocity(x_t, t, cond), action - noise)
+
+    def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+        cond = self.encode(obs["image"], obs["agent_pos"])  # once per call
+        b, k = cond.shape[0], self.sampler_steps
+        x = self.randn(obs, (b, self.config.pred_horizon, 2), cond.device)  # (B, Tp, 2) noise at t = 0
+        h = 1.0 / k
+        for i in range(k):
+            t = torch.full((b,), i * h, device=cond.device)
+            v = self.velocity(x, t, cond)
+            if self.sampler_kind == "midpoint":
+                v = self.velocity(x + 0.5 * h * v, t + 0.5 * h, cond)
+            x = x + h * v
+        return x.clamp(-1.0, 1.0)
+
+    def parameter_breakdown(self) -> dict[str, int]:
+        return {"encoder": count_parameters(self.encoder), "unet": count_parameters(self.unet),
+                "total": self.num_parameters()}
