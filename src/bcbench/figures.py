@@ -191,7 +191,11 @@ def learning_curves(rows: list[Any], path: Path) -> Path | None:
     ax.set_ylabel("mean score on validation seeds (95% CI)")
     ax.set_ylim(-0.05, 1.05)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7)
+    else:
+        ax.text(0.5, 0.5, "no rollouts logged while training\n(train with --eval-every)", ha="center",
+                transform=ax.transAxes, alpha=0.6)
     ax.set_title("Learning curves: closed-loop score")
     ax2.set_xlabel("training samples")
     ax2.set_ylabel("validation loss (held-out episodes)")

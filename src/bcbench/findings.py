@@ -34,6 +34,7 @@ class Point:
     beta_schedule: str | None = None
     scores: dict[int, float] = field(default_factory=dict)  # episode seed -> score
     converged: bool | None = None  # False: the learning curve had not reached its plateau
+    run: str = ""  # the trained run's label (its variants share one learning curve)
 
 
 @dataclass
@@ -78,7 +79,7 @@ def _fmt_diff(est: float, lo: float, hi: float, n: int) -> str:
 
 
 def _undertrained(points: list[Point]) -> list[str]:
-    return sorted({p.name for p in points if p.converged is False})
+    return sorted({p.run or p.name for p in points if p.converged is False})
 
 
 def _finish(number: int, claim: str, rule: str, verdict: str, evidence: str, used: list[Point]) -> Finding:
@@ -199,4 +200,4 @@ def judge(points: list[Point], margin: float = DEFAULT_MARGIN) -> list[Finding]:
 def points_from_rows(rows: list, mode: str = "reference") -> list[Point]:
     return [Point(r.label + ("" if r.variant == "default" else f" {r.variant.upper()}"), r.policy, r.variant, r.score,
                   tuple(r.est("mean_score")["ci95"]), r.latency_ms(mode), r.beta_schedule, dict(r.scores),
-                  getattr(r, "converged", None)) for r in rows]
+                  getattr(r, "converged", None), r.label) for r in rows]
