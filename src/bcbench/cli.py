@@ -95,6 +95,9 @@ def cmd_data_replay(args: argparse.Namespace) -> int:
     results = replay_buffer_episodes(buf, episodes, workers=args.workers, progress=not args.quiet)
     report = replay_report(results)
     report["dataset"] = buf.source
+    from bcbench.utils.system import provenance
+
+    report.update(provenance())  # commit, machine, versions: the claim in the README points here
     d, e = report["demonstrators"], report["block_error_px"]
     print(f"replayed {report['episodes']} episodes open-loop from their recorded start states")
     print(f"  exact (block within {report['exact_threshold_px']:g} px of the record all episode): "
