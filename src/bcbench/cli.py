@@ -148,7 +148,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from bcbench.stats import fmt_estimate
 
     cfg = EvalConfig(episodes=args.episodes, seed_start=args.seed_start, max_steps=args.max_steps,
-                     action_horizon=args.action_horizon, workers=args.workers, video=args.video)
+                     action_horizon=args.action_horizon, workers=args.workers, video=args.video,
+                     execution=args.execution, latency=args.latency, latency_ms=args.latency_ms)
     policy, default_out = _load_eval_policy(args)
     out = Path(args.out) if args.out else default_out
     result = evaluate(policy, cfg, out, progress=not args.quiet)
@@ -414,6 +415,12 @@ def _add_eval_command(sub: Any, policies: list[str]) -> None:
     p.add_argument("--action-horizon", type=_positive_int, help="actions executed per chunk (default: policy's, 8)")
     p.add_argument("--workers", type=_positive_int, help="simulator processes (default: one per core)")
     p.add_argument("--video", type=_nonneg_int, default=0, metavar="N", help="write videos of the first N episodes")
+    p.add_argument("--execution", default="sync", choices=["sync", "blocking", "async"],
+                   help="sync: the world waits for the policy (default); blocking: the agent holds its last target "
+                        "while the policy computes; async: it keeps executing the current chunk")
+    p.add_argument("--latency-ms", type=float, metavar="MS", help="a fixed latency per call (10 Hz: d = ceil(MS/100))")
+    p.add_argument("--latency", metavar="SOURCE",
+                   help="'measured' (this policy's call times on this machine) or 'profile:a100' (the study's A100)")
     p.add_argument("--out", metavar="DIR", help="output folder (default runs/eval-POLICY-TIME)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_eval)

@@ -24,6 +24,7 @@ import numpy as np
 
 from bcbench.env.controller import ChunkedController
 from bcbench.errors import BCBenchError
+from bcbench.realtime import LatencySource
 from bcbench.stats import score_summary
 from bcbench.utils.io import write_json
 from bcbench.utils.system import provenance
@@ -47,6 +48,12 @@ class EvalConfig:
     """write videos of the first N episodes"""
     video_size: int = 256
     """video frame size in pixels"""
+    execution: str = "sync"
+    """sync (the world waits for the policy), blocking or async (it does not): see bcbench.env.controller"""
+    latency: str | None = None
+    """where a call's latency comes from: 'measured' or 'profile:NAME' (or latency_ms)"""
+    latency_ms: float | None = None
+    """a fixed latency per call in milliseconds"""
 
     def __post_init__(self) -> None:
         if self.episodes < 1:
@@ -61,6 +68,12 @@ class EvalConfig:
             raise BCBenchError(f"--video must be in 0..episodes ({self.episodes}), got {self.video}")
         if self.action_horizon is not None and self.action_horizon < 1:
             raise BCBenchError(f"--action-horizon must be >= 1, got {self.action_horizon}")
+        from bcbench.env.controller import EXECUTIONS
+        from bcbench.realtime import LatencySource
+
+        if self.execution not in EXECUTIONS:
+            raise BCBenchError(f"--execution must be one of {', '.join(EXECUTIONS)}, got '{self.execution}'")
+        LatencySource.parse(self.latency, self.latency_ms)  # validates
 
 
 @dataclass
@@ -195,8 +208,11 @@ def run_episodes(policy: Any, cfg: EvalConfig, out_dir: Path | None = None, prog
     from tqdm import tqdm
 
     n_workers = max(1, min(cfg.workers or os.cpu_count() or 1, cfg.episodes))
-    controller = ChunkedController(policy, cfg.action_horizon)
     results = {i: EpisodeResult(episode=i, seed=cfg.seed_start + i) for i in range(cfg.episodes)}
+    source = LatencySource.parse(cfg.latency, cfg.latency_ms)
+    source.resolve(policy)  # measured: timed now, before any simulator runs beside it
+    controller = ChunkedController(policy, cfg.action_horizon, cfg.execution,
+                                   source.delay_fn({i: r.seed for i, r in results.items()}))
     video_dir = (out_dir / "videos") if out_dir is not None else Path("videos")
     pool = _WorkerPool(n_workers, cfg.video_size)
     policy_time, env_steps, t0 = 0.0, 0, time.perf_counter()
@@ -246,7 +262,9 @@ def run_episodes(policy: Any, cfg: EvalConfig, out_dir: Path | None = None, prog
     timing = {
         "wall_time_s": wall, "env_steps": env_steps, "env_steps_per_s": env_steps / wall if wall > 0 else 0.0,
         "policy_calls": controller.n_calls, "chunks_planned": controller.n_plans, "policy_time_s": policy_time,
-        "workers": n_workers,
+        "workers": n_workers, "execution": cfg.execution, "latency_source": source.describe(),
+        "delay_steps": {str(d): int(n) for d, n in zip(*np.unique(controller.delays, return_counts=True),
+                                                          strict=True)},
     }
     return [results[i] for i in sorted(results)], timing
 

@@ -88,7 +88,8 @@ def summarize_ms(ms: np.ndarray) -> dict[str, Any]:
     """
     n = int(ms.size)
     out: dict[str, Any] = {"median_ms": float(np.median(ms)), "min_ms": float(ms.min()), "max_ms": float(ms.max()),
-                           "mean_ms": float(ms.mean()), "calls": n, "calls_per_s": float(1e3 / np.median(ms))}
+                           "mean_ms": float(ms.mean()), "calls": n, "calls_per_s": float(1e3 / np.median(ms)),
+                           "samples_ms": [round(float(v), 4) for v in ms]}  # for draws in real-time evaluation
     if n >= MIN_CALLS_FOR_PERCENTILES:
         out.update(p90_ms=float(np.percentile(ms, 90)), p99_ms=float(np.percentile(ms, 99)), tail_stat="p99")
         out["tail_ms"] = out["p99_ms"]

@@ -5,6 +5,16 @@ observations; at reset the first one is repeated, as in Diffusion Policy) and a 
 environment's queue runs dry, it is re-planned: the policy is called once for all such environments
 (batched) and the next action_horizon actions of each chunk are queued.
 
+Execution under latency (`execution`): a call whose latency is d control steps (`delay(env_id)`)
+- `sync`: the world waits for the policy (d has no effect): the simulators' usual assumption;
+- `blocking`: the world does not wait: the agent holds its last commanded target for d steps while the
+  policy computes, then runs the new chunk from its start;
+- `async`: the next chunk is asked for when the queue falls to d actions (the threshold; a chunk arrives
+  just in time), computed from the observation of that moment, while the agent runs the queue's last
+  actions; on arrival its first d actions, now in the past, are skipped and it replaces the queue. If the
+  queue runs dry first, the agent holds its last target.
+With d = 0 both give exactly the sync result. The controller counts the d of every call (`delays`).
+
 Each environment also owns its noise stream: a torch.Generator seeded from (the policy's noise seed, the
 episode's seed), handed to the policy with the batch (`obs["generators"]`, one per row). A stochastic
 policy draws row i's noise from it, so an episode's actions depend on its own seed only, never on which
@@ -14,7 +24,8 @@ other episodes are batched with it, on --episodes or on --workers.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -29,11 +40,26 @@ def episode_generator(policy_seed: int, episode_seed: int) -> torch.Generator:
     return torch.Generator().manual_seed(seed)
 
 
+EXECUTIONS = ("sync", "blocking", "async")
+
+
+@dataclass
+class _Pending:
+    """A chunk being computed: it reaches the agent at step `arrival`."""
+
+    arrival: int
+    actions: list[np.ndarray]
+
+
 class ChunkedController:
     """Observation history and action queues for a set of environments keyed by id."""
 
-    def __init__(self, policy: Any, action_horizon: int | None = None) -> None:
-        self.policy = policy
+    def __init__(self, policy: Any, action_horizon: int | None = None, execution: str = "sync",
+                 delay: Callable[[int], int] | None = None) -> None:
+        if execution not in EXECUTIONS:
+            raise BCBenchError(f"--execution must be one of {', '.join(EXECUTIONS)}, got '{execution}'")
+        self.policy, self.execution = policy, execution
+        self.delay = delay or (lambda env_id: 0)  # control steps a call started now takes (0: none)
         self.obs_horizon = int(policy.obs_horizon)
         self.pred_horizon = int(policy.pred_horizon)
         self.action_horizon = int(action_horizon or policy.action_horizon)
@@ -48,8 +74,13 @@ class ChunkedController:
         self._history: dict[int, deque[dict[str, np.ndarray]]] = {}
         self._queue: dict[int, deque[np.ndarray]] = {}
         self._noise: dict[int, torch.Generator] = {}
+        self._pending: dict[int, _Pending | None] = {}
+        self._next_delay: dict[int, int] = {}  # async: the d of the env's next call, drawn in advance
+        self._step: dict[int, int] = {}
+        self._last: dict[int, np.ndarray] = {}  # the last commanded target (held while waiting)
         self.n_calls = 0  # batched policy calls
         self.n_plans = 0  # chunks planned (sum of batch sizes)
+        self.delays: list[int] = []  # d of every planned chunk
 
     def reset(self, env_id: int, obs: dict[str, np.ndarray], seed: int | None = None) -> None:
         """Start environment `env_id` at `obs`; its noise stream comes from `seed` (default: env_id)."""
@@ -57,6 +88,10 @@ class ChunkedController:
         self._queue[env_id] = deque()
         policy_seed = getattr(self.policy, "noise_seed", 0)
         self._noise[env_id] = episode_generator(policy_seed, env_id if seed is None else seed)
+        self._pending[env_id], self._step[env_id] = None, 0
+        self._last[env_id] = np.asarray(obs["agent_pos"], dtype=np.float32)  # before any command: stay put
+        if self.execution == "async":
+            self._next_delay[env_id] = self._checked_delay(env_id)
 
     def observe(self, env_id: int, obs: dict[str, np.ndarray]) -> None:
         self._history[env_id].append(obs)
@@ -64,7 +99,8 @@ class ChunkedController:
     def drop(self, env_id: int) -> None:
         self._history.pop(env_id, None)
         self._queue.pop(env_id, None)
-        self._noise.pop(env_id, None)
+        for d in (self._noise, self._pending, self._next_delay, self._step, self._last):
+            d.pop(env_id, None)
 
     def stacked_obs(self, env_ids: list[int]) -> dict[str, Any]:
         """Batch of histories: image (B, To, H, W, 3) uint8, agent_pos (B, To, 2) float32, generators [B]."""
@@ -73,20 +109,68 @@ class ChunkedController:
         return {"image": image, "agent_pos": agent_pos.astype(np.float32),
                 "generators": [self._noise[i] for i in env_ids]}
 
+    def _checked_delay(self, env_id: int) -> int:
+        d = int(self.delay(env_id))
+        if d < 0:
+            raise BCBenchError(f"a delay of {d} steps is negative")
+        if self.execution == "async" and self.chunk_start + d >= self.pred_horizon:
+            raise BCBenchError(f"async execution with a delay of {d} steps: the chunk of {self.pred_horizon} actions "
+                               f"(the current one at index {self.chunk_start}) would be entirely in the past")
+        return d
+
+    def _plan(self, env_ids: list[int]) -> np.ndarray:
+        """One batched policy call for these environments: (B, Tp, 2) chunks."""
+        chunks = np.asarray(self.policy.predict_action_chunk(self.stacked_obs(env_ids)))  # (B, Tp, 2)
+        if chunks.shape != (len(env_ids), self.pred_horizon, 2):
+            raise BCBenchError(
+                f"policy returned a chunk of shape {chunks.shape}, expected ({len(env_ids)}, {self.pred_horizon}, 2)")
+        if not np.isfinite(chunks).all():
+            raise BCBenchError("policy returned NaN or infinite actions")
+        self.n_calls += 1
+        self.n_plans += len(env_ids)
+        return chunks
+
+    def _wants_plan(self, i: int) -> bool:
+        if self.execution == "sync":
+            return not self._queue[i]
+        if self._pending[i] is not None:
+            return False
+        if self.execution == "blocking":
+            return not self._queue[i]
+        return len(self._queue[i]) <= self._next_delay[i]  # async: d actions left, so it arrives just in time
+
     def act(self, env_ids: Iterable[int]) -> dict[int, np.ndarray]:
-        """One action per environment; re-plans (one batched call) those whose queue is empty."""
+        """One action per environment; plans (one batched call) for those that need a new chunk."""
         env_ids = list(env_ids)
-        need = [i for i in env_ids if not self._queue[i]]
+        for i in env_ids:  # chunks whose computation has finished reach the agent now
+            p = self._pending[i]
+            if p is not None and self._step[i] >= p.arrival:
+                self._queue[i], self._pending[i] = deque(p.actions), None
+        need = [i for i in env_ids if self._wants_plan(i)]
         if need:
-            chunks = np.asarray(self.policy.predict_action_chunk(self.stacked_obs(need)))  # (B, Tp, 2)
-            if chunks.shape != (len(need), self.pred_horizon, 2):
-                raise BCBenchError(
-                    f"policy returned a chunk of shape {chunks.shape}, expected ({len(need)}, {self.pred_horizon}, 2)"
-                )
-            if not np.isfinite(chunks).all():
-                raise BCBenchError("policy returned NaN or infinite actions")
-            self.n_calls += 1
-            self.n_plans += len(need)
-            for i, chunk in zip(need, chunks, strict=True):
-                self._queue[i].extend(chunk[self.chunk_start : self.chunk_start + self.action_horizon])
-        return {i: self._queue[i].popleft() for i in env_ids}
+            for i, chunk in zip(need, self._plan(need), strict=True):
+                self._receive(i, chunk)
+        out = {}
+        for i in env_ids:
+            if self._queue[i]:
+                self._last[i] = self._queue[i].popleft()
+            out[i] = self._last[i]  # an empty queue (waiting for a chunk) holds the last target
+            self._step[i] += 1
+        return out
+
+    def _receive(self, i: int, chunk: np.ndarray) -> None:
+        """Queue a planned chunk now (d = 0) or when its computation ends, as the execution mode says."""
+        start, end = self.chunk_start, self.chunk_start + self.action_horizon
+        if self.execution == "sync":
+            d = 0
+        elif self.execution == "blocking":
+            d = self._checked_delay(i)
+        else:  # async: the first d actions are in the past when the chunk arrives
+            d, self._next_delay[i] = self._next_delay[i], self._checked_delay(i)
+            start, end = start + d, max(end, start + d + 1)
+        self.delays.append(d)
+        actions = list(chunk[start:end])
+        if d == 0:
+            self._queue[i] = deque(actions)
+        else:
+            self._pending[i] = _Pending(self._step[i] + d, actions)

@@ -1,0 +1,103 @@
+"""Execution under latency: sync, blocking and async controllers, latency sources, and their errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bcbench.env.controller import ChunkedController
+from bcbench.errors import BCBenchError
+from bcbench.evaluate import EvalConfig, evaluate
+from bcbench.policies import make_policy
+from bcbench.realtime import LatencySource, profile_ms, steps_for
+
+
+class PlannedStep:
+    """Chunk entry j of a call made at step t is the action (t + j, call index): it says when it was meant for."""
+
+    name = "planned-step"
+    obs_horizon, pred_horizon, action_horizon, chunk_start = 2, 16, 8, 0
+
+    def __init__(self) -> None:
+        self.calls = 0
+
+    def predict_action_chunk(self, obs):
+        t = obs["agent_pos"][:, -1, 0]  # the newest observation carries its step
+        chunk = np.stack([t[:, None] + np.arange(16), np.full((len(t), 16), self.calls)], axis=-1)
+        self.calls += 1
+        return chunk.astype(np.float32)
+
+
+def _run(execution: str, d: int, steps: int = 24) -> list[tuple[float, float]]:
+    ctl = ChunkedController(PlannedStep(), execution=execution, delay=lambda env_id: d)
+    obs = lambda t: {"pixels": np.zeros((96, 96, 3), np.uint8), "agent_pos": np.array([t, -1.0])}  # noqa: E731
+    ctl.reset(0, obs(0))
+    out = []
+    for t in range(steps):
+        out.append(tuple(float(v) for v in ctl.act([0])[0]))
+        ctl.observe(0, obs(t + 1))
+    return out
+
+
+@pytest.mark.parametrize("execution", ["blocking", "async"])
+def test_zero_delay_is_sync(execution):
+    assert _run(execution, 0) == _run("sync", 0)
+
+
+def test_async_skips_the_past_and_uses_the_old_chunks_leftovers():
+    acts = _run("async", 3)
+    assert acts[:3] == [(0.0, -1.0)] * 3  # nothing planned yet: hold the start position
+    for t in range(3, 24):
+        assert acts[t][0] == t  # every action executed at step t is the one planned for step t
+    # call 1 is made at step 5 (3 actions left) from step 5's observation; steps 5-7 still run call 0's chunk
+    assert [a[1] for a in acts[3:9]] == [0, 0, 0, 0, 0, 1]
+
+
+def test_blocking_holds_the_last_target_while_computing():
+    acts = _run("blocking", 3)
+    assert acts[:3] == [(0.0, -1.0)] * 3  # call 0 (step 0) arrives at step 3
+    assert [a[0] for a in acts[3:11]] == list(range(8))  # its chunk from its start: planned 3 steps ago
+    assert acts[11:14] == [acts[10]] * 3  # call 1 (step 11) computes: the last target is held
+    assert acts[14] == (11.0, 1.0)
+
+
+def test_async_delay_must_leave_something_of_the_chunk():
+    with pytest.raises(BCBenchError, match="entirely in the past"):
+        _run("async", 16)
+
+
+def test_realtime_evaluation_is_deterministic_and_records_its_delays():
+    cfg = EvalConfig(episodes=3, max_steps=40, workers=1, execution="async", latency_ms=250)
+    a = evaluate(make_policy("scripted"), cfg, None, progress=False)
+    b = evaluate(make_policy("scripted"), cfg, None, progress=False)
+    assert [e["score"] for e in a["episodes"]] == [e["score"] for e in b["episodes"]]
+    s = a["summary"]
+    assert s["execution"] == "async" and s["latency_source"] == {"kind": "fixed", "ms": 250.0}
+    assert set(s["delay_steps"]) == {"3"}
+    sync = evaluate(make_policy("scripted"), EvalConfig(episodes=3, max_steps=40, workers=1), None, progress=False)
+    assert [e["final_state"] for e in sync["episodes"]] != [e["final_state"] for e in a["episodes"]]
+
+
+def test_latency_sources():
+    assert steps_for(0.0) == 0 and steps_for(0.1) == 1 and steps_for(0.25) == 3 and steps_for(0.1001) == 2
+    assert profile_ms("a100", "cnn_mlp") == 2.2
+    assert profile_ms("a100", "diffusion", 10) == pytest.approx(116.5)
+    assert profile_ms("a100", "diffusion", 100) == pytest.approx(1109.4)
+    src = LatencySource("measured", samples_ms=[50.0, 150.0, 350.0])
+    f, g = src.delay_fn({0: 100000}), src.delay_fn({0: 100000})
+    draws = [f(0) for _ in range(50)]
+    assert draws == [g(0) for _ in range(50)] and set(draws) == {1, 2, 4}  # seeded per episode, from the samples
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--latency-ms", "-5"], "must be >= 0"),
+    (["--latency", "profile:tpu"], "unknown latency profile 'tpu'"),
+    (["--latency", "soon"], "must be 'measured' or 'profile:NAME'"),
+    (["--latency-ms", "1700", "--execution", "async"], "entirely in the past"),
+])
+def test_bad_realtime_input_is_one_line_exit_2(args, message, capsys):
+    from bcbench.cli import main
+
+    assert main(["eval", "--policy", "scripted", "--episodes", "1", "--max-steps", "5", "--quiet", *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
