@@ -105,3 +105,25 @@ def test_data_replay_command(real_zarr, tmp_path, capsys):
     text = capsys.readouterr().out
     assert "4/4 = 100.0%" in text and "demonstrators' score" in text
     assert json.loads(out.read_text())["exact_episodes"] == 4
+
+
+def test_pretrained_only_for_policies_that_can_use_it(tmp_path, capsys):
+    from bcbench.cli import main
+
+    weights = tmp_path / "r18.pth"
+    weights.write_bytes(b"x")
+    assert main(["train", "--policy", "cnn_mlp", "--pretrained", str(weights), "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--pretrained applies to" in err[0] and not (tmp_path / "r").exists()
+
+
+def test_untested_library_versions_fail_clearly(monkeypatch):
+    from bcbench.errors import BCBenchError
+    from bcbench.utils import system
+
+    monkeypatch.setitem(system.KNOWN_GOOD, "diffusers", ("0.0.1",))
+    monkeypatch.delenv("BCBENCH_ALLOW_UNTESTED_VERSIONS", raising=False)
+    with pytest.raises(BCBenchError, match="not a version bcbench was checked against"):
+        system.require_known_version("diffusers")
+    monkeypatch.setenv("BCBENCH_ALLOW_UNTESTED_VERSIONS", "1")
+    system.require_known_version("diffusers")  # the escape hatch

@@ -93,3 +93,16 @@ def test_bet_checkpoint_keeps_kmeans_centres(synthetic_zarr, tmp_path):
 @pytest.mark.parametrize("name", ["bet", "bct"])
 def test_quick_presets_are_small(name):
     assert make_policy(name, "quick").num_parameters() < 3_000_000
+
+
+def test_bet_weight_decay_skips_norms_biases_and_embeddings():
+    from bcbench.policies.config import OptimConfig
+    from bcbench.train import make_optimizer
+
+    model = make_policy("bet", "quick", **tiny_overrides("bet"))
+    decay, no_decay = make_optimizer(model, OptimConfig(optimizer="adamw", weight_decay=0.1)).param_groups
+    assert decay["weight_decay"] == 0.1 and no_decay["weight_decay"] == 0.0
+    names = {id(p): n for n, p in model.named_parameters()}
+    assert {names[id(p)] for p in no_decay["params"]} >= {"pos", "ln_f.weight", "ln_f.bias", "head.bias"}
+    assert all(p.ndim >= 2 for p in decay["params"]) and "head.weight" in {names[id(p)] for p in decay["params"]}
+    assert len(decay["params"]) + len(no_decay["params"]) == len(list(model.parameters()))
