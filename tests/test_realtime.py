@@ -101,3 +101,18 @@ def test_bad_realtime_input_is_one_line_exit_2(args, message, capsys):
     assert main(["eval", "--policy", "scripted", "--episodes", "1", "--max-steps", "5", "--quiet", *args]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
+
+
+def test_realtime_sweep_cli(tmp_path, capsys):
+    from bcbench.cli import main
+
+    out = tmp_path / "rt"
+    assert main(["realtime", "--policy", "scripted", "--episodes", "2", "--delays", "0", "2", "--profile", "a100",
+                 "--out", str(out), "--quiet"]) == 2  # the a100 profile has no time for the scripted baseline
+    assert "no inference time for 'scripted'" in capsys.readouterr().err
+    assert main(["realtime", "--policy", "scripted", "--episodes", "2", "--delays", "0", "2", "--out", str(out),
+                 "--max-steps", "30", "--quiet"]) == 0
+    names = sorted(p.name for p in out.glob("realtime-*.json"))
+    assert names == ["realtime-async-d2.json", "realtime-blocking-d2.json", "realtime-sync.json"]
+    assert (out / "realtime.png").stat().st_size > 1000
+    assert "realtime-async-d2" in capsys.readouterr().out

@@ -266,6 +266,23 @@ def cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_realtime(args: argparse.Namespace) -> int:
+    from bcbench.realtime import run_sweep
+    from bcbench.stats import fmt_estimate
+
+    args.mode, args.no_ema = "default", False
+    policy, default_out = _load_eval_policy(args)
+    out = Path(args.out) if args.out else default_out.with_name(default_out.name.replace("eval-", "realtime-"))
+    rows = run_sweep(policy, str(out), sorted(set(args.delays)), args.execution, args.episodes, args.profile or [],
+                     args.measured, progress=not args.quiet, max_steps=args.max_steps)
+    print(f"{policy.name}: score under real-time execution ({args.episodes} episodes each)")
+    for r in rows:
+        d = ", ".join(f"d={k}: {v}" for k, v in r["delay_steps"].items()) or "d=0"
+        print(f"  {r['setting']:<28} {fmt_estimate(r['mean_score'])}   ({d} calls)")
+    print(f"  results and plot: {out}")
+    return 0
+
+
 def cmd_latency(args: argparse.Namespace) -> int:
     from bcbench.bench import run_latency_benchmark
 
@@ -384,6 +401,28 @@ def _add_study_commands(sub: Any) -> None:
     p.add_argument("--quick", action="store_true", help="fewer timed calls (a rough table in a minute or two)")
     p.add_argument("--out", metavar="DIR", help="output folder (default runs/latency-TIME)")
     p.set_defaults(func=cmd_latency)
+
+    p = sub.add_parser("realtime", help="score under real-time execution: against delay, at measured latency, "
+                       "under a hardware profile")
+    p.add_argument("--policy", choices=["random", "scripted"], help="a baseline (or --checkpoint)")
+    p.add_argument("--config", default="quick", help=argparse.SUPPRESS)
+    p.add_argument("--checkpoint", metavar="RUN_DIR", help="a trained run")
+    p.add_argument("--sampler", choices=["ddpm", "ddim", "euler", "midpoint"], help="generative policies: sampler")
+    p.add_argument("--steps", type=_positive_int, help="generative policies: steps")
+    p.add_argument("--spacing", choices=["trailing", "leading"], help="diffusion: timestep spacing")
+    p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help=argparse.SUPPRESS)
+    p.add_argument("--seed", type=_nonneg_int, default=0, help="the policy's own random seed (default 0)")
+    p.add_argument("--delays", type=_nonneg_int, nargs="+", default=[0, 1, 2, 4, 8], metavar="D",
+                   help="delays in control steps of 0.1 s (default 0 1 2 4 8)")
+    p.add_argument("--execution", nargs="+", default=["blocking", "async"], choices=["blocking", "async"],
+                   help="execution modes under latency (default both; sync is always run as d = 0)")
+    p.add_argument("--profile", action="append", help="also under this hardware profile (e.g. a100)")
+    p.add_argument("--measured", action="store_true", help="also at this policy's measured latency on this machine")
+    p.add_argument("--episodes", type=_positive_int, default=100, help="episodes per setting (default 100)")
+    p.add_argument("--max-steps", type=_positive_int, default=300, help="steps per episode at most (default 300)")
+    p.add_argument("--out", metavar="DIR", help="output folder")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_realtime)
 
     p = sub.add_parser("params", help="parameter counts of every learned policy (paper and quick sizes)")
     p.set_defaults(func=cmd_params)

@@ -107,3 +107,61 @@ class LatencySource:
             rngs = {i: np.random.default_rng([7, s]) for i, s in seeds.items()}
             return lambda env_id: int(rngs[env_id].choice(steps))
         return lambda env_id: 0
+
+
+def run_sweep(policy: Any, out: str, delays: list[int], executions: list[str], episodes: int,
+              profiles: list[str], measured: bool, progress: bool = True, max_steps: int = 300) -> list[dict[str, Any]]:
+    """Score against delay d for each execution mode (sync as the d = 0 reference), plus the policy's score at
+    its measured latency on this machine and under each hardware profile. Writes OUT/realtime-*.json
+    (evaluation results) and OUT/realtime.png; returns one summary row per setting."""
+    from pathlib import Path
+
+    from bcbench.evaluate import EvalConfig, evaluate
+    from bcbench.utils.io import write_json
+
+    out_dir = Path(out)
+    bad = [d for d in delays if d < 0]
+    if bad:
+        raise BCBenchError(f"--delays must be >= 0, got {bad[0]}")
+    for p in profiles:  # fail before hours of episodes, not after
+        profile_ms(p, policy.name, getattr(policy, "extra", {}).get("steps"))
+    settings: list[tuple[str, str, dict[str, Any]]] = [("sync", "realtime-sync", {})]
+    settings += [(e, f"realtime-{e}-d{d}", {"latency_ms": d * CONTROL_DT_S * 1e3})
+                 for e in executions for d in delays if d > 0]
+    settings += [(e, f"realtime-{e}-{p}", {"latency": f"profile:{p}"}) for e in executions for p in profiles]
+    if measured:
+        settings += [(e, f"realtime-{e}-measured", {"latency": "measured"}) for e in executions]
+    rows = []
+    for execution, name, latency in settings:
+        cfg = EvalConfig(episodes=episodes, execution=execution, max_steps=max_steps, **latency)
+        result = evaluate(policy, cfg, None, progress=progress, extra={"realtime": {"setting": name}})
+        write_json(out_dir / f"{name}.json", result)
+        s = result["summary"]
+        rows.append({"setting": name, "execution": execution, "latency": s["latency_source"],
+                     "delay_steps": s["delay_steps"], "mean_score": s["mean_score"]})
+    plot_sweep(rows, out_dir / "realtime.png", getattr(policy, "name", "policy"))
+    return rows
+
+
+def plot_sweep(rows: list[dict[str, Any]], path: Any, title: str) -> Any:
+    """Score against delay d (steps of 0.1 s), one line per execution mode, sync at d = 0."""
+    from bcbench.figures import _save, plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    sync = next((r for r in rows if r["execution"] == "sync"), None)
+    for execution in ("blocking", "async"):
+        pts = sorted((int(r["setting"].rsplit("-d", 1)[1]), r["mean_score"]) for r in rows
+                     if r["execution"] == execution and r["setting"].split("-")[-1].startswith("d"))
+        if sync is not None:
+            pts = [(0, sync["mean_score"]), *pts]
+        if pts:
+            xs = [d for d, _ in pts]
+            ax.errorbar(xs, [e["value"] for _, e in pts], capsize=3, marker="o", label=execution,
+                        yerr=[[e["value"] - e["ci95"][0] for _, e in pts], [e["ci95"][1] - e["value"] for _, e in pts]])
+    ax.set_xlabel("delay d (control steps of 0.1 s; d = 0: the world waits)")
+    ax.set_ylabel("mean score (95% CI)")
+    ax.set_ylim(-0.05, 1.05)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    ax.set_title(f"{title}: score under real-time execution")
+    return _save(fig, path)
