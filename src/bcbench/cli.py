@@ -8,53 +8,10 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from bcbench import __version__
+from bcbench.cli_parser import EXIT_USAGE, build_parser
 from bcbench.errors import BCBenchError
 
-EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse that reports a usage error in one line instead of usage + message."""
-
-    def error(self, message: str) -> None:  # type: ignore[override]
-        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a number >= 1, got {value}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"expected a number > 0, got {value}")
-    return value
-
-
-def _nonneg_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {value}")
-    return value
-
-
-def _add_data_flag(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--data", metavar="ZARR", help="dataset folder (default: $BCBENCH_DATA, then ../shared beside "
-                   "the repo, then the `bcbench data fetch` location)")
 
 
 # ----------------------------------------------------------------------------- commands
@@ -293,186 +250,15 @@ def cmd_latency(args: argparse.Namespace) -> int:
     return 0
 
 
-# ----------------------------------------------------------------------------- parser
-
-
-def build_parser() -> argparse.ArgumentParser:
-    from bcbench.policies import REGISTRY
-
-    parser = _Parser(prog="bcbench", description=__doc__.split("\n")[0] if __doc__ else None)
-    parser.description = ("Train, evaluate and benchmark visuomotor behavior-cloning policies on Push-T: "
-                          "task accuracy against real-time inference latency.")
-    parser.add_argument("--version", action="version", version=f"bcbench {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    sub.required = True
-
-    _add_data_commands(sub)
-    _add_train_eval_commands(sub, sorted(REGISTRY))
-    _add_study_commands(sub)
-    return parser
-
-
-def _add_data_commands(sub: Any) -> None:
-    data = sub.add_parser("data", help="get, inspect and replay the Push-T demonstrations")
-    dsub = data.add_subparsers(dest="data_command", metavar="DATA_COMMAND", parser_class=_Parser)
-    dsub.required = True
-    p = dsub.add_parser("fetch", help="download the official pusht.zip (or import a local copy) and verify it")
-    p.add_argument("--from", dest="source", metavar="ZIP_OR_DIR",
-                   help="import this zip or folder instead of downloading")
-    p.add_argument("--dest", metavar="DIR",
-                   help="where the zarr folder goes (default: ~/.cache/bcbench/data/pusht/...)")
-    p.add_argument("--url", help="download address (default: the Diffusion Policy project's pusht.zip)")
-    p.add_argument("--force", action="store_true", help="replace an existing dataset at --dest")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_data_fetch)
-    p = dsub.add_parser("info", help="validate the dataset and print its summary")
-    _add_data_flag(p)
-    p.add_argument("--no-images", action="store_true", help="skip reading the image store (fast)")
-    p.set_defaults(func=cmd_data_info)
-    p = dsub.add_parser("replay", help="replay every demonstration open-loop: simulator exactness and the "
-                        "demonstrators' score")
-    _add_data_flag(p)
-    p.add_argument("--episodes", type=_positive_int, metavar="N", help="only the first N episodes")
-    p.add_argument("--workers", type=_positive_int, metavar="N", help="processes (default: one per core)")
-    p.add_argument("--out", metavar="FILE", help="write the JSON report here")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_data_replay)
-
-
-def _add_train_eval_commands(sub: Any, policies: list[str]) -> None:
-    p = sub.add_parser("train", help="train a policy (resumable; checkpoints, metrics.jsonl)")
-    p.add_argument("--policy", choices=policies, help="registered policy to train")
-    p.add_argument("--config", default="quick",
-                   help="preset: quick (minutes on a 2-core CPU), cpu (trained to its plateau on 2 cores) or paper "
-                        "(the study's sizes); diffusion also has quick_linear, cpu_linear, paper_linear (linear betas)")
-    p.add_argument("--set", action="append", metavar="KEY=VALUE",
-                   help="override a config field, e.g. --set optim.epochs=2 --set hidden=64 (repeatable)")
-    p.add_argument("--max-minutes", type=_positive_float, metavar="M",
-                   help="safety stop only (the budget is the config's epochs / optim.max_steps): stops at the next "
-                        "step, saves, and marks the run 'stopped by time: schedule not finished'")
-    p.add_argument("--out", metavar="DIR", help="run directory (default runs/train-POLICY-CONFIG-TIME)")
-    p.add_argument("--resume", metavar="RUN_DIR", help="continue a run from its newest checkpoint")
-    p.add_argument("--pretrained", metavar="PATH", help="torchvision-format ImageNet weights (local file)")
-    p.add_argument("--seed", type=_nonneg_int, help="seed (default: the config's, 0)")
-    p.add_argument("--precision", choices=["auto", "fp32", "bf16"],
-                   help="forward-pass precision (default: the config's, auto = bf16 autocast where the hardware "
-                        "computes bf16 natively, else fp32)")
-    p.add_argument("--eval-every", type=_positive_int, metavar="STEPS",
-                   help="closed-loop rollouts every STEPS steps and at the end (the learning curve in metrics.jsonl)")
-    p.add_argument("--eval-episodes", type=_positive_int, default=20, metavar="N",
-                   help="episodes per periodic rollout, on validation seeds 200000+ (default 20)")
-    p.add_argument("--threads", type=_positive_int, help="torch threads (default: torch's choice)")
-    p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"], help="default auto")
-    _add_data_flag(p)
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_train)
-    _add_eval_command(sub, policies)
-
-
-def _add_study_commands(sub: Any) -> None:
-    p = sub.add_parser("study", help="run a study spec: train, evaluate and time every run (resumable)")
-    p.add_argument("spec", metavar="SPEC.toml", help="study specification (see studies/)")
-    p.add_argument("--out", metavar="DIR", help="results directory (default runs/studies/NAME)")
-    p.add_argument("--check", action="store_true", help="validate the spec and exit")
-    p.add_argument("--no-report", action="store_true", help="do not write the report at the end")
-    _add_data_flag(p)
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.set_defaults(func=cmd_study)
-
-    p = sub.add_parser("report", help="Markdown + HTML report with the study's figures, from result files only")
-    p.add_argument("results", metavar="RESULTS_DIR", help="a study's results directory")
-    p.add_argument("--include", action="append", metavar="DIR",
-                   help="also read result JSON files from this folder (e.g. results/ from a GPU machine)")
-    p.add_argument("--export", metavar="DIR", help="also copy the result files (no checkpoints) to DIR")
-    p.set_defaults(func=cmd_report)
-
-    p = sub.add_parser("latency", help="time one policy call at batch 1 for every policy, reference vs fast")
-    p.add_argument("--policy", action="append", help="only these policies (repeatable; default all learned)")
-    p.add_argument("--config", action="append", choices=["quick", "cpu", "paper"], help="presets (default both)")
-    p.add_argument("--mode", action="append", choices=["reference", "fast", "fast-jit", "fast-int8"],
-                   help="modes (default reference and fast; fast-int8 is approximate, reported apart)")
-    p.add_argument("--sampler", action="append", choices=["ddpm", "ddim", "euler", "midpoint"],
-                   help="samplers of generative policies (default ddpm and ddim; flow: euler)")
-    p.add_argument("--steps", type=_positive_int, action="append",
-                   help="diffusion step counts (default 1 2 5 10 20 50 100)")
-    p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"], help="default auto")
-    p.add_argument("--threads", type=_positive_int, help="torch threads (default: torch's choice)")
-    p.add_argument("--rate", type=float, default=10.0, help="control rate for the verdicts, Hz (default 10)")
-    p.add_argument("--quick", action="store_true", help="fewer timed calls (a rough table in a minute or two)")
-    p.add_argument("--out", metavar="DIR", help="output folder (default runs/latency-TIME)")
-    p.set_defaults(func=cmd_latency)
-
-    p = sub.add_parser("realtime", help="score under real-time execution: against delay, at measured latency, "
-                       "under a hardware profile")
-    p.add_argument("--policy", choices=["random", "scripted"], help="a baseline (or --checkpoint)")
-    p.add_argument("--config", default="quick", help=argparse.SUPPRESS)
-    p.add_argument("--checkpoint", metavar="RUN_DIR", help="a trained run")
-    p.add_argument("--sampler", choices=["ddpm", "ddim", "euler", "midpoint"], help="generative policies: sampler")
-    p.add_argument("--steps", type=_positive_int, help="generative policies: steps")
-    p.add_argument("--spacing", choices=["trailing", "leading"], help="diffusion: timestep spacing")
-    p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help=argparse.SUPPRESS)
-    p.add_argument("--seed", type=_nonneg_int, default=0, help="the policy's own random seed (default 0)")
-    p.add_argument("--delays", type=_nonneg_int, nargs="+", default=[0, 1, 2, 4, 8], metavar="D",
-                   help="delays in control steps of 0.1 s (default 0 1 2 4 8)")
-    p.add_argument("--execution", nargs="+", default=["blocking", "async"], choices=["blocking", "async"],
-                   help="execution modes under latency (default both; sync is always run as d = 0)")
-    p.add_argument("--profile", action="append", help="also under this hardware profile (e.g. a100)")
-    p.add_argument("--measured", action="store_true", help="also at this policy's measured latency on this machine")
-    p.add_argument("--episodes", type=_positive_int, default=100, help="episodes per setting (default 100)")
-    p.add_argument("--max-steps", type=_positive_int, default=300, help="steps per episode at most (default 300)")
-    p.add_argument("--out", metavar="DIR", help="output folder")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.set_defaults(func=cmd_realtime)
-
-    p = sub.add_parser("params", help="parameter counts of every learned policy (paper and quick sizes)")
-    p.set_defaults(func=cmd_params)
-
-
-
-def _add_eval_command(sub: Any, policies: list[str]) -> None:
-    p = sub.add_parser("eval", help="evaluate a policy over seeded Push-T episodes (JSON result, videos)")
-    p.add_argument("--policy", choices=policies, help="registered policy to evaluate")
-    p.add_argument("--config", default="quick", choices=["quick", "cpu", "paper"], help="policy preset (default quick)")
-    p.add_argument("--checkpoint", metavar="RUN_DIR", help="evaluate a trained run instead of --policy")
-    p.add_argument("--no-ema", action="store_true", help="use the raw weights even if the run kept an EMA")
-    p.add_argument("--mode", default="default", choices=["default", "reference", "fast", "fast-jit", "fast-int8"],
-                   help="inference path of a trained policy: all give the same chunks except fast-int8 "
-                        "(approximate); default = inference_mode with precomputed sampler constants")
-    p.add_argument("--sampler", choices=["ddpm", "ddim", "euler", "midpoint"],
-                   help="generative policies: diffusion ddpm|ddim, flow euler|midpoint (default: the run's)")
-    p.add_argument("--steps", type=_positive_int,
-                   help="generative policies: denoising (diffusion, 1..100) or integration steps (default: the run's)")
-    p.add_argument("--spacing", choices=["trailing", "leading"],
-                   help="diffusion only: timestep spacing (default trailing: every step count starts from pure "
-                        "noise; leading is diffusers' and the study's default)")
-    p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="where the policy runs (default cpu)")
-    p.add_argument("--episodes", type=_positive_int, default=40, help="episodes (default 40, as the study)")
-    p.add_argument("--seed-start", type=_nonneg_int, default=100_000,
-                   help="episode i uses seed SEED_START + i (default 100000, Diffusion Policy's test seeds)")
-    p.add_argument("--seed", type=_nonneg_int, default=0, help="the policy's own random seed (default 0)")
-    p.add_argument("--max-steps", type=_positive_int, default=300, help="steps per episode at most (default 300)")
-    p.add_argument("--action-horizon", type=_positive_int, help="actions executed per chunk (default: policy's, 8)")
-    p.add_argument("--workers", type=_positive_int, help="simulator processes (default: one per core)")
-    p.add_argument("--video", type=_nonneg_int, default=0, metavar="N", help="write videos of the first N episodes")
-    p.add_argument("--execution", default="sync", choices=["sync", "blocking", "async"],
-                   help="sync: the world waits for the policy (default); blocking: the agent holds its last target "
-                        "while the policy computes; async: it keeps executing the current chunk")
-    p.add_argument("--latency-ms", type=float, metavar="MS", help="a fixed latency per call (10 Hz: d = ceil(MS/100))")
-    p.add_argument("--latency", metavar="SOURCE",
-                   help="'measured' (this policy's call times on this machine) or 'profile:a100' (the study's A100)")
-    p.add_argument("--out", metavar="DIR", help="output folder (default runs/eval-POLICY-TIME)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_eval)
-
-
 def main(argv: list[str] | None = None) -> int:
     from bcbench.utils.system import git_commit
 
     parser = build_parser()
     args = parser.parse_args(argv)
+    handler = globals()[args.func]
     git_commit()  # the code this process runs: read now, before anyone edits the tree (results carry it)
     try:
-        return int(args.func(args) or 0)
+        return int(handler(args) or 0)
     except BCBenchError as exc:
         print(f"bcbench: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
