@@ -29,9 +29,11 @@ max_steps = 8
 latency = true
 latency_min_calls = 2
 latency_min_seconds = 0.0
+realtime = {{ delays = [1], execution = ["async"], measured = false }}
 
 [[run]]
 policy = "random"
+realtime = true
 
 [[run]]
 policy = "cnn_mlp"
@@ -121,11 +123,12 @@ def test_study_killed_then_rerun_resumes_without_redoing(synthetic_zarr, tmp_pat
     for f, mtime in first_files.items():
         assert (out / f).stat().st_mtime_ns == mtime  # finished stages were not redone
     index = [json.loads(x) for x in (out / "index.jsonl").read_text().splitlines()]
-    assert len(index) == 2 + 3 + 5  # random: eval, latency; cnn: train, eval, latency; dp: train, 2 evals, 2 latencies
+    assert len(index) == 3 + 3 + 5  # random: eval, latency, realtime; cnn: train, eval, latency; dp: train, 2+2
     report = out / "report" / "report.md"
     assert report.exists() and (out / "report" / "report.html").exists()
     text = report.read_text()
     assert "The study's findings" in text and "DDPM2" in text
+    assert "## Under real-time execution" in text and "async-d1" in text and (out / "report" / "realtime.png").exists()
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert "0 stage(s) run" in proc.stdout
 

@@ -224,18 +224,22 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_realtime(args: argparse.Namespace) -> int:
-    from bcbench.realtime import run_sweep
+    from bcbench.realtime import plot_sweep, sweep
     from bcbench.stats import fmt_estimate
+    from bcbench.utils.io import write_json
 
     args.mode, args.no_ema = "default", False
     policy, default_out = _load_eval_policy(args)
     out = Path(args.out) if args.out else default_out.with_name(default_out.name.replace("eval-", "realtime-"))
-    rows = run_sweep(policy, str(out), sorted(set(args.delays)), args.execution, args.episodes, args.profile or [],
-                     args.measured, progress=not args.quiet, max_steps=args.max_steps)
+    results = sweep(policy, args.delays, args.execution, args.episodes, args.profile or [], args.measured,
+                    progress=not args.quiet, max_steps=args.max_steps)
     print(f"{policy.name}: score under real-time execution ({args.episodes} episodes each)")
-    for r in rows:
-        d = ", ".join(f"d={k}: {v}" for k, v in r["delay_steps"].items()) or "d=0"
-        print(f"  {r['setting']:<28} {fmt_estimate(r['mean_score'])}   ({d} calls)")
+    for name, r in results.items():
+        write_json(out / f"{name}.json", r)
+        s = r["summary"]
+        d = ", ".join(f"d={k}: {v}" for k, v in s["delay_steps"].items()) or "d=0"
+        print(f"  {name:<28} {fmt_estimate(s['mean_score'])}   ({d} calls)")
+    plot_sweep({policy.name: results}, out / "realtime.png")
     print(f"  results and plot: {out}")
     return 0
 

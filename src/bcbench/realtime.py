@@ -109,59 +109,91 @@ class LatencySource:
         return lambda env_id: 0
 
 
-def run_sweep(policy: Any, out: str, delays: list[int], executions: list[str], episodes: int,
-              profiles: list[str], measured: bool, progress: bool = True, max_steps: int = 300) -> list[dict[str, Any]]:
-    """Score against delay d for each execution mode (sync as the d = 0 reference), plus the policy's score at
-    its measured latency on this machine and under each hardware profile. Writes OUT/realtime-*.json
-    (evaluation results) and OUT/realtime.png; returns one summary row per setting."""
-    from pathlib import Path
-
-    from bcbench.evaluate import EvalConfig, evaluate
-    from bcbench.utils.io import write_json
-
-    out_dir = Path(out)
+def sweep_settings(delays: list[int], executions: list[str], profiles: list[str], measured: bool
+                   ) -> list[tuple[str, str, dict[str, Any]]]:
+    """(name, execution, latency options) of every setting of a sweep; sync (d = 0) first."""
     bad = [d for d in delays if d < 0]
     if bad:
-        raise BCBenchError(f"--delays must be >= 0, got {bad[0]}")
-    for p in profiles:  # fail before hours of episodes, not after
-        profile_ms(p, policy.name, getattr(policy, "extra", {}).get("steps"))
-    settings: list[tuple[str, str, dict[str, Any]]] = [("sync", "realtime-sync", {})]
-    settings += [(e, f"realtime-{e}-d{d}", {"latency_ms": d * CONTROL_DT_S * 1e3})
-                 for e in executions for d in delays if d > 0]
-    settings += [(e, f"realtime-{e}-{p}", {"latency": f"profile:{p}"}) for e in executions for p in profiles]
+        raise BCBenchError(f"delays must be >= 0, got {bad[0]}")
+    settings: list[tuple[str, str, dict[str, Any]]] = [("realtime-sync", "sync", {})]
+    settings += [(f"realtime-{e}-d{d}", e, {"latency_ms": d * CONTROL_DT_S * 1e3})
+                 for e in executions for d in sorted(set(delays)) if d > 0]
+    settings += [(f"realtime-{e}-{p}", e, {"latency": f"profile:{p}"}) for e in executions for p in profiles]
     if measured:
-        settings += [(e, f"realtime-{e}-measured", {"latency": "measured"}) for e in executions]
-    rows = []
-    for execution, name, latency in settings:
-        cfg = EvalConfig(episodes=episodes, execution=execution, max_steps=max_steps, **latency)
-        result = evaluate(policy, cfg, None, progress=progress, extra={"realtime": {"setting": name}})
-        write_json(out_dir / f"{name}.json", result)
-        s = result["summary"]
-        rows.append({"setting": name, "execution": execution, "latency": s["latency_source"],
-                     "delay_steps": s["delay_steps"], "mean_score": s["mean_score"]})
-    plot_sweep(rows, out_dir / "realtime.png", getattr(policy, "name", "policy"))
-    return rows
+        settings += [(f"realtime-{e}-measured", e, {"latency": "measured"}) for e in executions]
+    return settings
 
 
-def plot_sweep(rows: list[dict[str, Any]], path: Any, title: str) -> Any:
-    """Score against delay d (steps of 0.1 s), one line per execution mode, sync at d = 0."""
+def sweep(policy: Any, delays: list[int], executions: list[str], episodes: int, profiles: list[str],
+          measured: bool, progress: bool = True, max_steps: int = 300, seed_start: int = 100_000,
+          skip_missing_profiles: bool = False) -> dict[str, dict[str, Any]]:
+    """Score against delay d for each execution mode (sync as the d = 0 reference), plus the policy's score at
+    its measured latency on this machine and under each hardware profile: evaluation results by setting."""
+    from bcbench.evaluate import EvalConfig, evaluate
+
+    usable = []
+    for p in profiles:  # fail before hours of episodes, not after (or, in a study, leave that profile out)
+        try:
+            profile_ms(p, policy.name, getattr(policy, "extra", {}).get("steps"))
+            usable.append(p)
+        except BCBenchError:
+            if not skip_missing_profiles:
+                raise
+    settings = sweep_settings(delays, executions, usable, measured)
+    out = {}
+    for name, execution, latency in settings:
+        cfg = EvalConfig(episodes=episodes, execution=execution, max_steps=max_steps, seed_start=seed_start,
+                         **latency)
+        out[name] = evaluate(policy, cfg, None, progress=progress, extra={"realtime": {"setting": name}})
+    return out
+
+
+def largest_safe_delay(results: dict[str, dict[str, Any]], execution: str, margin: float) -> int | None:
+    """The largest d whose score stays within the margin of sync (paired: the interval of d minus sync lies
+    above -margin) for every delay up to it; None without a sync result."""
+    from bcbench.findings import Point, paired_interval
+
+    def point(r: dict[str, Any]) -> Point:
+        return Point("", "", "", 0.0, (0.0, 1.0), None, None, {e["seed"]: e["score"] for e in r["episodes"]})
+
+    if "realtime-sync" not in results:
+        return None
+    sync, safe = point(results["realtime-sync"]), 0
+    delays = sorted(int(k.rsplit("-d", 1)[1]) for k in results if k.startswith(f"realtime-{execution}-d"))
+    for d in delays:
+        if paired_interval(point(results[f"realtime-{execution}-d{d}"]), [sync])[1] <= -margin:
+            break
+        safe = d
+    return safe
+
+
+def delay_curve(results: dict[str, dict[str, Any]], execution: str) -> list[tuple[int, dict[str, Any]]]:
+    """(d, mean-score estimate) of one execution mode, with sync as d = 0."""
+    pts = [(0, results["realtime-sync"]["summary"]["mean_score"])] if "realtime-sync" in results else []
+    prefix = f"realtime-{execution}-d"
+    pts += sorted((int(k[len(prefix):]), r["summary"]["mean_score"]) for k, r in results.items()
+                  if k.startswith(prefix))
+    return pts
+
+
+def plot_sweep(by_policy: dict[str, dict[str, dict[str, Any]]], path: Any) -> Any:
+    """Score against delay d (control steps of 0.1 s), one colour per policy: async solid, blocking dashed."""
     from bcbench.figures import _save, plt
 
-    fig, ax = plt.subplots(figsize=(7, 4))
-    sync = next((r for r in rows if r["execution"] == "sync"), None)
-    for execution in ("blocking", "async"):
-        pts = sorted((int(r["setting"].rsplit("-d", 1)[1]), r["mean_score"]) for r in rows
-                     if r["execution"] == execution and r["setting"].split("-")[-1].startswith("d"))
-        if sync is not None:
-            pts = [(0, sync["mean_score"]), *pts]
-        if pts:
-            xs = [d for d, _ in pts]
-            ax.errorbar(xs, [e["value"] for _, e in pts], capsize=3, marker="o", label=execution,
-                        yerr=[[e["value"] - e["ci95"][0] for _, e in pts], [e["ci95"][1] - e["value"] for _, e in pts]])
-    ax.set_xlabel("delay d (control steps of 0.1 s; d = 0: the world waits)")
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for i, (label, results) in enumerate(by_policy.items()):
+        colour = f"C{i % 10}"
+        for execution, style in (("async", "-"), ("blocking", "--")):
+            pts = delay_curve(results, execution)
+            if len(pts) > 1:
+                err = [[e["value"] - e["ci95"][0] for _, e in pts], [e["ci95"][1] - e["value"] for _, e in pts]]
+                ax.errorbar([d for d, _ in pts], [e["value"] for _, e in pts], yerr=err, capsize=3, marker="o",
+                            ls=style, color=colour, label=f"{label}, {execution}")
+    ax.set_xlabel("delay d (control steps of 0.1 s at 10 Hz; d = 0: sync, the world waits)")
     ax.set_ylabel("mean score (95% CI)")
     ax.set_ylim(-0.05, 1.05)
     ax.grid(alpha=0.3)
-    ax.legend()
-    ax.set_title(f"{title}: score under real-time execution")
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7)
+    ax.set_title("Score under real-time execution")
     return _save(fig, path)

@@ -14,7 +14,8 @@ from typing import Any
 
 from bcbench.figures import figure3, figure4, figure5, learning_curves
 from bcbench.findings import DEFAULT_MARGIN, judge, points_from_rows
-from bcbench.results import STUDY_REFERENCE, Row, load_rows
+from bcbench.realtime import plot_sweep
+from bcbench.results import STUDY_REFERENCE, Row, load_realtime, load_rows
 from bcbench.stats import fmt_estimate
 from bcbench.utils.io import atomic_path, read_json
 
@@ -96,6 +97,29 @@ def _spacing_note(rows: list[Row]) -> str:
             "and K = 40 at t = 78; variants marked -LEADING use it).")
 
 
+def realtime_lines(realtime: dict[str, dict[str, Any]], margin: float) -> list[str]:
+    """Per swept policy: sync, each delay, measured and profile scores, and the largest safe delay."""
+    from bcbench.realtime import largest_safe_delay
+
+    if not realtime:
+        return []
+    out = ["## Under real-time execution (10 Hz control)", "",
+           f"Largest safe delay: the largest d up to which every async score stays within the margin ({margin}) "
+           "of the sync score (paired interval of the difference above -margin); at 10 Hz, d steps allow a call "
+           "of up to d x 100 ms.", ""]
+    for label, settings in realtime.items():
+        parts = [f"{name.removeprefix('realtime-')} {fmt_estimate(r['summary']['mean_score'])}"
+                 for name, r in settings.items()]
+        safe = largest_safe_delay(settings, "async", margin)
+        measured = settings.get("realtime-async-measured", {}).get("summary", {}).get("latency_source", {})
+        fits = ""
+        if measured and safe is not None:
+            fits = (f"; its measured median call {measured['median_ms']:.0f} ms "
+                    f"{'fits' if measured['median_ms'] <= 100 * safe else 'does not fit'} within it")
+        out.append(f"- {label}: " + "; ".join(parts) + f". Largest safe delay (async): d = {safe}{fits}.")
+    return [*out, ""]
+
+
 def deviation_lines(rows: list[Row]) -> list[str]:
     """How each cpu-preset policy departs from its paper's recipe."""
     from bcbench.policies import CPU_DEVIATIONS
@@ -153,6 +177,9 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
             "Figure 3: generative policies against sampling steps": figure3(rows, out / "fig3_denoising_steps.png"),
             "Figure 4: DDPM-cosine, DDIM-cosine, DDIM-linear": figure4(rows, out / "fig4_samplers.png"),
             "Learning curves": learning_curves(rows, out / "learning_curves.png")}
+    realtime = load_realtime(results)
+    if realtime:
+        figs["Score under real-time execution"] = plot_sweep(realtime, out / "realtime.png")
     findings = judge(points_from_rows(rows), margin)
     table = table_rows(rows)
     intro = (f"Results directory `{results.name}`; {len(rows)} evaluated settings. "
@@ -165,7 +192,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
           "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
     md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
     md += ["", "## Results", "", _md_table(COLUMNS, table), "", "## Training: converged?", "",
-           *convergence_lines(rows), "", *deviation_lines(rows)]
+           *convergence_lines(rows), "", *deviation_lines(rows), *realtime_lines(realtime, margin)]
     for title, path in figs.items():
         if path:
             md += [f"## {title}", "", f"![{title}]({path.name})", ""]
@@ -214,7 +241,7 @@ def export_results(results: str | Path, dest: str | Path) -> int:
     for f in sorted(results.rglob("*")):
         if "checkpoints" in f.parts or "report" in f.relative_to(results).parts or not f.is_file():
             continue
-        if f.name in EXPORTED or (f.suffix == ".json" and f.name.startswith(("eval", "latency"))):
+        if f.name in EXPORTED or (f.suffix == ".json" and f.name.startswith(("eval", "latency", "realtime"))):
             target = dest / f.relative_to(results)
             target.parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(f, target)

@@ -128,3 +128,18 @@ def load_latency_files(dirs: list[str | Path]) -> list[dict[str, Any]]:
                 data["source"] = str(f)
                 out.append(data)
     return out
+
+
+def load_realtime(results: str | Path) -> dict[str, dict[str, Any]]:
+    """Real-time sweeps of a study (runs/*/realtime-*.json): label -> {setting name: evaluation result}."""
+    out: dict[str, dict[str, Any]] = {}
+    for f in sorted(Path(results).rglob("realtime-*.json")):
+        data = read_json(f)
+        if data.get("type") != "realtime":
+            continue
+        study = data.get("study", {})
+        variant = (study.get("variant") or {}).get("sampler")
+        key = (study.get("variant") or {})
+        label = study.get("label", f.parent.name) + (f" {key['sampler'].upper()}{key['steps']}" if variant else "")
+        out[label] = data["settings"]
+    return out

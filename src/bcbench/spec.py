@@ -36,8 +36,9 @@ from typing import Any
 from bcbench.errors import BCBenchError
 
 STUDY_KEYS = {"name", "episodes", "seed_start", "val_fraction", "latency", "threads", "max_steps", "rate_hz",
-              "latency_min_calls", "latency_min_seconds", "device", "margin", "curve_episodes"}
-RUN_KEYS = {"policy", "config", "steps", "max_minutes", "seeds", "set", "eval", "label", "eval_every"}
+              "latency_min_calls", "latency_min_seconds", "device", "margin", "curve_episodes", "realtime"}
+RUN_KEYS = {"policy", "config", "steps", "max_minutes", "seeds", "set", "eval", "label", "eval_every", "realtime"}
+REALTIME_KEYS = {"delays", "execution", "profiles", "measured"}
 
 
 @dataclass(frozen=True)
@@ -65,6 +66,7 @@ class RunSpec:
     variants: list[Variant]
     label: str
     eval_every: int | None = None  # rollouts every this many training steps: the learning curve
+    realtime: list[Variant] = field(default_factory=list)  # variants swept under real-time execution
 
     @property
     def learned(self) -> bool:
@@ -100,6 +102,7 @@ class StudySpec:
     device: str = "cpu"  # where training, evaluation and timing run: cpu, cuda or auto
     margin: float = 0.05  # equivalence margin (mean score) of the findings' verdicts
     curve_episodes: int = 20  # episodes per learning-curve rollout (validation seeds 200000+)
+    realtime: dict[str, Any] | None = None  # the real-time sweep: delays, execution, profiles, measured
     runs: list[RunSpec] = field(default_factory=list)
     source: str = ""
 
@@ -179,7 +182,39 @@ def _run_specs(i: int, run: Any) -> list[RunSpec]:
     every = run.get("eval_every")
     if every is not None and (not isinstance(every, int) or isinstance(every, bool) or every < 1):
         raise BCBenchError(f"{_where(i, run)}: eval_every must be a whole number of steps >= 1, got {every!r}")
-    return [RunSpec(policy, config, s, minutes, overrides, variants, label, every) for s in seeds]
+    rt = run.get("realtime", False)
+    if rt is True:
+        realtime = variants[:1]
+    elif rt is False:
+        realtime = []
+    elif isinstance(rt, list) and all(isinstance(k, str) for k in rt):
+        by_key = {v.key: v for v in variants}
+        missing = [k for k in rt if k not in by_key]
+        if missing:
+            raise BCBenchError(f"{_where(i, run)}: realtime names '{missing[0]}', which is not one of its eval "
+                               f"variants ({', '.join(by_key)})")
+        realtime = [by_key[k] for k in rt]
+    else:
+        raise BCBenchError(f"{_where(i, run)}: realtime must be true, false or a list of eval variant keys")
+    return [RunSpec(policy, config, s, minutes, overrides, variants, label, every, realtime) for s in seeds]
+
+
+def _realtime_table(rt: Any) -> dict[str, Any]:
+    """[study] realtime = { delays = [1, 2, 4, 8], execution = ["blocking", "async"], profiles = ["a100"],
+    measured = true }, validated; defaults fill what is left out."""
+    if not isinstance(rt, dict) or set(rt) - REALTIME_KEYS:
+        raise BCBenchError(f"study.realtime must be a table with keys {', '.join(sorted(REALTIME_KEYS))}")
+    out = {"delays": rt.get("delays", [1, 2, 4, 8]), "executions": rt.get("execution", ["blocking", "async"]),
+           "profiles": rt.get("profiles", []), "measured": rt.get("measured", True)}
+    if not all(isinstance(d, int) and not isinstance(d, bool) and d >= 0 for d in out["delays"]):
+        raise BCBenchError("study.realtime.delays must be whole numbers of control steps >= 0")
+    if not set(out["executions"]) <= {"blocking", "async"} or not out["executions"]:
+        raise BCBenchError("study.realtime.execution must list blocking and/or async")
+    from bcbench.realtime import PROFILES
+
+    if any(p not in PROFILES for p in out["profiles"]) or not isinstance(out["measured"], bool):
+        raise BCBenchError(f"study.realtime.profiles must be among {', '.join(PROFILES)}; measured true or false")
+    return out
 
 
 def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
@@ -206,6 +241,8 @@ def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
             if not good or (typ is int and isinstance(v, bool)) or not ok(v):
                 raise BCBenchError(f"study.{key} has an invalid value {v!r}")
             setattr(spec, key, v)
+    if "realtime" in study:
+        spec.realtime = _realtime_table(study["realtime"])
     for i, run in enumerate(runs):
         spec.runs.extend(_run_specs(i, run))
     return spec

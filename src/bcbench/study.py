@@ -52,6 +52,8 @@ class StudyRunner:
             out += [("eval", run, v) for v in run.variants]
         if self.spec.latency:
             out += [("latency", run, v) for run in self.spec.runs for v in run.variants]
+        if self.spec.realtime:  # last: its 'measured' setting times the policy too
+            out += [("realtime", run, v) for run in self.spec.runs for v in run.realtime]
         return out
 
     def result_file(self, stage: str, run: RunSpec, variant: Variant | None) -> Path:
@@ -111,6 +113,18 @@ class StudyRunner:
         rec = latency_record(self._policy(run, variant), timing, self.spec.rate_hz)
         rec["study"] = {"name": self.spec.name, "label": run.label, "variant": asdict(variant)}
         write_json(self.result_file("latency", run, variant), rec)
+
+    def _realtime(self, run: RunSpec, variant: Variant) -> None:
+        from bcbench.realtime import sweep
+        from bcbench.utils.system import provenance
+
+        rt = self.spec.realtime or {}
+        settings = sweep(self._policy(run, variant), rt["delays"], rt["executions"], self.spec.episodes,
+                         rt["profiles"], rt["measured"], self.progress, self.spec.max_steps, self.spec.seed_start,
+                         skip_missing_profiles=True)  # e.g. the study gives no A100 time for BeT
+        write_json(self.result_file("realtime", run, variant), {
+            "type": "realtime", "study": {"name": self.spec.name, "label": run.label, "variant": asdict(variant)},
+            "margin": self.spec.margin, "settings": settings, **provenance(self.device)})
 
     # ------------------------------------------------------------------ driver
     def run(self) -> dict[str, Any]:
