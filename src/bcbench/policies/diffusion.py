@@ -32,7 +32,9 @@ def _paper_optim() -> OptimConfig:
 
 
 @dataclass
-class DiffusionConfig(PolicyConfig):
+class DenoiserNetConfig(PolicyConfig):
+    """Diffusion Policy's networks (ResNet-18/GroupNorm encoder, 1-D conditional U-Net): shared with `flow`."""
+
     encoder_width: int = 64
     """ResNet-18 base width (64 = the real ResNet-18, 512 features per frame)"""
     encoder_layers: tuple[int, ...] = RESNET18_LAYERS
@@ -44,13 +46,28 @@ class DiffusionConfig(PolicyConfig):
     n_groups: int = 8
     """GroupNorm groups in the U-Net"""
     step_embed_dim: int = 256
-    """sinusoidal diffusion-step embedding size"""
+    """sinusoidal diffusion-step (or flow-time) embedding size"""
+    crop: int | None = 84
+    """random crop size at training (centre crop at evaluation); None = no crop"""
+    optim: OptimConfig = field(default_factory=_paper_optim)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.encoder_layers, self.down_dims = tuple(self.encoder_layers), tuple(self.down_dims)
+        if self.crop is not None and not 8 <= self.crop <= self.image_size:
+            raise BCBenchError(f"crop must be in 8..{self.image_size} or None, got {self.crop}")
+        if any(d % self.n_groups for d in self.down_dims) or self.encoder_width % 16:
+            raise BCBenchError("down_dims must divide by n_groups and encoder_width by 16 (GroupNorm C/16)")
+        if self.pred_horizon % 2 ** (len(self.down_dims) - 1):
+            raise BCBenchError(f"pred_horizon must divide by {2 ** (len(self.down_dims) - 1)} for the U-Net")
+
+
+@dataclass
+class DiffusionConfig(DenoiserNetConfig):
     num_train_timesteps: int = 100
     """diffusion steps at training"""
     beta_schedule: str = "squaredcos_cap_v2"
     """squaredcos_cap_v2 (the study's cosine) or linear (the study's Figure 4 re-training)"""
-    crop: int | None = 84
-    """random crop size at training (centre crop at evaluation); None = no crop"""
     sampler: str = "ddpm"
     """default sampler at evaluation: ddpm or ddim (bcbench eval --sampler overrides)"""
     sampling_steps: int = 100
@@ -58,22 +75,14 @@ class DiffusionConfig(PolicyConfig):
     sampling_spacing: str = DEFAULT_SPACING
     """timesteps visited at evaluation: trailing (always starts at t = 99) or leading (diffusers' and the
     study's default; see bcbench.policies.samplers); bcbench eval --spacing overrides"""
-    optim: OptimConfig = field(default_factory=_paper_optim)
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        self.encoder_layers, self.down_dims = tuple(self.encoder_layers), tuple(self.down_dims)
         if self.beta_schedule not in ("squaredcos_cap_v2", "linear"):
             raise BCBenchError(f"beta_schedule must be squaredcos_cap_v2 or linear, got '{self.beta_schedule}'")
         if self.sampler not in ("ddpm", "ddim") or not 1 <= self.sampling_steps <= self.num_train_timesteps:
             raise BCBenchError("sampler must be ddpm or ddim with 1 <= sampling_steps <= num_train_timesteps")
         check_spacing(self.sampling_spacing)
-        if self.crop is not None and not 8 <= self.crop <= self.image_size:
-            raise BCBenchError(f"crop must be in 8..{self.image_size} or None, got {self.crop}")
-        if any(d % self.n_groups for d in self.down_dims) or self.encoder_width % 16:
-            raise BCBenchError("down_dims must divide by n_groups and encoder_width by 16 (GroupNorm C/16)")
-        if self.pred_horizon % 2 ** (len(self.down_dims) - 1):
-            raise BCBenchError(f"pred_horizon must divide by {2 ** (len(self.down_dims) - 1)} for the U-Net")
 
     @classmethod
     def preset(cls, name: str) -> DiffusionConfig:

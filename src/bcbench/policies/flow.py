@@ -16,15 +16,14 @@ step; uniform t spends as much effort near the data, where few-step sampling nev
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 
 from bcbench.errors import BCBenchError
-from bcbench.policies.config import OptimConfig, PolicyConfig
-from bcbench.policies.diffusion import DiffusionConfig
-from bcbench.policies.encoders import RESNET18_LAYERS, FrameFeatures, count_parameters
+from bcbench.policies.diffusion import DenoiserNetConfig, DiffusionConfig
+from bcbench.policies.encoders import FrameFeatures, count_parameters
 from bcbench.policies.learned import BCPolicy
 from bcbench.policies.unet1d import ConditionalUnet1D
 
@@ -33,33 +32,18 @@ TIME_SCALE = 100.0  # t in [0, 1] enters the U-Net's sinusoidal step embedding a
 
 
 @dataclass
-class FlowConfig(PolicyConfig):
-    encoder_width: int = 64
-    """ResNet-18 base width (as diffusion)"""
-    encoder_layers: tuple[int, ...] = RESNET18_LAYERS
-    """basic blocks per ResNet stage (as diffusion)"""
-    down_dims: tuple[int, ...] = (256, 512, 1024)
-    """U-Net channel widths per level (as diffusion)"""
-    kernel_size: int = 5
-    """U-Net convolution kernel"""
-    n_groups: int = 8
-    """GroupNorm groups in the U-Net"""
-    step_embed_dim: int = 256
-    """sinusoidal time embedding size"""
-    crop: int | None = 84
-    """random crop size at training (centre crop at evaluation); None = no crop"""
+class FlowConfig(DenoiserNetConfig):
+    """Diffusion Policy's networks (the same fields and sizes), with a flow-matching objective and sampler."""
+
     time_beta: tuple[float, float] = (1.5, 1.0)
     """training times t = 1 - s, s ~ Beta(a, b): pi0's choice, weighted towards the noise end"""
     sampler: str = "euler"
     """integrator at evaluation: euler (one call per step) or midpoint (two)"""
     sampling_steps: int = 10
     """integration steps at evaluation (any K >= 1; bcbench eval --steps overrides)"""
-    optim: OptimConfig = field(default_factory=lambda: DiffusionConfig().optim)
-    """as diffusion's: AdamW, cosine with warm-up, EMA"""
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        self.encoder_layers, self.down_dims = tuple(self.encoder_layers), tuple(self.down_dims)
         self.time_beta = tuple(self.time_beta)
         if self.sampler not in INTEGRATORS or self.sampling_steps < 1:
             raise BCBenchError(f"sampler must be one of {', '.join(INTEGRATORS)} with sampling_steps >= 1")
