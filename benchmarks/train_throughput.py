@@ -7,8 +7,11 @@ new: the config's precision (auto = bf16 autocast on CPUs with AVX512-BF16/AMX),
      profile), channels-last 2-D convolutions.
 One optimiser step = a batch gathered from the real training windows (when the dataset is beside the repo;
 random tensors of the real shapes otherwise), forward, loss, backward, the config's optimiser, EMA if the
-config keeps one. Median samples/s over --steps steps after two warm-up steps, the same code as `bcbench
-train` (bcbench.training). Stop anything else running first: timings from a busy machine mean nothing.
+config keeps one, the same code as `bcbench train` (bcbench.training). Old and new run interleaved in
+--rounds rounds of --steps timed steps each (after one warm-up step per round): this machine is a shared
+VM whose speed drifts by tens of percent within minutes, and interleaving exposes both settings to it
+alike. Median samples/s of each over all its timed steps. Stop anything else running first: timings from a
+busy machine mean nothing.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import argparse
 import dataclasses
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -39,7 +43,8 @@ def get_batch(batch: int, step: int, ds) -> dict[str, torch.Tensor]:
             "action": torch.rand(batch, 16, 2) * 2 - 1}
 
 
-def samples_per_s(name: str, cfg, precision: str, batch: int, channels_last: bool, steps: int, ds) -> float:
+def step_fn(name: str, cfg, precision: str, batch: int, channels_last: bool, ds) -> Any:
+    """A closure that runs one full training step and returns its time in seconds."""
     from bcbench.policies import REGISTRY
 
     torch.manual_seed(0)
@@ -49,25 +54,41 @@ def samples_per_s(name: str, cfg, precision: str, batch: int, channels_last: boo
     opt = make_optimizer(model, cfg.optim)
     ema = EMA(model, cfg.optim.ema_power, cfg.optim.ema_max_decay) if cfg.optim.ema else None
     prec = resolve_precision(precision, torch.device("cpu"))
-    times = []
-    for i in range(steps + 2):
+    count = [0]
+
+    def step() -> float:
+        count[0] += 1
         t = time.perf_counter()
-        b = get_batch(batch, i, ds)
+        b = get_batch(batch, count[0], ds)
         with autocast(torch.device("cpu"), prec):
             loss = model.compute_loss(b)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
         if ema is not None:
-            ema.update(model, i + 1)
-        if i >= 2:
-            times.append(time.perf_counter() - t)
-    return batch / float(np.median(times))
+            ema.update(model, count[0])
+        return time.perf_counter() - t
+
+    return step
+
+
+def compare(name: str, old_cfg, new_cfg, rounds: int, steps: int, ds) -> tuple[float, float]:
+    """Old and new settings interleaved (round by round), so that a noisy neighbour on a shared machine slows
+    both alike; median samples/s of each over all timed steps (each round's first step is warm-up)."""
+    old = step_fn(name, old_cfg, "fp32", 64, False, ds)
+    new = step_fn(name, new_cfg, new_cfg.optim.precision, new_cfg.optim.batch_size, True, ds)
+    t_old, t_new = [], []
+    for _ in range(rounds):
+        for fn, times in ((old, t_old), (new, t_new)):
+            fn()
+            times += [fn() for _ in range(steps)]
+    return 64 / float(np.median(t_old)), new_cfg.optim.batch_size / float(np.median(t_new))
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--steps", type=int, default=8)
+    ap.add_argument("--steps", type=int, default=3, help="timed steps per setting and round")
+    ap.add_argument("--rounds", type=int, default=4, help="rounds of old then new, interleaved")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--config", default="cpu", help="policy preset (default cpu)")
     ap.add_argument("--policy", action="append")
@@ -87,16 +108,16 @@ def main() -> None:
     for name in args.policy or learned_policies():
         cfg = make_config(name, args.config)
         old_cfg = dataclasses.replace(cfg, optim=dataclasses.replace(cfg.optim, batch_size=64, precision="fp32"))
-        old = samples_per_s(name, old_cfg, "fp32", 64, False, args.steps, ds)
+        old, new = compare(name, old_cfg, cfg, args.rounds, args.steps, ds)
         prec = resolve_precision(cfg.optim.precision, torch.device("cpu"))
-        new = samples_per_s(name, cfg, cfg.optim.precision, cfg.optim.batch_size, True, args.steps, ds)
         rows.append({"policy": name, "config": args.config, "old_samples_per_s": old, "new_samples_per_s": new,
                      "new_precision": prec, "new_batch": cfg.optim.batch_size, "speedup": new / old,
                      "policy_config": config_to_dict(cfg)})
         print(f"| {name} | {old:.0f} | {new:.0f} ({prec}, batch {cfg.optim.batch_size}) | {new / old:.2f}x |",
               flush=True)
     out = Path(args.out)
-    write_json(out / "throughput.json", {"type": "train-throughput", "steps": args.steps, "real_data": ds is not None,
+    write_json(out / "throughput.json", {"type": "train-throughput", "steps": args.steps, "rounds": args.rounds,
+                                         "real_data": ds is not None,
                                          "rows": rows, **provenance("cpu")})
     with atomic_path(out / "throughput.md") as tmp:
         tmp.write_text("| policy | old samples/s (fp32, batch 64) | new samples/s | precision, batch | speed-up |\n"
