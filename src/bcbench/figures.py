@@ -38,17 +38,20 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference") -> Path | None
     pts = [r for r in rows if r.latency_ms(mode) is not None]
     if not pts:
         return None
-    fig, ax = plt.subplots(figsize=(8, 5))
+    fig, ax = plt.subplots(figsize=(9, 5.5))
+    legend: dict[str, Any] = {}
     for r in pts:
         lo, hi = r.est("mean_score")["ci95"]
         size = 30 + 400 * (r.params / 1e8) ** 0.5
         ax.errorbar(r.latency_ms(mode), r.score, yerr=[[r.score - lo], [hi - r.score]], fmt="none",
                     ecolor=COLOURS.get(r.policy, "k"), alpha=0.6, capsize=3)
-        ax.scatter(r.latency_ms(mode), r.score, s=size, color=COLOURS.get(r.policy, "k"), alpha=0.8,
-                   edgecolor="k", lw=0.5)
-        name = r.label + ("" if r.variant == "default" else f" {r.variant.upper()}")
-        ax.annotate(f"{name}\n{r.params / 1e6:.2f} M", (r.latency_ms(mode), r.score), fontsize=7,
-                    xytext=(5, 5), textcoords="offset points")
+        dot = ax.scatter(r.latency_ms(mode), r.score, s=size, color=COLOURS.get(r.policy, "k"), alpha=0.8,
+                         edgecolor="k", lw=0.5)
+        legend.setdefault(f"{r.label}, {r.params / 1e6:.2f} M", dot)
+        if r.variant != "default":  # a generative policy's settings: name the setting, the legend names it
+            ax.annotate(r.variant.upper().replace("-LEADING", "-L"), (r.latency_ms(mode), r.score), fontsize=6,
+                        xytext=(4, 4), textcoords="offset points")
+    ax.legend(legend.values(), legend.keys(), fontsize=7, loc="upper left", markerscale=0.5)
     from bcbench.results import STUDY_REFERENCE
 
     shown = {r.reference_key for r in pts}
