@@ -224,7 +224,8 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_realtime(args: argparse.Namespace) -> int:
-    from bcbench.realtime import plot_sweep, sweep
+    from bcbench.figures import realtime_figure
+    from bcbench.realtime import sweep
     from bcbench.stats import fmt_estimate
     from bcbench.utils.io import write_json
 
@@ -239,7 +240,7 @@ def cmd_realtime(args: argparse.Namespace) -> int:
         s = r["summary"]
         d = ", ".join(f"d={k}: {v}" for k, v in s["delay_steps"].items()) or "d=0"
         print(f"  {name:<28} {fmt_estimate(s['mean_score'])}   ({d} calls)")
-    plot_sweep({policy.name: results}, out / "realtime.png")
+    realtime_figure({policy.name: results}, out / "realtime.png")
     print(f"  results and plot: {out}")
     return 0
 

@@ -190,13 +190,7 @@ def learning_curves(rows: list[Any], path: Path) -> Path | None:
             ax.fill_between(c.samples, c.lo, c.hi, color=colour, alpha=0.12)
         if c.val_loss:
             ax2.plot(c.val_samples, c.val_loss, color=colour, label=r.label)
-    ax.set_xlabel("training samples")
-    ax.set_ylabel("mean score on validation seeds (95% CI)")
-    ax.set_ylim(-0.05, 1.05)
-    ax.grid(alpha=0.3)
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(fontsize=7)
-    else:
+    if not _score_axis(ax, "training samples", "mean score on validation seeds (95% CI)"):
         ax.text(0.5, 0.5, "no rollouts logged while training\n(train with --eval-every)", ha="center",
                 transform=ax.transAxes, alpha=0.6)
     ax.set_title("Learning curves: closed-loop score")
@@ -205,4 +199,33 @@ def learning_curves(rows: list[Any], path: Path) -> Path | None:
     ax2.set_yscale("log")
     ax2.grid(alpha=0.3, which="both")
     ax2.set_title("Validation loss")
+    return _save(fig, path)
+
+
+def _score_axis(ax: Any, xlabel: str, ylabel: str = "mean score (95% CI)") -> bool:
+    """Labels, a 0-1 score range, a grid, and a legend when anything is labelled (returned)."""
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_ylim(-0.05, 1.05)
+    ax.grid(alpha=0.3)
+    labelled = bool(ax.get_legend_handles_labels()[0])
+    if labelled:
+        ax.legend(fontsize=7)
+    return labelled
+
+
+def realtime_figure(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path) -> Path:
+    """Score against delay d (control steps of 0.1 s), one colour per policy: async solid, blocking dashed."""
+    from bcbench.realtime import delay_curve
+
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for i, (label, results) in enumerate(by_policy.items()):
+        for execution, style in (("async", "-"), ("blocking", "--")):
+            pts = delay_curve(results, execution)
+            if len(pts) > 1:
+                err = [[e["value"] - e["ci95"][0] for _, e in pts], [e["ci95"][1] - e["value"] for _, e in pts]]
+                ax.errorbar([d for d, _ in pts], [e["value"] for _, e in pts], yerr=err, capsize=3, marker="o",
+                            ls=style, color=f"C{i % 10}", label=f"{label}, {execution}")
+    _score_axis(ax, "delay d (control steps of 0.1 s at 10 Hz; d = 0: sync, the world waits)")
+    ax.set_title("Score under real-time execution")
     return _save(fig, path)

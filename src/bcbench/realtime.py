@@ -174,26 +174,3 @@ def delay_curve(results: dict[str, dict[str, Any]], execution: str) -> list[tupl
     pts += sorted((int(k[len(prefix):]), r["summary"]["mean_score"]) for k, r in results.items()
                   if k.startswith(prefix))
     return pts
-
-
-def plot_sweep(by_policy: dict[str, dict[str, dict[str, Any]]], path: Any) -> Any:
-    """Score against delay d (control steps of 0.1 s), one colour per policy: async solid, blocking dashed."""
-    from bcbench.figures import _save, plt
-
-    fig, ax = plt.subplots(figsize=(8, 4.5))
-    for i, (label, results) in enumerate(by_policy.items()):
-        colour = f"C{i % 10}"
-        for execution, style in (("async", "-"), ("blocking", "--")):
-            pts = delay_curve(results, execution)
-            if len(pts) > 1:
-                err = [[e["value"] - e["ci95"][0] for _, e in pts], [e["ci95"][1] - e["value"] for _, e in pts]]
-                ax.errorbar([d for d, _ in pts], [e["value"] for _, e in pts], yerr=err, capsize=3, marker="o",
-                            ls=style, color=colour, label=f"{label}, {execution}")
-    ax.set_xlabel("delay d (control steps of 0.1 s at 10 Hz; d = 0: sync, the world waits)")
-    ax.set_ylabel("mean score (95% CI)")
-    ax.set_ylim(-0.05, 1.05)
-    ax.grid(alpha=0.3)
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(fontsize=7)
-    ax.set_title("Score under real-time execution")
-    return _save(fig, path)

@@ -12,9 +12,8 @@ import html
 from pathlib import Path
 from typing import Any
 
-from bcbench.figures import figure3, figure4, figure5, learning_curves
+from bcbench.figures import figure3, figure4, figure5, learning_curves, realtime_figure
 from bcbench.findings import DEFAULT_MARGIN, judge, points_from_rows
-from bcbench.realtime import plot_sweep
 from bcbench.results import STUDY_REFERENCE, Row, load_realtime, load_rows
 from bcbench.stats import fmt_estimate
 from bcbench.utils.io import atomic_path, read_json
@@ -179,7 +178,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
             "Learning curves": learning_curves(rows, out / "learning_curves.png")}
     realtime = load_realtime(results)
     if realtime:
-        figs["Score under real-time execution"] = plot_sweep(realtime, out / "realtime.png")
+        figs["Score under real-time execution"] = realtime_figure(realtime, out / "realtime.png")
     findings = judge(points_from_rows(rows), margin)
     table = table_rows(rows)
     intro = (f"Results directory `{results.name}`; {len(rows)} evaluated settings. "

@@ -138,8 +138,7 @@ def load_realtime(results: str | Path) -> dict[str, dict[str, Any]]:
         if data.get("type") != "realtime":
             continue
         study = data.get("study", {})
-        variant = (study.get("variant") or {}).get("sampler")
-        key = (study.get("variant") or {})
-        label = study.get("label", f.parent.name) + (f" {key['sampler'].upper()}{key['steps']}" if variant else "")
+        v = study.get("variant") or {}
+        label = study.get("label", f.parent.name) + (f" {v['sampler'].upper()}{v['steps']}" if v.get("sampler") else "")
         out[label] = data["settings"]
     return out
