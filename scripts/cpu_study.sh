@@ -1,25 +1,48 @@
 #!/usr/bin/env bash
 # Start or resume the converged CPU study (studies/cpu.toml) in the background at low priority, with its
 # run folder outside the work tree so that a later session on this machine resumes it where it stopped.
-#   scripts/cpu_study.sh          start / resume        scripts/cpu_study.sh stop     stop it (it saves)
-#   scripts/cpu_study.sh status   progress               then: bcbench report ~/.cache/bcbench/cpu --export results/cpu
+#   scripts/cpu_study.sh [start]    start / resume        scripts/cpu_study.sh stop     stop it (it saves)
+#   scripts/cpu_study.sh status     progress              then: bcbench report ~/.cache/bcbench/cpu --export results/cpu
+# The study runs at ONE commit from start to end: the first start pins the current (clean) HEAD and runs
+# from its own clone of it ($BCBENCH_HOME/src-<commit>), so the work tree can move on while it runs for
+# hours and every result it writes carries the same commit. Starting afresh at a newer commit means
+# deleting $BCBENCH_HOME/cpu and $BCBENCH_HOME/cpu.commit.
 # Stop it before timing anything else on the machine: timings taken beside it mean nothing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export BCBENCH_HOME="${BCBENCH_HOME:-$HOME/.cache/bcbench}"
 OUT="$BCBENCH_HOME/cpu"
 LOG="$BCBENCH_HOME/cpu.log"
+PIN="$BCBENCH_HOME/cpu.commit"
+PATTERN="bcbench.cli study .*studies/cpu.toml"
 case "${1:-start}" in
   start)
-    if pgrep -f "bcbench study studies/cpu.toml" >/dev/null; then echo "already running (log: $LOG)"; exit 0; fi
+    if pgrep -f "$PATTERN" >/dev/null; then echo "already running (log: $LOG)"; exit 0; fi
     make -s install
     mkdir -p "$BCBENCH_HOME"
-    nohup nice -n 10 .venv/bin/bcbench study studies/cpu.toml --out "$OUT" >>"$LOG" 2>&1 &
-    echo "started (pid $!): results in $OUT, log $LOG" ;;
+    if [ ! -f "$PIN" ]; then
+      if [ -n "$(git status --porcelain --untracked-files=no)" ]; then
+        echo "error: the work tree has uncommitted changes; commit them first (the study pins a commit)" >&2; exit 2
+      fi
+      git rev-parse HEAD > "$PIN"
+    fi
+    COMMIT="$(cat "$PIN")"
+    SRC="$BCBENCH_HOME/src-${COMMIT:0:12}"
+    if [ ! -d "$SRC/.git" ]; then
+      git clone --quiet --no-checkout "$PWD" "$SRC.tmp" && git -C "$SRC.tmp" checkout --quiet "$COMMIT"
+      mv "$SRC.tmp" "$SRC"
+    fi
+    # The clone has no ../shared beside it: name the data explicitly. PYTHONPATH puts the pinned code
+    # ahead of the work tree's editable install; the work tree's .venv supplies the libraries.
+    export BCBENCH_DATA="${BCBENCH_DATA:-$PWD/../shared/data/pusht/pusht_cchi_v7_replay.zarr}"
+    (cd "$SRC" && PYTHONPATH="$SRC/src" nohup nice -n 10 "$OLDPWD/.venv/bin/python" -m bcbench.cli \
+        study studies/cpu.toml --out "$OUT" >>"$LOG" 2>&1 &)
+    echo "started at commit ${COMMIT:0:12}: results in $OUT, log $LOG" ;;
   stop)
-    pkill -INT -f "bcbench study studies/cpu.toml" && echo "asked to stop (it checkpoints and exits)" || echo "not running" ;;
+    pkill -INT -f "$PATTERN" && echo "asked to stop (it checkpoints and exits)" || echo "not running" ;;
   status)
-    pgrep -f "bcbench study studies/cpu.toml" >/dev/null && echo "running" || echo "not running"
+    pgrep -f "$PATTERN" >/dev/null && echo "running" || echo "not running"
+    [ -f "$PIN" ] && echo "pinned commit: $(cut -c1-12 "$PIN")"
     [ -f "$OUT/index.jsonl" ] && echo "finished stages: $(wc -l < "$OUT/index.jsonl")"
     tail -c 400 "$LOG" 2>/dev/null | tr '\r' '\n' | grep -v '^$' | tail -1 ;;
   *) echo "usage: $0 [start|stop|status]" >&2; exit 2 ;;
