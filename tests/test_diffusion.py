@@ -179,13 +179,13 @@ def test_flow_loss_decreases_on_a_tiny_batch():
 def test_flow_sampling_calls_and_determinism(tiny_flow, kind, steps, calls_per_step, monkeypatch):
     tiny_flow.set_sampler(kind, steps)
     calls = {"n": 0}
-    real = tiny_flow.unet.forward
+    real = tiny_flow.unet.forward_film  # the denoising graph: one U-Net evaluation
 
     def counted(*a, **k):
         calls["n"] += 1
         return real(*a, **k)
 
-    monkeypatch.setattr(tiny_flow.unet, "forward", counted)
+    monkeypatch.setattr(tiny_flow.unet, "forward_film", counted)
     with torch.no_grad():
         tiny_flow.reset_noise(5)
         a = tiny_flow.predict_action_chunk(_obs())

@@ -1,4 +1,4 @@
-"""`bcbench latency`: every registered policy at paper and quick size, reference vs fast, batch 1.
+"""`bcbench latency`: every registered policy at paper and quick size in every inference mode, batch 1.
 
 Latency does not depend on the weights' values, so untrained models with an identity-range normalizer
 are timed. Diffusion Policy is timed for each sampler and step count. Output: latency.json, a Markdown
@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from bcbench.backends import MODES
 from bcbench.data.normalizer import MinMaxNormalizer
 from bcbench.errors import BCBenchError
 from bcbench.latency import TimingConfig, measure_runner, verdicts
@@ -30,8 +31,9 @@ def _normalizer() -> MinMaxNormalizer:
 
 def _rows_for(name: str, preset: str, modes: list[str], samplers: list[str], steps: list[int], device: torch.device,
               timing: TimingConfig, rate_hz: float) -> list[dict[str, Any]]:
-    from bcbench.fast import make_runner
+    from bcbench.backends import apply_mode
     from bcbench.policies import is_learned, make_policy
+    from bcbench.policies.learned import PolicyRunner
 
     torch.manual_seed(0)
     model = make_policy(name, preset)
@@ -41,16 +43,16 @@ def _rows_for(name: str, preset: str, modes: list[str], samplers: list[str], ste
     kinds = [s for s in samplers if s in model.samplers] or list(model.samplers[:1])
     variants = [(s, k) for s in kinds for k in steps] if model.samplers else [(None, None)]
     rows = []
-    for sampler, k in variants:
-        if sampler:
-            model.set_sampler(sampler, k)
-        for mode in modes:
-            runner = make_runner(mode, model, _normalizer(), device)
-            if hasattr(runner.model, "reset_noise"):
-                runner.model.reset_noise(0)
+    runner = PolicyRunner(model, _normalizer(), device)
+    for mode in modes:  # outer: each mode exports and compiles once, for every sampler setting
+        apply_mode(runner, mode)
+        for sampler, k in variants:
+            if sampler:
+                model.set_sampler(sampler, k)
+            model.reset_noise(0)
             stats = measure_runner(runner, timing, rate_hz)
             rows.append({"policy": name, "preset": preset, "mode": mode, "variant": f"{sampler}{k}" if sampler else
-                         "default", "params": model.num_parameters(), **stats})
+                         "default", "params": model.num_parameters(), "deployment": model.deployment, **stats})
     return rows
 
 
@@ -104,7 +106,7 @@ def run_latency_benchmark(policies: list[str] | None = None, presets: list[str] 
     for name, preset in tqdm(jobs, desc="latency", unit="policy"):
         if any(r["policy"] == name and r["preset"] == "-" for r in rows):
             continue  # baselines have no sizes
-        rows += _rows_for(name, preset, modes or ["reference", "fast"], samplers or ["ddpm", "ddim"],
+        rows += _rows_for(name, preset, modes or list(MODES), samplers or ["ddpm", "ddim"],
                           list(steps or DEFAULT_STEPS), dev, timing, rate_hz)
     out_dir = Path(out) if out else Path("runs") / f"latency-{datetime.now():%Y%m%d-%H%M%S}"
     record = {"type": "latency-benchmark", "device": str(dev), "rate_hz": rate_hz, "timing": timing.__dict__,

@@ -79,19 +79,19 @@ def _load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
 
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     if args.checkpoint:
+        from bcbench.backends import apply_mode, mode_name
         from bcbench.checkpoint import configure_runner, load_runner
 
         runner = load_runner(args.checkpoint, use_ema=not args.no_ema, device=args.device)
         tag = configure_runner(runner, args.sampler, args.steps, args.seed, args.spacing)
-        if args.mode != "default":
-            from bcbench.fast import make_runner
-
-            runner = make_runner(args.mode, runner.model, runner.normalizer, args.device, runner.extra)
-            runner.extra["mode"] = args.mode
-            tag += f"{args.mode}-"
+        mode = mode_name(args.backend, args.precision, args.reference)
+        apply_mode(runner, mode)
+        tag += "" if mode == "fast" else f"{mode}-"
         return runner, Path(args.checkpoint) / f"eval-{tag}{args.episodes}ep-{stamp}"
     if not args.policy:
         raise BCBenchError("choose --policy NAME or --checkpoint RUN_DIR")
+    if args.backend != "torch" or args.precision != "fp32" or args.reference:
+        raise BCBenchError("--backend/--precision/--reference apply to a trained --checkpoint")
     if args.sampler or args.steps or args.spacing:
         raise BCBenchError("--sampler/--steps/--spacing need a diffusion --checkpoint")
     if is_learned(args.policy):
@@ -229,7 +229,7 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     from bcbench.stats import fmt_estimate
     from bcbench.utils.io import write_json
 
-    args.mode, args.no_ema = "default", False
+    args.backend, args.precision, args.reference, args.no_ema = "torch", "fp32", False, False
     policy, default_out = _load_eval_policy(args)
     out = Path(args.out) if args.out else default_out.with_name(default_out.name.replace("eval-", "realtime-"))
     results = sweep(policy, args.delays, args.execution, args.episodes, args.profile or [], args.measured,
@@ -242,6 +242,30 @@ def cmd_realtime(args: argparse.Namespace) -> int:
         print(f"  {name:<28} {fmt_estimate(s['mean_score'])}   ({d} calls)")
     realtime_figure({policy.name: results}, out / "realtime.png")
     print(f"  results and plot: {out}")
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from bcbench.backends import apply_mode
+    from bcbench.checkpoint import load_runner
+
+    runner = load_runner(args.run_dir, use_ema=not args.no_ema)
+    apply_mode(runner, f"{args.format}-{args.precision}")  # exports (or finds the cached export), compiles once
+    print(f"{runner.name}: {args.format} {args.precision} graphs ({', '.join(runner.model.graphs)}) in "
+          f"{runner.model.deployment['export']}")
+    return 0
+
+
+def cmd_tiers(args: argparse.Namespace) -> int:
+    from bcbench.tiers import run_tiers, tiers_table
+
+    modes = args.mode or ["openvino-fp32", "openvino-bf16", "openvino-int8"]
+    tag = f"{args.sampler}{args.steps}" if args.sampler else "default"
+    out = Path(args.out) if args.out else Path(args.run_dir) / f"tiers-{tag}"
+    record = run_tiers(args.run_dir, modes, args.episodes, args.sampler, args.steps, out,
+                       observations=args.observations, progress=not args.quiet)
+    print(tiers_table(record))
+    print(f"results: {out / 'tiers.json'}")
     return 0
 
 

@@ -11,6 +11,8 @@ from typing import Any
 
 from bcbench import __version__
 
+MODES = ("reference", "fast", "openvino-fp32", "openvino-bf16", "openvino-int8")  # = bcbench.backends.MODES
+
 EXIT_USAGE = 2
 
 
@@ -61,6 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_data_commands(sub)
     _add_train_eval_commands(sub, sorted(REGISTRY))
     _add_study_commands(sub)
+    _add_deploy_commands(sub)
     return parser
 
 
@@ -138,11 +141,11 @@ def _add_study_commands(sub: Any) -> None:
     p.add_argument("--export", metavar="DIR", help="also copy the result files (no checkpoints) to DIR")
     p.set_defaults(func="cmd_report")
 
-    p = sub.add_parser("latency", help="time one policy call at batch 1 for every policy, reference vs fast")
+    p = sub.add_parser("latency", help="time one policy call at batch 1 for every policy, in every inference mode")
     p.add_argument("--policy", action="append", help="only these policies (repeatable; default all learned)")
     p.add_argument("--config", action="append", choices=["quick", "cpu", "paper"], help="presets (default both)")
-    p.add_argument("--mode", action="append", choices=["reference", "fast", "fast-jit", "fast-int8"],
-                   help="modes (default reference and fast; fast-int8 is approximate, reported apart)")
+    p.add_argument("--mode", action="append", choices=list(MODES),
+                   help="inference modes (default all: torch reference and fast, OpenVINO fp32, bf16 and int8)")
     p.add_argument("--sampler", action="append", choices=["ddpm", "ddim", "euler", "midpoint"],
                    help="samplers of generative policies (default ddpm and ddim; flow: euler)")
     p.add_argument("--steps", type=_positive_int, action="append",
@@ -181,15 +184,47 @@ def _add_study_commands(sub: Any) -> None:
 
 
 
+def _add_deploy_commands(sub: Any) -> None:
+    p = sub.add_parser("export", help="export a trained run's inference graphs for a deployment runtime")
+    p.add_argument("run_dir", metavar="RUN_DIR", help="a trained run")
+    p.add_argument("--format", default="openvino", choices=["openvino"], help="runtime format (default openvino)")
+    p.add_argument("--precision", default="fp32", choices=["fp32", "bf16", "int8"],
+                   help="fp32 (exact), bf16 (compiled with a bf16 hint) or int8 (NNCF, calibrated on the "
+                        "training split); default fp32")
+    p.add_argument("--no-ema", action="store_true", help="export the raw weights even if the run kept an EMA")
+    p.set_defaults(func="cmd_export")
+
+    p = sub.add_parser("tiers", help="accuracy of each inference mode of a trained run against the exact torch one")
+    p.add_argument("run_dir", metavar="RUN_DIR", help="a trained run")
+    p.add_argument("--mode", action="append", choices=[m for m in MODES if m != "fast"],
+                   help="modes to compare with torch fast (default openvino fp32, bf16 and int8)")
+    p.add_argument("--sampler", choices=["ddpm", "ddim", "euler", "midpoint"], help="generative policies' sampler")
+    p.add_argument("--steps", type=_positive_int, help="generative policies' steps")
+    p.add_argument("--episodes", type=_positive_int, default=100, help="test episodes per mode (default 100)")
+    p.add_argument("--observations", type=_positive_int, default=100,
+                   help="validation observations for the chunk deviation (default 100)")
+    p.add_argument("--out", metavar="DIR", help="output folder (default RUN_DIR/tiers-SAMPLER)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func="cmd_tiers")
+
+
+def _add_backend_args(p: Any) -> None:
+    p.add_argument("--backend", default="torch", choices=["torch", "openvino"],
+                   help="what runs a trained policy's networks (default torch; openvino exports and compiles "
+                        "them, cached beside the checkpoint)")
+    p.add_argument("--precision", default="fp32", choices=["fp32", "bf16", "int8"],
+                   help="with --backend openvino: fp32 (exact, default), bf16 or int8 (approximate)")
+    p.add_argument("--reference", action="store_true",
+                   help="torch's reference form (Diffusion Policy: the plain U-Net every step; same chunks)")
+
+
 def _add_eval_command(sub: Any, policies: list[str]) -> None:
     p = sub.add_parser("eval", help="evaluate a policy over seeded Push-T episodes (JSON result, videos)")
     p.add_argument("--policy", choices=policies, help="registered policy to evaluate")
     p.add_argument("--config", default="quick", choices=["quick", "cpu", "paper"], help="policy preset (default quick)")
     p.add_argument("--checkpoint", metavar="RUN_DIR", help="evaluate a trained run instead of --policy")
     p.add_argument("--no-ema", action="store_true", help="use the raw weights even if the run kept an EMA")
-    p.add_argument("--mode", default="default", choices=["default", "reference", "fast", "fast-jit", "fast-int8"],
-                   help="inference path of a trained policy: all give the same chunks except fast-int8 "
-                        "(approximate); default = inference_mode with precomputed sampler constants")
+    _add_backend_args(p)
     p.add_argument("--sampler", choices=["ddpm", "ddim", "euler", "midpoint"],
                    help="generative policies: diffusion ddpm|ddim, flow euler|midpoint (default: the run's)")
     p.add_argument("--steps", type=_positive_int,

@@ -7,9 +7,9 @@ and torch version. Real-time verdicts use that tail statistic (a control loop mu
 the slow calls too) and name it: at control rate f, re-planning every 8 actions needs p99 <= 8/f,
 re-planning every step needs p99 <= 1/f.
 
-Modes: `reference` is what a user gets from the public code: fp32 eager PyTorch under `torch.no_grad`
-and, for Diffusion Policy, diffusers' scheduler `step` called in a Python loop. `fast` is bcbench's
-deployment path; its outputs equal the reference's within 1e-4 (tested): see `bcbench.fast`.
+Modes (bcbench.backends): `reference` is fp32 eager PyTorch the way the public code runs it (Diffusion
+Policy: the plain U-Net at every step); `fast` is the torch default (split FiLM); `openvino-fp32|bf16|int8`
+run the same graphs compiled by OpenVINO. Exact forms equal the reference within 1e-4 (tested).
 """
 
 from __future__ import annotations
@@ -128,7 +128,7 @@ def latency_record(policy: Any, cfg: TimingConfig, rate_hz: float = 10.0,
     """Time a policy in each mode (baselines have one); a JSON-ready record with provenance."""
     from datetime import UTC, datetime
 
-    from bcbench.fast import make_runner
+    from bcbench.backends import apply_mode
     from bcbench.policies.learned import PolicyRunner
     from bcbench.utils.system import provenance
 
@@ -137,8 +137,10 @@ def latency_record(policy: Any, cfg: TimingConfig, rate_hz: float = 10.0,
     if not isinstance(policy, PolicyRunner):
         out["modes"]["reference"] = measure_runner(policy, cfg, rate_hz)
     else:
-        for mode in modes:
-            runner = make_runner(mode, policy.model, policy.normalizer, policy.device, policy.extra)
-            out["modes"][mode] = measure_runner(runner, cfg, rate_hz)
+        before = policy.extra.get("mode", "fast")
+        for mode in modes:  # the same runner in each form, one after the other
+            apply_mode(policy, mode)
+            out["modes"][mode] = {**measure_runner(policy, cfg, rate_hz), "deployment": policy.model.deployment}
+        apply_mode(policy, before)
     device = str(getattr(policy, "device", "cpu"))
     return {**out, **provenance(device)}

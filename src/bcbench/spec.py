@@ -9,6 +9,9 @@
     threads = 2             # torch threads for training and timing
     device = "cpu"          # where training, evaluation and timing run: cpu, cuda or auto
     margin = 0.05           # equivalence margin of the findings' verdicts (mean score)
+    backend = "torch"       # evaluation: torch (default, its fast exact form) or openvino
+    precision = "fp32"      # with openvino: fp32 (exact), bf16 or int8 (approximate)
+    latency_modes = ["reference", "fast"]   # timed forms (bcbench.backends.MODES)
 
     [[run]]
     policy = "diffusion"
@@ -36,7 +39,8 @@ from typing import Any
 from bcbench.errors import BCBenchError
 
 STUDY_KEYS = {"name", "episodes", "seed_start", "val_fraction", "latency", "threads", "max_steps", "rate_hz",
-              "latency_min_calls", "latency_min_seconds", "device", "margin", "curve_episodes", "realtime"}
+              "latency_min_calls", "latency_min_seconds", "device", "margin", "curve_episodes", "realtime",
+              "backend", "precision", "latency_modes"}
 RUN_KEYS = {"policy", "config", "steps", "max_minutes", "seeds", "set", "eval", "label", "eval_every", "realtime"}
 REALTIME_KEYS = {"delays", "execution", "profiles", "measured"}
 
@@ -103,6 +107,9 @@ class StudySpec:
     margin: float = 0.05  # equivalence margin (mean score) of the findings' verdicts
     curve_episodes: int = 20  # episodes per learning-curve rollout (validation seeds 200000+)
     realtime: dict[str, Any] | None = None  # the real-time sweep: delays, execution, profiles, measured
+    backend: str = "torch"  # evaluation backend (bcbench.backends)
+    precision: str = "fp32"
+    latency_modes: tuple[str, ...] = ("reference", "fast")  # forms the latency stage times
     runs: list[RunSpec] = field(default_factory=list)
     source: str = ""
 
@@ -243,9 +250,24 @@ def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
             setattr(spec, key, v)
     if "realtime" in study:
         spec.realtime = _realtime_table(study["realtime"])
+    _backend_keys(study, spec)
     for i, run in enumerate(runs):
         spec.runs.extend(_run_specs(i, run))
     return spec
+
+
+def _backend_keys(study: dict[str, Any], spec: StudySpec) -> None:
+    from bcbench.backends import MODES, mode_name
+
+    spec.backend, spec.precision = str(study.get("backend", "torch")), str(study.get("precision", "fp32"))
+    try:
+        mode_name(spec.backend, spec.precision)
+    except BCBenchError as e:
+        raise BCBenchError(f"study.backend/precision: {e}") from None
+    modes = study.get("latency_modes", list(spec.latency_modes))
+    if not isinstance(modes, list) or not modes or any(m not in MODES for m in modes):
+        raise BCBenchError(f"study.latency_modes must be a non-empty list of {', '.join(MODES)}, got {modes!r}")
+    spec.latency_modes = tuple(modes)
 
 
 def load_spec(path: str | Path) -> StudySpec:

@@ -83,6 +83,7 @@ class StudyRunner:
             raise KeyboardInterrupt  # Ctrl-C during training: the checkpoint is saved; stop the study here
 
     def _policy(self, run: RunSpec, variant: Variant) -> Any:
+        from bcbench.backends import apply_mode, mode_name
         from bcbench.checkpoint import configure_runner, load_runner
         from bcbench.policies import make_policy
 
@@ -90,6 +91,7 @@ class StudyRunner:
             return make_policy(run.policy, run.config, seed=run.seed)
         runner = load_runner(self.run_dir(run), use_ema=True, device=self.device)
         configure_runner(runner, variant.sampler, variant.steps, run.seed, variant.spacing)
+        apply_mode(runner, mode_name(self.spec.backend, self.spec.precision))
         return runner
 
     def _eval(self, run: RunSpec, variant: Variant) -> None:
@@ -110,7 +112,7 @@ class StudyRunner:
             torch.set_num_threads(self.spec.threads)
         timing = TimingConfig(min_calls=self.spec.latency_min_calls, min_seconds=self.spec.latency_min_seconds,
                               max_calls=max(200, self.spec.latency_min_calls))
-        rec = latency_record(self._policy(run, variant), timing, self.spec.rate_hz)
+        rec = latency_record(self._policy(run, variant), timing, self.spec.rate_hz, self.spec.latency_modes)
         rec["study"] = {"name": self.spec.name, "label": run.label, "variant": asdict(variant)}
         write_json(self.result_file("latency", run, variant), rec)
 

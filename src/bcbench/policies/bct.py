@@ -67,7 +67,7 @@ class BCTConfig(PolicyConfig):
 
 class BCTPolicy(BCPolicy):
     name = "bct"
-    traceable_forward = True  # predict_action_chunk is forward(image, agent_pos)
+    graphs = ("forward",)  # the whole policy is one graph: (image, agent_pos) -> chunk
 
     def __init__(self, config: BCTConfig) -> None:
         super().__init__()
@@ -99,4 +99,4 @@ class BCTPolicy(BCPolicy):
         return loss(pred, batch["action"])
 
     def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
-        return self(obs["image"], obs["agent_pos"])
+        return self.call_graph("forward", obs["image"], obs["agent_pos"])

@@ -112,6 +112,7 @@ class Block(nn.Module):
 
 class BeTPolicy(BCPolicy):
     name = "bet"
+    graphs = ("heads",)  # observations -> bin logits and offsets; the bin is drawn in Python
 
     def __init__(self, config: BeTConfig) -> None:
         super().__init__()
@@ -141,8 +142,9 @@ class BeTPolicy(BCPolicy):
             x = block(x, self.mask[: x.shape[1], : x.shape[1]])
         return self.ln_f(x)
 
-    def _heads(self, obs: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
-        h = self.transformer(obs["image"], obs["agent_pos"])[:, -1]  # newest token: (B, D)
+    def heads(self, image: torch.Tensor, agent_pos: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The inference graph: observations -> bin logits and offsets (sampling stays in Python)."""
+        h = self.transformer(image, agent_pos)[:, -1]  # newest token: (B, D)
         c = self.config
         out = self.head(h).view(-1, c.pred_horizon, c.n_bins, 3)
         return out[..., 0], out[..., 1:]  # logits (B, Tp, k), offsets (B, Tp, k, 2)
@@ -161,7 +163,7 @@ class BeTPolicy(BCPolicy):
         return bins, action - self.centres[bins]
 
     def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-        logits, offsets = self._heads(batch)
+        logits, offsets = self.heads(batch["image"], batch["agent_pos"])
         bins, target_offset = self.encode_actions(batch["action"])  # (B, Tp), (B, Tp, 2)
         logp = F.log_softmax(logits, dim=-1).gather(-1, bins[..., None]).squeeze(-1)  # (B, Tp)
         focal = -((1 - logp.exp()) ** self.config.focal_gamma * logp).mean()
@@ -169,7 +171,7 @@ class BeTPolicy(BCPolicy):
         return focal + self.config.offset_weight * F.mse_loss(chosen, target_offset)
 
     def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
-        logits, offsets = self._heads(obs)
+        logits, offsets = self.call_graph("heads", obs["image"], obs["agent_pos"])
         probs = F.softmax(logits, dim=-1)  # (B, Tp, k)
         gens = self.generators(obs, logits.device)
         if isinstance(gens, torch.Generator):  # one stream for the batch

@@ -5,61 +5,22 @@ the To=2 frame features and normalised agent positions form the global condition
 Action: a 1-D conditional U-Net predicts the noise added to the normalised 16x2 chunk (epsilon
 prediction, 100 training timesteps, squared-cosine or linear betas, samples clipped to [-1, 1]).
 Sampling: DDPM or DDIM with any step count and timestep spacing, chosen at evaluation time (`set_sampler`);
-the observation is
-encoded once per call and only the U-Net runs K times.
+the observation is encoded once per call and only the U-Net runs K times (bcbench.policies.denoiser).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 
 from bcbench.errors import BCBenchError
-from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile
-from bcbench.policies.encoders import RESNET18_LAYERS, FrameFeatures, count_parameters
-from bcbench.policies.learned import BCPolicy
+from bcbench.policies.config import OptimConfig, cpu_profile
+from bcbench.policies.denoiser import DenoiserNetConfig, DenoiserPolicy
 from bcbench.policies.samplers import DEFAULT_SPACING, check_spacing, make_train_scheduler, plan, run_plan
-from bcbench.policies.unet1d import ConditionalUnet1D
 
 STUDY_PARAMETERS = {"encoder": 11_176_512, "unet": 79_947_266, "total": 91_123_778}
-
-
-def _paper_optim() -> OptimConfig:
-    return OptimConfig(optimizer="adamw", lr=1e-4, betas=(0.95, 0.999), weight_decay=1e-6, schedule="cosine",
-                       warmup_steps=500, epochs=100, batch_size=64, ema=True, ema_power=0.75, ema_max_decay=0.9999)
-
-
-@dataclass
-class DenoiserNetConfig(PolicyConfig):
-    """Diffusion Policy's networks (ResNet-18/GroupNorm encoder, 1-D conditional U-Net): shared with `flow`."""
-
-    encoder_width: int = 64
-    """ResNet-18 base width (64 = the real ResNet-18, 512 features per frame)"""
-    encoder_layers: tuple[int, ...] = RESNET18_LAYERS
-    """basic blocks per ResNet stage"""
-    down_dims: tuple[int, ...] = (256, 512, 1024)
-    """U-Net channel widths per level"""
-    kernel_size: int = 5
-    """U-Net convolution kernel"""
-    n_groups: int = 8
-    """GroupNorm groups in the U-Net"""
-    step_embed_dim: int = 256
-    """sinusoidal diffusion-step (or flow-time) embedding size"""
-    crop: int | None = 84
-    """random crop size at training (centre crop at evaluation); None = no crop"""
-    optim: OptimConfig = field(default_factory=_paper_optim)
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        self.encoder_layers, self.down_dims = tuple(self.encoder_layers), tuple(self.down_dims)
-        if self.crop is not None and not 8 <= self.crop <= self.image_size:
-            raise BCBenchError(f"crop must be in 8..{self.image_size} or None, got {self.crop}")
-        if any(d % self.n_groups for d in self.down_dims) or self.encoder_width % 16:
-            raise BCBenchError("down_dims must divide by n_groups and encoder_width by 16 (GroupNorm C/16)")
-        if self.pred_horizon % 2 ** (len(self.down_dims) - 1):
-            raise BCBenchError(f"pred_horizon must divide by {2 ** (len(self.down_dims) - 1)} for the U-Net")
 
 
 @dataclass
@@ -104,17 +65,13 @@ class DiffusionConfig(DenoiserNetConfig):
                                      ema_power=0.75, ema_max_decay=0.9999, checkpoint_every=200))
 
 
-class DiffusionPolicy(BCPolicy):
+class DiffusionPolicy(DenoiserPolicy):
     name = "diffusion"
     samplers = ("ddpm", "ddim")
 
     def __init__(self, config: DiffusionConfig) -> None:
-        super().__init__()
-        self.config = c = config
-        self.encoder = FrameFeatures("group", c.encoder_width, c.encoder_layers, c.crop)
-        feat = self.encoder.out_dim
-        self.unet = ConditionalUnet1D(2, c.obs_horizon * (feat + 2), c.step_embed_dim, c.down_dims, c.kernel_size,
-                                      c.n_groups)
+        super().__init__(config)
+        c = config
         self.noise_scheduler = make_train_scheduler(c.num_train_timesteps, c.beta_schedule)
         ac = self.noise_scheduler.alphas_cumprod.float()
         self.register_buffer("sqrt_ac", ac.sqrt(), persistent=False)  # for add_noise, on the model's device
@@ -127,11 +84,6 @@ class DiffusionPolicy(BCPolicy):
         self.plan = plan(self.noise_scheduler, kind, steps, spacing)
         self.sampler_kind, self.sampler_steps, self.sampler_spacing = kind, steps, spacing
 
-    def encode(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:
-        """image (B, To, 3, H, W), agent_pos (B, To, 2) -> global condition (B, To * (F + 2))."""
-        feats = self.encoder(image)  # (B, To, F)
-        return torch.cat([feats, agent_pos], dim=-1).flatten(1)
-
     def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         cond = self.encode(batch["image"], batch["agent_pos"])
         action = batch["action"]  # (B, Tp, 2) in [-1, 1]
@@ -141,12 +93,6 @@ class DiffusionPolicy(BCPolicy):
         return F.mse_loss(self.unet(noisy, t, cond), noise)
 
     def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
-        cond = self.encode(obs["image"], obs["agent_pos"])  # once per call
-        shape = (cond.shape[0], self.config.pred_horizon, 2)
-        x = self.randn(obs, shape, cond.device)  # (B, Tp, 2) pure noise
-        return run_plan(self.plan, lambda x, t: self.unet(x, torch.tensor(t, device=x.device), cond), x,
-                        lambda shape: self.randn(obs, shape, cond.device))
-
-    def parameter_breakdown(self) -> dict[str, int]:
-        return {"encoder": count_parameters(self.encoder), "unet": count_parameters(self.unet),
-                "total": self.num_parameters()}
+        model, b, device = self.denoiser(obs, self.plan.timesteps)  # the observation is encoded once
+        x = self.randn(obs, (b, self.config.pred_horizon, 2), device)  # (B, Tp, 2) pure noise
+        return run_plan(self.plan, model, x, lambda shape: self.randn(obs, shape, device))

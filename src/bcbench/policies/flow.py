@@ -22,10 +22,8 @@ import torch
 import torch.nn.functional as F
 
 from bcbench.errors import BCBenchError
-from bcbench.policies.diffusion import DenoiserNetConfig, DiffusionConfig
-from bcbench.policies.encoders import FrameFeatures, count_parameters
-from bcbench.policies.learned import BCPolicy
-from bcbench.policies.unet1d import ConditionalUnet1D
+from bcbench.policies.denoiser import DenoiserNetConfig, DenoiserPolicy
+from bcbench.policies.diffusion import DiffusionConfig
 
 INTEGRATORS = ("euler", "midpoint")
 TIME_SCALE = 100.0  # t in [0, 1] enters the U-Net's sinusoidal step embedding as 100 t
@@ -61,17 +59,13 @@ class FlowConfig(DenoiserNetConfig):
         return cls(**shared)
 
 
-class FlowPolicy(BCPolicy):
+class FlowPolicy(DenoiserPolicy):
     name = "flow"
     samplers = INTEGRATORS
 
     def __init__(self, config: FlowConfig) -> None:
-        super().__init__()
-        self.config = c = config
-        self.encoder = FrameFeatures("group", c.encoder_width, c.encoder_layers, c.crop)
-        self.unet = ConditionalUnet1D(2, c.obs_horizon * (self.encoder.out_dim + 2), c.step_embed_dim, c.down_dims,
-                                      c.kernel_size, c.n_groups)
-        self.set_sampler(c.sampler, c.sampling_steps)
+        super().__init__(config)
+        self.set_sampler(config.sampler, config.sampling_steps)
 
     def set_sampler(self, kind: str, steps: int, spacing: str | None = None) -> None:
         """Choose the integrator and its number of steps for inference (no retraining)."""
@@ -80,10 +74,6 @@ class FlowPolicy(BCPolicy):
         if spacing is not None:
             raise BCBenchError("--spacing applies to diffusion's timesteps, not to flow's uniform integration steps")
         self.sampler_kind, self.sampler_steps, self.sampler_spacing = kind, steps, None
-
-    def encode(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:
-        """image (B, To, 3, H, W), agent_pos (B, To, 2) -> global condition (B, To * (F + 2))."""
-        return torch.cat([self.encoder(image), agent_pos], dim=-1).flatten(1)
 
     def velocity(self, x: torch.Tensor, t: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
         """v(x_t, t): x (B, Tp, 2), t (B,) in [0, 1]."""
@@ -100,18 +90,14 @@ class FlowPolicy(BCPolicy):
         return F.mse_loss(self.velocity(x_t, t, cond), action - noise)
 
     def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
-        cond = self.encode(obs["image"], obs["agent_pos"])  # once per call
-        b, k = cond.shape[0], self.sampler_steps
-        x = self.randn(obs, (b, self.config.pred_horizon, 2), cond.device)  # (B, Tp, 2) noise at t = 0
-        h = 1.0 / k
-        for i in range(k):
-            t = torch.full((b,), i * h, device=cond.device)
-            v = self.velocity(x, t, cond)
+        h = 1.0 / self.sampler_steps
+        starts = [i * h for i in range(self.sampler_steps)]
+        times = starts + ([t + 0.5 * h for t in starts] if self.sampler_kind == "midpoint" else [])
+        model, b, device = self.denoiser(obs, [t * TIME_SCALE for t in times])  # the observation encoded once
+        x = self.randn(obs, (b, self.config.pred_horizon, 2), device)  # (B, Tp, 2) noise at t = 0
+        for t in starts:
+            v = model(x, t * TIME_SCALE)
             if self.sampler_kind == "midpoint":
-                v = self.velocity(x + 0.5 * h * v, t + 0.5 * h, cond)
+                v = model(x + 0.5 * h * v, (t + 0.5 * h) * TIME_SCALE)
             x = x + h * v
         return x.clamp(-1.0, 1.0)
-
-    def parameter_breakdown(self) -> dict[str, int]:
-        return {"encoder": count_parameters(self.encoder), "unet": count_parameters(self.unet),
-                "total": self.num_parameters()}

@@ -8,6 +8,11 @@ Stochastic policies (Diffusion Policy, BeT) draw their noise with `BCPolicy.rand
 the observation carries `generators` (one torch.Generator per row, made by the controller from the
 policy seed and the episode seed), row i's noise comes from its own stream only, so an episode's actions
 do not depend on which other episodes share its batch; without them one policy-wide stream is used.
+Inference graphs: predict_action_chunk runs its networks through `call_graph(name, *tensors)`, where each
+name is a method of pure tensors in, tensors out (`graph_inputs` gives examples). That is the one place a
+deployment backend plugs in: `bcbench.backends` compiles those methods (OpenVINO) and sets `deployed`;
+the Python around them (sampling loops, noise, bins) stays the policy's own, so every backend runs the
+same inference path.
 A `PolicyRunner` wraps one with its normalizer: raw observations in (uint8 frames, agent position in
 pixels), a chunk of target positions in pixels out. The chunk starts at the oldest observation (the
 training windows' alignment), so the runner's `chunk_start` is obs_horizon - 1.
@@ -34,6 +39,27 @@ class BCPolicy(nn.Module):
     config: Any
     generator: torch.Generator | None = None  # inference noise of stochastic policies (DP, BeT)
     noise_seed: int | None = None
+
+    graphs: tuple[str, ...] = ()  # the methods predict_action_chunk calls through call_graph
+    deployed: dict[str, Any] | None = None  # name -> compiled graph (set by bcbench.backends), None = torch
+    deployment: dict[str, Any] | None = None  # what runs the graphs (backend, precision), for the records
+
+    def call_graph(self, name: str, *args: torch.Tensor) -> Any:
+        """Run one inference graph: the deployed (compiled) one if a backend is set, else this module's method."""
+        if self.deployed is not None:
+            return self.deployed[name](*args)
+        return getattr(self, name)(*args)
+
+    def example_obs(self, batch: int = 1) -> dict[str, torch.Tensor]:
+        """A random normalised observation window: image (B, To, 3, H, W) in [0, 1], agent_pos (B, To, 2)."""
+        c = self.config
+        return {"image": torch.rand(batch, c.obs_horizon, 3, c.image_size, c.image_size),
+                "agent_pos": torch.rand(batch, c.obs_horizon, 2) * 2 - 1}
+
+    def graph_inputs(self, batch: int = 1) -> dict[str, tuple[torch.Tensor, ...]]:
+        """Example inputs of every graph (for export); default: graphs of the observation window."""
+        obs = self.example_obs(batch)
+        return {name: (obs["image"], obs["agent_pos"]) for name in self.graphs}
 
     def reset_noise(self, seed: int | None = None) -> None:
         """Restart the inference noise stream at `seed` (None: the config's seed) on its next use."""

@@ -38,7 +38,7 @@ class TimeMerge(nn.Module):
 class ChunkRegressor(BCPolicy):
     """A network that maps the observation window straight to the normalised chunk; MSE loss."""
 
-    traceable_forward = True  # predict_action_chunk is forward(image, agent_pos): fast.py may freeze it
+    graphs = ("forward",)  # the whole policy is one graph: (image, agent_pos) -> chunk
 
     def forward(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:  # -> (B, Tp, 2)
         raise NotImplementedError
@@ -48,7 +48,7 @@ class ChunkRegressor(BCPolicy):
         return F.mse_loss(pred, batch["action"])
 
     def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
-        return self(obs["image"], obs["agent_pos"])
+        return self.call_graph("forward", obs["image"], obs["agent_pos"])
 
     def head(self, features: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:
         """Flattened features (+ agent positions) -> two fully connected layers -> (B, Tp, 2)."""

@@ -1,0 +1,210 @@
+"""Where a policy's inference graphs run: torch (reference or fast form) or OpenVINO (fp32, bf16, int8).
+
+A policy's `predict_action_chunk` calls its networks through `call_graph` (bcbench.policies.learned); a
+mode only flips the policy's switches, so every mode runs the same Python around the same graphs:
+
+    reference      torch fp32; Diffusion Policy and flow call the plain U-Net at every step (the paper's way)
+    fast           torch fp32; FiLM split (bcbench.policies.denoiser): exact, the default of eval and study
+    openvino-fp32  the graphs exported to OpenVINO and compiled for this CPU at f32: exact
+    openvino-bf16  the same with a bf16 inference-precision hint: approximate (weights and math in bf16)
+    openvino-int8  NNCF post-training quantisation (calibrated on training-split observations), the ops it
+                   leaves in float at bf16 where the CPU computes bf16 natively: approximate
+
+Exports of a trained run are cached under RUN_DIR/export/ (openvino-float-KEY serves fp32 and bf16, which
+differ only in the compile hint; openvino-int8-KEY), keyed by the checkpoint, the weights (EMA or raw), the
+precision and the OpenVINO version, and rebuilt when any of them changes; files are written atomically.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+import warnings
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from bcbench.errors import BCBenchError
+
+MODES = ("reference", "fast", "openvino-fp32", "openvino-bf16", "openvino-int8")
+EXACT_MODES = ("reference", "fast", "openvino-fp32")
+PRECISIONS = ("fp32", "bf16", "int8")
+GRAPH_FORMAT = 1  # bump when a policy's graphs change meaning: cached exports are then rebuilt
+
+
+def mode_name(backend: str, precision: str = "fp32", reference: bool = False) -> str:
+    """The mode of --backend/--precision(/--reference) arguments, checked."""
+    if backend == "torch":
+        if precision != "fp32":
+            raise BCBenchError(f"--precision {precision} needs --backend openvino (torch runs fp32)")
+        return "reference" if reference else "fast"
+    if backend != "openvino" or precision not in PRECISIONS:
+        raise BCBenchError(f"unknown backend/precision '{backend}/{precision}' (torch, or openvino with "
+                           f"{', '.join(PRECISIONS)})")
+    if reference:
+        raise BCBenchError("--reference is the torch reference form; it does not combine with --backend openvino")
+    return f"openvino-{precision}"
+
+
+def _openvino() -> Any:
+    try:
+        import openvino
+    except Exception as e:
+        raise BCBenchError(f"the OpenVINO backend needs the openvino package (make install): {e}") from e
+    return openvino
+
+
+class _Graph(torch.nn.Module):
+    """One inference method of a policy as a module, for tracing."""
+
+    def __init__(self, policy: torch.nn.Module, name: str) -> None:
+        super().__init__()
+        self.policy, self.graph = policy, name
+
+    def forward(self, *args: torch.Tensor) -> Any:
+        return getattr(self.policy, self.graph)(*args)
+
+
+class _Compiled:
+    """A compiled OpenVINO graph called like the torch method: torch tensors in, torch tensors out."""
+
+    def __init__(self, compiled: Any) -> None:
+        self.request = compiled.create_infer_request()
+        self.n_out = len(compiled.outputs)
+
+    def __call__(self, *args: torch.Tensor) -> Any:
+        self.request.infer([np.ascontiguousarray(a.detach().cpu().numpy()) for a in args])
+        # copy: the request reuses its output buffers on the next call
+        outs = [torch.from_numpy(self.request.get_output_tensor(i).data.copy()) for i in range(self.n_out)]
+        return outs[0] if self.n_out == 1 else tuple(outs)
+
+
+def record_graph_inputs(model: Any, observations: Iterable[dict[str, torch.Tensor]]) -> dict[str, list[tuple]]:
+    """Run the torch policy on `observations`, keeping every graph call's inputs (int8 calibration data)."""
+    calls: dict[str, list[tuple]] = {name: [] for name in model.graphs}
+
+    def recorder(name: str) -> Callable[..., Any]:
+        def call(*args: torch.Tensor) -> Any:
+            calls[name].append(tuple(a.detach().cpu().numpy() for a in args))
+            return getattr(model, name)(*args)
+        return call
+
+    model.deployed = {name: recorder(name) for name in model.graphs}
+    try:
+        with torch.inference_mode():
+            for obs in observations:
+                model.predict_action_chunk(obs)
+    finally:
+        model.deployed = None
+    return calls
+
+
+def export_openvino(model: Any, precision: str, out_dir: Path,
+                    calibration: list[dict[str, torch.Tensor]] | None = None) -> Path:
+    """Write the policy's graphs as OpenVINO IR (`NAME.xml` + `.bin` each) into `out_dir`, atomically."""
+    ov = _openvino()
+    if precision == "int8" and not calibration:
+        raise BCBenchError("int8 export needs calibration observations")
+    model = model.eval()
+    recorded = record_graph_inputs(model, calibration) if precision == "int8" else {}
+    tmp = out_dir.with_name(out_dir.name + ".tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    for name, example in model.graph_inputs(1).items():
+        shapes = [ov.PartialShape([-1, *a.shape[1:]]) for a in example]  # any batch, fixed the rest
+        with torch.no_grad(), warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # tracer notes on shape checks that are constant for a policy
+            ov_model = ov.convert_model(_Graph(model, name).eval(), example_input=example, input=shapes)
+        if precision == "int8":
+            import nncf
+
+            data = recorded[name][:300]
+            kind = nncf.ModelType.TRANSFORMER if model.name in ("bet", "bct") else None
+            ov_model = nncf.quantize(ov_model, nncf.Dataset(data), subset_size=len(data), model_type=kind)
+        ov.save_model(ov_model, str(tmp / f"{name}.xml"), compress_to_fp16=False)
+    shutil.rmtree(out_dir, ignore_errors=True)
+    tmp.rename(out_dir)
+    return out_dir
+
+
+def export_key(model: Any, precision: str, checkpoint: Path | None, weights: str) -> str:
+    """What an export depends on: the checkpoint file, the weights used, the precision, OpenVINO's version."""
+    stat = ""
+    if checkpoint is not None:
+        f = checkpoint / ("ema.safetensors" if weights == "ema" else "model.safetensors")
+        st = f.stat()
+        stat = f"{f}:{st.st_size}:{st.st_mtime_ns}"
+    graphs = "int8" if precision == "int8" else "float"  # fp32 and bf16 compile the same float graphs
+    blob = json.dumps([model.name, stat, weights, graphs, _openvino().__version__, GRAPH_FORMAT])
+    return hashlib.sha256(blob.encode()).hexdigest()[:12]
+
+
+def deploy_openvino(model: Any, precision: str, export_dir: Path | None = None,
+                    calibration: list[dict[str, torch.Tensor]] | None = None, threads: int | None = None) -> None:
+    """Compile the policy's graphs with OpenVINO and plug them in (`model.deployed`); exports cached in export_dir."""
+    import tempfile
+
+    ov = _openvino()
+    if export_dir is None or not all((export_dir / f"{n}.xml").exists() for n in model.graphs):
+        if export_dir is None:
+            export_dir = Path(tempfile.mkdtemp(prefix="bcbench-ov-")) / "graphs"
+        export_openvino(model, precision, export_dir, calibration)
+    core = ov.Core()
+    bf16 = "bf16" in " ".join(core.get_property("CPU", "OPTIMIZATION_CAPABILITIES")).lower()
+    hint = "bf16" if precision == "bf16" or (precision == "int8" and bf16) else "f32"
+    config = {"PERFORMANCE_HINT": "LATENCY", "NUM_STREAMS": 1, "INFERENCE_PRECISION_HINT": hint,
+              "INFERENCE_NUM_THREADS": threads or torch.get_num_threads()}
+    model.deployed = {name: _Compiled(core.compile_model(core.read_model(str(export_dir / f"{name}.xml")), "CPU",
+                                                          config)) for name in model.graphs}
+    model.deployment = {"backend": "openvino", "precision": precision, "inference_precision": hint,
+                        "openvino": ov.__version__, "export": str(export_dir)}
+
+
+def set_mode(model: Any, mode: str, export_dir: Path | None = None,
+             calibration: list[dict[str, torch.Tensor]] | None = None) -> None:
+    """Put a policy in one of MODES (flips its switches; OpenVINO modes compile its graphs)."""
+    if mode not in MODES:
+        raise BCBenchError(f"unknown inference mode '{mode}' ({', '.join(MODES)})")
+    if hasattr(model, "split_film"):
+        model.split_film = mode != "reference"
+    model.deployed, model.deployment = None, {"backend": "torch", "precision": "fp32"}
+    if mode.startswith("openvino-"):
+        deploy_openvino(model, mode.removeprefix("openvino-"), export_dir, calibration)
+
+
+def dataset_observations(model: Any, split: str, n: int, seed: int = 0) -> list[dict[str, torch.Tensor]]:
+    """`n` single observation windows (normalised, batch 1) of the dataset's training or validation split."""
+    from bcbench.data.paths import resolve_dataset
+    from bcbench.data.replay_buffer import load_replay_buffer
+    from bcbench.data.sequence import make_datasets
+
+    c = model.config
+    train, val, _ = make_datasets(load_replay_buffer(resolve_dataset(None)), obs_horizon=c.obs_horizon,
+                                  pred_horizon=c.pred_horizon, action_horizon=c.action_horizon)
+    ds = train if split == "train" else val
+    ids = np.random.default_rng(seed).choice(len(ds), size=min(n, len(ds)), replace=False)
+    batches = (ds.get_batch(np.array([i])) for i in ids)
+    return [{"image": torch.from_numpy(b["image"]), "agent_pos": torch.from_numpy(b["agent_pos"])} for b in batches]
+
+
+def apply_mode(runner: Any, mode: str) -> None:
+    """Put a PolicyRunner's policy in `mode`; a trained run's exports are cached under RUN_DIR/export/."""
+    model = runner.model
+    export_dir, calibration = None, None
+    if mode.startswith("openvino-"):
+        precision = mode.removeprefix("openvino-")
+        run_dir, ckpt = runner.extra.get("run_dir"), runner.extra.get("checkpoint")
+        if run_dir and ckpt:
+            ckpt_dir = Path(run_dir) / "checkpoints" / ckpt
+            key = export_key(model, precision, ckpt_dir, runner.extra.get("weights", "ema"))
+            export_dir = Path(run_dir) / "export" / f"openvino-{'int8' if precision == 'int8' else 'float'}-{key}"
+        if precision == "int8" and not (export_dir and export_dir.exists()):
+            # calibration on training-split observations; an untrained model (timing only) gets random ones
+            calibration = dataset_observations(model, "train", 64) if run_dir else [model.example_obs() for _ in
+                                                                                                  range(8)]
+    set_mode(model, mode, export_dir, calibration)
+    runner.extra.update({"mode": mode, "deployment": model.deployment})

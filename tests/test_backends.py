@@ -1,0 +1,149 @@
+"""Inference modes: exact forms equal the torch reference; approximate ones are close and say what they are;
+exports are cached by checkpoint and rebuilt when it changes; a missing runtime is one clear error."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from bcbench.backends import EXACT_MODES, MODES, apply_mode, mode_name, record_graph_inputs, set_mode
+from bcbench.errors import BCBenchError
+from bcbench.policies import learned_policies, make_policy
+from tests.tiny import tiny_overrides
+
+EXE = os.path.join(os.path.dirname(sys.executable), "bcbench")
+TOL = 1e-4  # normalised action units ([-1, 1]): 0.0256 px of the 512 px world
+
+
+def _model(name: str, **extra):
+    torch.manual_seed(0)
+    return make_policy(name, "quick", **tiny_overrides(name), **extra).eval()
+
+
+def _chunks(model, modes, obs, **kw) -> dict[str, np.ndarray]:
+    out = {}
+    for mode in modes:
+        set_mode(model, mode, **kw)
+        model.reset_noise(123)  # the same noise in every mode
+        with torch.inference_mode():
+            out[mode] = model.predict_action_chunk(obs).numpy()
+    return out
+
+
+@pytest.fixture(scope="module")
+def exports(tmp_path_factory):
+    """One float export per policy, reused by every test and sampler (the graphs do not depend on the sampler)."""
+    root = tmp_path_factory.mktemp("exports")
+    return {name: root / name for name in learned_policies()}
+
+
+@pytest.mark.parametrize("name", learned_policies())
+def test_exact_modes_equal_the_reference(name, exports):
+    model = _model(name)
+    obs = model.example_obs(2)
+    c = _chunks(model, EXACT_MODES, obs, export_dir=exports[name])
+    assert c["reference"].shape == (2, 16, 2)
+    for mode in EXACT_MODES[1:]:
+        np.testing.assert_allclose(c[mode], c["reference"], atol=TOL, rtol=0, err_msg=mode)
+
+
+@pytest.mark.parametrize("name, sampler, steps", [("diffusion", "ddpm", 100), ("diffusion", "ddim", 10),
+                                                  ("diffusion", "ddim", 1), ("flow", "euler", 1),
+                                                  ("flow", "euler", 10), ("flow", "midpoint", 2)])
+def test_exact_modes_equal_the_reference_for_every_sampler(name, sampler, steps, exports):
+    model = _model(name)  # the same seed: the same weights as the export the first test wrote
+    model.set_sampler(sampler, steps)
+    c = _chunks(model, EXACT_MODES, model.example_obs(1), export_dir=exports[name])
+    for mode in EXACT_MODES[1:]:
+        np.testing.assert_allclose(c[mode], c["reference"], atol=TOL, rtol=0, err_msg=f"{mode} {sampler}{steps}")
+
+
+def test_one_step_samplers_make_one_denoiser_call():
+    model = _model("flow")
+    model.set_sampler("euler", 1)
+    calls = record_graph_inputs(model, [model.example_obs(1)])
+    assert len(calls["obs_film"]) == 1 and len(calls["denoise"]) == 1
+    assert model.deployed is None  # the recorder is removed again
+
+
+@pytest.mark.parametrize("name, modes", [("diffusion", ["openvino-bf16"]), ("cnn_mlp", ["openvino-int8"])])
+def test_approximate_modes_are_close_and_labelled(name, modes, exports):
+    model = _model(name)
+    calib = [model.example_obs(1) for _ in range(4)]
+    obs = model.example_obs(2)
+    c = {**_chunks(model, ["fast"], obs), **_chunks(model, modes, obs, calibration=calib,
+                                                     export_dir=None if modes == ["openvino-int8"] else exports[name])}
+    for mode in modes:
+        assert np.isfinite(c[mode]).all()
+        assert np.abs(c[mode] - c["fast"]).max() < 0.5, mode  # approximate, not unrelated
+    assert model.deployment["backend"] == "openvino" and model.deployment["precision"] == modes[0][9:]
+    set_mode(model, "fast")
+    assert model.deployed is None and model.deployment == {"backend": "torch", "precision": "fp32"}
+
+
+def test_mode_names_and_errors(monkeypatch):
+    from bcbench.cli_parser import MODES as PARSER_MODES
+
+    assert PARSER_MODES == MODES  # the parser lists them without importing torch
+    assert mode_name("torch") == "fast" and mode_name("torch", reference=True) == "reference"
+    assert mode_name("openvino", "int8") == "openvino-int8"
+    with pytest.raises(BCBenchError, match="needs --backend openvino"):
+        mode_name("torch", "bf16")
+    with pytest.raises(BCBenchError, match="unknown inference mode"):
+        set_mode(_model("cnn_mlp"), "tensorrt")
+    monkeypatch.setitem(sys.modules, "openvino", None)  # as if it were not installed
+    with pytest.raises(BCBenchError, match="needs the openvino package"):
+        set_mode(_model("cnn_mlp"), "openvino-fp32")
+
+
+def _train_tiny(run, data) -> None:
+    sets = [a for k, v in tiny_overrides("cnn_mlp", max_steps=2).items() for a in ("--set", f"{k}={json.dumps(v)}")]
+    proc = subprocess.run([EXE, "train", "--policy", "cnn_mlp", "--out", str(run), "--data", str(data), "--quiet",
+                           *sets], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_export_cache_and_the_eval_cli(synthetic_zarr, tmp_path, monkeypatch):
+    from bcbench.checkpoint import latest_checkpoint, load_runner
+
+    run = tmp_path / "run"
+    _train_tiny(run, synthetic_zarr)
+    monkeypatch.setenv("BCBENCH_DATA", str(synthetic_zarr))  # int8 calibrates on the run's training split
+    proc = subprocess.run([EXE, "export", str(run), "--precision", "int8"], capture_output=True, text=True,
+                          timeout=300, env={**os.environ})
+    assert proc.returncode == 0, proc.stderr
+    exports = list((run / "export").iterdir())
+    assert [p.name.split("-")[1] for p in exports] == ["int8"] and (exports[0] / "forward.xml").exists()
+
+    proc = subprocess.run([EXE, "eval", "--checkpoint", str(run), "--backend", "openvino", "--episodes", "2",
+                           "--max-steps", "16", "--out", str(tmp_path / "ev"), "--quiet"], capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads((tmp_path / "ev" / "eval.json").read_text())
+    assert result["policy"]["mode"] == "openvino-fp32" and result["policy"]["deployment"]["backend"] == "openvino"
+    assert sorted(p.name.split("-")[1] for p in (run / "export").iterdir()) == ["float", "int8"]
+    assert not list((run / "export").glob("*.tmp"))  # written atomically
+
+    runner = load_runner(run)
+    apply_mode(runner, "openvino-bf16")  # the float export serves bf16 too: nothing exported again
+    first = runner.model.deployment["export"]
+    assert first.split("/")[-1].startswith("openvino-float-")
+    stamp = (run / "export" / first.split("/")[-1] / "forward.bin").stat().st_mtime_ns
+    apply_mode(runner, "openvino-fp32")
+    assert runner.model.deployment["export"] == first
+    assert (run / "export" / first.split("/")[-1] / "forward.bin").stat().st_mtime_ns == stamp
+    weights = latest_checkpoint(run) / ("ema.safetensors" if runner.extra["weights"] == "ema" else "model.safetensors")
+    os.utime(weights, ns=(stamp + 10**9, stamp + 10**9))  # the checkpoint changed: a new export
+    runner = load_runner(run)
+    apply_mode(runner, "openvino-fp32")
+    assert runner.model.deployment["export"] != first
+
+    proc = subprocess.run([EXE, "eval", "--checkpoint", str(run), "--precision", "bf16"], capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 2 and proc.stderr.strip().count("\n") == 0 and "--backend openvino" in proc.stderr
