@@ -67,6 +67,7 @@ class DenoiserPolicy(BCPolicy):
     """Encoder + conditional U-Net, and the denoiser the samplers of `diffusion` and `flow` call."""
 
     graphs = ("obs_film", "denoise")
+    loop_graphs = ("denoise",)
     split_film = True  # False: the reference form (plain U-Net per step); see the module docstring
 
     def __init__(self, config: DenoiserNetConfig) -> None:
@@ -105,9 +106,23 @@ class DenoiserPolicy(BCPolicy):
             return (lambda x, t: self.unet(x, torch.tensor(t, device=x.device), cond)), cond.shape[0], cond.device
         film = self.call_graph("obs_film", image, pos)  # (B, F), once per call
         visited = list(dict.fromkeys(times))
-        steps = self.unet.step_film(torch.tensor(visited, device=film.device))  # (K, F), the whole batch
+        steps = self._step_films(visited, film.device)  # (K, F), for the whole batch
         row = {t: i for i, t in enumerate(visited)}
         return (lambda x, t: self.call_graph("denoise", x, film + steps[row[t]])), film.shape[0], film.device
+
+    def _step_films(self, visited: list[float], device: torch.device) -> torch.Tensor:
+        """unet.step_film of the visited times, kept while the weights it reads are unchanged.
+
+        The key holds each weight's storage and in-place version counter, so an optimiser step, a loaded
+        checkpoint or a move to another device recomputes it (5 ms a call for the paper U-Net otherwise).
+        """
+        params = [*self.unet.diffusion_step_encoder.parameters(),
+                  *(b.cond_encoder[1].weight for b in self.unet.residual_blocks())]
+        key = (tuple(visited), device, tuple((p.data_ptr(), p._version) for p in params))
+        if getattr(self, "_step_cache", (None,))[0] != key:
+            with torch.no_grad():
+                self._step_cache = (key, self.unet.step_film(torch.tensor(visited, device=device)))
+        return self._step_cache[1]
 
     def parameter_breakdown(self) -> dict[str, int]:
         return {"encoder": count_parameters(self.encoder), "unet": count_parameters(self.unet),

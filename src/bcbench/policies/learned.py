@@ -41,6 +41,7 @@ class BCPolicy(nn.Module):
     noise_seed: int | None = None
 
     graphs: tuple[str, ...] = ()  # the methods predict_action_chunk calls through call_graph
+    loop_graphs: tuple[str, ...] = ()  # those it calls many times per call (a sampler's loop)
     deployed: dict[str, Any] | None = None  # name -> compiled graph (set by bcbench.backends), None = torch
     deployment: dict[str, Any] | None = None  # what runs the graphs (backend, precision), for the records
 

@@ -56,7 +56,9 @@ class Conv1d(nn.Conv1d):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:  # (B, Cin, T) -> (B, Cout, T')
         fan_in = self.in_channels * self.kernel_size[0]
-        if x.device.type != "cpu" or fan_in < self.MATMUL_MIN_FAN_IN[torch.is_autocast_enabled("cpu")]:
+        # exported graphs (OpenVINO) keep the convolution: the runtime picks its own kernels for it
+        if x.device.type != "cpu" or fan_in < self.MATMUL_MIN_FAN_IN[torch.is_autocast_enabled("cpu")] or \
+                torch.jit.is_tracing():
             return super().forward(x)
         out = im2col(x, self.kernel_size[0], self.stride[0], self.padding[0]) @ self.weight.reshape(
             self.out_channels, -1).t()  # (B, T', Cout)
