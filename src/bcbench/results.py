@@ -61,6 +61,13 @@ class Row:
         m = self.latency.get(mode) or self.latency.get("reference")
         return None if m is None else float(m[stat])
 
+    def deployed_ms(self) -> tuple[str, float] | None:
+        """The fastest exact non-reference mode in this row's latency record and its median, if timed."""
+        from bcbench.backends import EXACT_MODES
+
+        timed = [(m, float(self.latency[m]["median_ms"])) for m in EXACT_MODES[1:] if m in self.latency]
+        return min(timed, key=lambda t: t[1]) if timed else None
+
     @property
     def reference_key(self) -> str:
         return f"{self.policy}:{self.variant}" if self.sampler else self.policy
