@@ -15,7 +15,7 @@ install: $(STAMP)
 $(STAMP): pyproject.toml
 	@test -x $(PY) || python3 -m venv $(VENV)
 	$(PIP) install $(PIPOPTS) torch==2.13.0
-	$(PIP) install $(PIPOPTS) -e '.[dev]'
+	$(PIP) install $(PIPOPTS) -e '.[dev,ray]'
 	@touch $(STAMP)
 
 lint: install

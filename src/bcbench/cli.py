@@ -202,7 +202,7 @@ def cmd_study(args: argparse.Namespace) -> int:
     if args.check:
         print(f"{args.spec}: valid; {len(spec.runs)} run(s): " + ", ".join(f"{r.label} s{r.seed}" for r in spec.runs))
         return 0
-    summary = run_study(spec, args.out, args.data, progress=not args.quiet)
+    summary = run_study(spec, args.out, args.data, progress=not args.quiet, ray=args.ray, ray_cpus=args.ray_cpus)
     print(f"study {spec.name}: {summary['executed']} stage(s) run, {summary['skipped']} already done, "
           f"{summary['seconds'] / 60:.1f} min; results in {summary['out']}")
     if not args.no_report:

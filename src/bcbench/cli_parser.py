@@ -130,6 +130,10 @@ def _add_study_commands(sub: Any) -> None:
     p.add_argument("--out", metavar="DIR", help="results directory (default runs/studies/NAME)")
     p.add_argument("--check", action="store_true", help="validate the spec and exit")
     p.add_argument("--no-report", action="store_true", help="do not write the report at the end")
+    p.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
+                   help="run the stages as Ray tasks: alone = a local Ray instance; 'auto' or HOST:PORT = a "
+                        "cluster (its nodes need resources bcbench_node=1000; see bcbench.study_ray)")
+    p.add_argument("--ray-cpus", type=_positive_int, metavar="N", help="CPUs of the local Ray instance (default all)")
     _add_data_flag(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func="cmd_study")

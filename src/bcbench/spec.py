@@ -12,6 +12,7 @@
     backend = "torch"       # evaluation: torch (default, its fast exact form) or openvino
     precision = "fp32"      # with openvino: fp32 (exact), bf16 or int8 (approximate)
     latency_modes = ["reference", "fast"]   # timed forms (bcbench.backends.MODES)
+    resources = { train = { cpus = 2, gpus = 1 }, eval = { cpus = 1 } }   # per stage kind, under --ray
 
     [[run]]
     policy = "diffusion"
@@ -40,7 +41,7 @@ from bcbench.errors import BCBenchError
 
 STUDY_KEYS = {"name", "episodes", "seed_start", "val_fraction", "latency", "threads", "max_steps", "rate_hz",
               "latency_min_calls", "latency_min_seconds", "device", "margin", "curve_episodes", "realtime",
-              "backend", "precision", "latency_modes"}
+              "backend", "precision", "latency_modes", "resources"}
 RUN_KEYS = {"policy", "config", "steps", "max_minutes", "seeds", "set", "eval", "label", "eval_every", "realtime"}
 REALTIME_KEYS = {"delays", "execution", "profiles", "measured"}
 
@@ -110,6 +111,7 @@ class StudySpec:
     backend: str = "torch"  # evaluation backend (bcbench.backends)
     precision: str = "fp32"
     latency_modes: tuple[str, ...] = ("reference", "fast")  # forms the latency stage times
+    resources: dict[str, dict[str, float]] = field(default_factory=dict)  # stage kind -> cpus, gpus (Ray)
     runs: list[RunSpec] = field(default_factory=list)
     source: str = ""
 
@@ -251,6 +253,7 @@ def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
     if "realtime" in study:
         spec.realtime = _realtime_table(study["realtime"])
     _backend_keys(study, spec)
+    spec.resources = _resources(study.get("resources", {}))
     for i, run in enumerate(runs):
         spec.runs.extend(_run_specs(i, run))
     return spec
@@ -268,6 +271,18 @@ def _backend_keys(study: dict[str, Any], spec: StudySpec) -> None:
     if not isinstance(modes, list) or not modes or any(m not in MODES for m in modes):
         raise BCBenchError(f"study.latency_modes must be a non-empty list of {', '.join(MODES)}, got {modes!r}")
     spec.latency_modes = tuple(modes)
+
+
+def _resources(table: Any) -> dict[str, dict[str, float]]:
+    kinds = ("train", "eval", "latency", "realtime")
+    if not isinstance(table, dict) or set(table) - set(kinds):
+        raise BCBenchError(f"study.resources must be a table with keys among {', '.join(kinds)}, got {table!r}")
+    for kind, res in table.items():
+        ok = isinstance(res, dict) and not set(res) - {"cpus", "gpus"} and all(
+            isinstance(v, int | float) and not isinstance(v, bool) and v >= 0 for v in res.values())
+        if not ok or res.get("cpus", 1) <= 0:
+            raise BCBenchError(f"study.resources.{kind} must be {{ cpus = N > 0, gpus = N >= 0 }}, got {res!r}")
+    return {k: dict(v) for k, v in table.items()}
 
 
 def load_spec(path: str | Path) -> StudySpec:

@@ -13,6 +13,7 @@ it stopped; a training stage resumes from its newest checkpoint. Every file is w
 
 from __future__ import annotations
 
+import platform
 import time
 from collections.abc import Callable
 from dataclasses import asdict
@@ -94,16 +95,15 @@ class StudyRunner:
         apply_mode(runner, mode_name(self.spec.backend, self.spec.precision))
         return runner
 
-    def _eval(self, run: RunSpec, variant: Variant) -> None:
+    def _eval(self, run: RunSpec, variant: Variant) -> dict[str, Any]:
         from bcbench.evaluate import EvalConfig, evaluate
 
         cfg = EvalConfig(episodes=self.spec.episodes, seed_start=self.spec.seed_start, max_steps=self.spec.max_steps)
         extra = {"study": {"name": self.spec.name, "label": run.label, "variant": asdict(variant),
                            "run_dir": str(self.run_dir(run))}}
-        result = evaluate(self._policy(run, variant), cfg, None, progress=self.progress, extra=extra)
-        write_json(self.result_file("eval", run, variant), result)
+        return evaluate(self._policy(run, variant), cfg, None, progress=self.progress, extra=extra)
 
-    def _latency(self, run: RunSpec, variant: Variant) -> None:
+    def _latency(self, run: RunSpec, variant: Variant) -> dict[str, Any]:
         from bcbench.latency import TimingConfig, latency_record
 
         if self.spec.threads:
@@ -114,9 +114,10 @@ class StudyRunner:
                               max_calls=max(200, self.spec.latency_min_calls))
         rec = latency_record(self._policy(run, variant), timing, self.spec.rate_hz, self.spec.latency_modes)
         rec["study"] = {"name": self.spec.name, "label": run.label, "variant": asdict(variant)}
-        write_json(self.result_file("latency", run, variant), rec)
+        rec["node"] = platform.node()  # which machine timed it (a cluster has several)
+        return rec
 
-    def _realtime(self, run: RunSpec, variant: Variant) -> None:
+    def _realtime(self, run: RunSpec, variant: Variant) -> dict[str, Any]:
         from bcbench.realtime import sweep
         from bcbench.utils.system import provenance
 
@@ -124,11 +125,31 @@ class StudyRunner:
         settings = sweep(self._policy(run, variant), rt["delays"], rt["executions"], self.spec.episodes,
                          rt["profiles"], rt["measured"], self.progress, self.spec.max_steps, self.spec.seed_start,
                          skip_missing_profiles=True)  # e.g. the study gives no A100 time for BeT
-        write_json(self.result_file("realtime", run, variant), {
-            "type": "realtime", "study": {"name": self.spec.name, "label": run.label, "variant": asdict(variant)},
-            "margin": self.spec.margin, "settings": settings, **provenance(self.device)})
+        return {"type": "realtime", "study": {"name": self.spec.name, "label": run.label, "variant": asdict(variant)},
+                "margin": self.spec.margin, "settings": settings, "node": platform.node(), **provenance(self.device)}
 
     # ------------------------------------------------------------------ driver
+    def compute(self, stage: str, run: RunSpec, variant: Variant | None) -> dict[str, Any] | None:
+        """Run one stage and return its result record (training writes its own run folder: None)."""
+        if stage == "train":
+            self._train(run)
+            return None
+        return getattr(self, f"_{stage}")(run, variant)
+
+    def finish(self, stage: str, run: RunSpec, variant: Variant | None, record: dict[str, Any] | None,
+               seconds: float, node: str | None = None) -> None:
+        """Write a finished stage's result file and its index line (atomically, in this process)."""
+        if record is not None:
+            write_json(self.result_file(stage, run, variant), record)
+        append_jsonl(self.out / "index.jsonl", {
+            "stage": stage, "run": self.run_dir(run).name, "policy": run.policy, "config": run.config,
+            "seed": run.seed, "variant": variant.key if variant else None,
+            "file": str(self.result_file(stage, run, variant).relative_to(self.out)),
+            "seconds": round(seconds, 2), "finished": datetime.now(UTC).isoformat(timespec="seconds"),
+            **({"node": node} if node else {}),
+        })
+        self.executed += 1
+
     def run(self) -> dict[str, Any]:
         from tqdm import tqdm
 
@@ -147,15 +168,7 @@ class StudyRunner:
                 bar.update()
                 continue
             started = time.monotonic()
-            getattr(self, f"_{stage}")(run, variant) if stage != "train" else self._train(run)
-            append_jsonl(self.out / "index.jsonl", {
-                "stage": stage, "run": self.run_dir(run).name, "policy": run.policy, "config": run.config,
-                "seed": run.seed, "variant": variant.key if variant else None,
-                "file": str(self.result_file(stage, run, variant).relative_to(self.out)),
-                "seconds": round(time.monotonic() - started, 2),
-                "finished": datetime.now(UTC).isoformat(timespec="seconds"),
-            })
-            self.executed += 1
+            self.finish(stage, run, variant, self.compute(stage, run, variant), time.monotonic() - started)
             bar.update()
             if self.on_stage is not None:
                 self.on_stage(self)
@@ -165,8 +178,15 @@ class StudyRunner:
 
 
 def run_study(spec: StudySpec, out: str | Path | None = None, data: str | None = None,
-              progress: bool = True, on_stage: Callable[[StudyRunner], None] | None = None) -> dict[str, Any]:
-    out = Path(out) if out else Path("runs") / "studies" / spec.name
+              progress: bool = True, on_stage: Callable[[StudyRunner], None] | None = None,
+              ray: str | None = None, ray_cpus: int | None = None) -> dict[str, Any]:
+    """Run a study in this process, or with ray = 'local' (a local Ray instance) / 'auto' / an address."""
+    out = (Path(out) if out else Path("runs") / "studies" / spec.name).resolve()  # Ray workers: any cwd
     if not spec.runs:
         raise BCBenchError("the study has no runs")
-    return StudyRunner(spec, out, data, progress, on_stage).run()
+    runner = StudyRunner(spec, out, str(Path(data).resolve()) if data else None, progress, on_stage)
+    if ray is None:
+        return runner.run()
+    from bcbench.study_ray import run_on_ray
+
+    return run_on_ray(runner, None if ray == "local" else ray, ray_cpus)
