@@ -144,6 +144,13 @@ def test_export_cache_and_the_eval_cli(synthetic_zarr, tmp_path, monkeypatch):
     apply_mode(runner, "openvino-fp32")
     assert runner.model.deployment["export"] != first
 
+    proc = subprocess.run([EXE, "realtime", "--checkpoint", str(run), "--backend", "openvino", "--delays", "1",
+                           "--execution", "async", "--measured", "--episodes", "2", "--max-steps", "16", "--out",
+                           str(tmp_path / "rt"), "--quiet"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    measured = json.loads(next((tmp_path / "rt").glob("*measured*.json")).read_text())
+    assert measured["policy"]["mode"] == "openvino-fp32"  # timed and run in the deployed backend
+
     proc = subprocess.run([EXE, "eval", "--checkpoint", str(run), "--precision", "bf16"], capture_output=True,
                           text=True, timeout=300)
     assert proc.returncode == 2 and proc.stderr.strip().count("\n") == 0 and "--backend openvino" in proc.stderr

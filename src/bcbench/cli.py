@@ -229,7 +229,7 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     from bcbench.stats import fmt_estimate
     from bcbench.utils.io import write_json
 
-    args.backend, args.precision, args.reference, args.no_ema = "torch", "fp32", False, False
+    args.no_ema = False
     policy, default_out = _load_eval_policy(args)
     out = Path(args.out) if args.out else default_out.with_name(default_out.name.replace("eval-", "realtime-"))
     results = sweep(policy, args.delays, args.execution, args.episodes, args.profile or [], args.measured,

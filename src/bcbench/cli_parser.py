@@ -176,7 +176,9 @@ def _add_study_commands(sub: Any) -> None:
     p.add_argument("--execution", nargs="+", default=["blocking", "async"], choices=["blocking", "async"],
                    help="execution modes under latency (default both; sync is always run as d = 0)")
     p.add_argument("--profile", action="append", help="also under this hardware profile (e.g. a100)")
-    p.add_argument("--measured", action="store_true", help="also at this policy's measured latency on this machine")
+    p.add_argument("--measured", action="store_true",
+                   help="also at this policy's measured latency on this machine (in the --backend it runs on)")
+    _add_backend_args(p)
     p.add_argument("--episodes", type=_positive_int, default=100, help="episodes per setting (default 100)")
     p.add_argument("--max-steps", type=_positive_int, default=300, help="steps per episode at most (default 300)")
     p.add_argument("--out", metavar="DIR", help="output folder")
