@@ -141,7 +141,10 @@ def _parse_sets(items: list[str] | None) -> dict[str, Any]:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from bcbench.train import TrainOptions, new_run, train
+    from bcbench.train import TrainOptions, new_run, pick_device, train
+    from bcbench.training import Distributed
+
+    dist = Distributed(pick_device(args.device))  # under torchrun: join the process group (else world 1)
 
     opts = TrainOptions(max_minutes=args.max_minutes, threads=args.threads, device=args.device, data=args.data,
                         eval_every=args.eval_every, eval_episodes=args.eval_episodes, progress=not args.quiet)
@@ -164,7 +167,16 @@ def cmd_train(args: argparse.Namespace) -> int:
             overrides["seed"] = args.seed
         if args.precision:
             overrides["optim.precision"] = args.precision
-        run_dir = new_run(args.policy, args.config, overrides, args.out, opts)
+        if dist.world > 1 and not args.out:
+            raise BCBenchError("under torchrun, name the run folder with --out (every process trains into it)")
+        run_dir = new_run(args.policy, args.config, overrides, args.out, opts) if dist.main else Path(args.out)
+    if dist.world > 1:
+        import torch
+
+        torch.distributed.barrier()  # the run folder exists before any process reads it
+    if not dist.main:
+        train(run_dir, opts)
+        return 0
     print(f"run directory: {run_dir}")
     s = train(run_dir, opts)
     sps = f"{s['samples_per_s']:.0f}" if s["samples_per_s"] else "-"

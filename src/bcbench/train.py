@@ -31,12 +31,14 @@ from bcbench.policies import REGISTRY
 from bcbench.policies.config import OptimConfig, config_to_dict, with_overrides
 from bcbench.training import (
     EMA,
+    Distributed,
     StopFlag,
     autocast,
     channels_last_convs,
     has_batchnorm,
     precise_batchnorm,
     resolve_precision,
+    step_noise,
 )
 from bcbench.utils.io import append_jsonl, read_json, read_jsonl, write_json, write_jsonl
 from bcbench.utils.system import provenance
@@ -119,6 +121,8 @@ class Run:
     steps_per_epoch: int
     total_steps: int
     state: TrainState
+    dist: Distributed  # this process in a torchrun group (world 1 without torchrun)
+    loss_fn: torch.nn.Module  # the model's loss as a module: DDP-wrapped with several processes
 
     @property
     def o(self) -> OptimConfig:
@@ -200,12 +204,14 @@ def prepare(run_dir: str | Path, opts: TrainOptions) -> Run:
     channels_last_convs(model.to(device))
     ema = EMA(model, o.ema_power, o.ema_max_decay) if o.ema else None
     optimizer = make_optimizer(model, o)
+    dist = Distributed(device)
     r = Run(run_dir, meta, model, ema, optimizer, make_scheduler(optimizer, o, total_steps), train_ds, val_ds, norm,
-            device, resolve_precision(o.precision, device), steps_per_epoch, int(total_steps), TrainState())
+            device, resolve_precision(o.precision, device), steps_per_epoch, int(total_steps), TrainState(), dist,
+            dist.wrap(model))
     norm_file = run_dir / "normalizer.json"
     if norm_file.exists():  # resumed: keep the statistics the weights were trained with
         r.normalizer = MinMaxNormalizer.from_dict(read_json(norm_file))
-    else:
+    elif dist.main:
         write_json(norm_file, norm.to_dict())
     train_ds.normalizer = val_ds.normalizer = r.normalizer
     _resume(r)
@@ -316,7 +322,7 @@ def train(run_dir: str | Path, opts: TrainOptions, on_step: Callable[[Run], None
     if opts.max_minutes:
         deadline = t_start + 60 * opts.max_minutes
     bar = tqdm(total=r.total_steps, initial=state.step, desc=f"train {r.model.name}", unit="step",
-               disable=not opts.progress)
+               disable=not opts.progress or not r.dist.main)
     reason, run_loss, run_n, samples_session, time_session, perm_epoch, perm = "finished", 0.0, 0, 0, 0.0, -1, None
     r.model.train()
     with StopFlag() as stop:
@@ -325,11 +331,13 @@ def train(run_dir: str | Path, opts: TrainOptions, on_step: Callable[[Run], None
             epoch, i = divmod(state.step, r.steps_per_epoch)
             if epoch != perm_epoch:  # the epoch's order, drawn once per epoch from (seed, epoch)
                 perm, perm_epoch = np.random.default_rng([seed, epoch]).permutation(len(r.train_ds)), epoch
-            batch = _batch(r, perm[i * bs:(i + 1) * bs], r.train_ds)
+            rows = r.dist.shard(bs)  # this process's rows of the global batch (all of them without torchrun)
+            batch = step_noise(_batch(r, perm[i * bs:(i + 1) * bs][rows], r.train_ds), seed, state.step, rows, bs)
             with autocast(r.device, r.precision):
-                loss = r.model.compute_loss(batch)
-            if not torch.isfinite(loss):  # the one host sync per step: a NaN must never reach a checkpoint
-                raise BCBenchError(f"loss is {loss.item()} at step {state.step + 1} (epoch {epoch}): training "
+                loss = r.loss_fn(batch)
+            loss_all = r.dist.mean(loss)  # the global batch's loss
+            if not torch.isfinite(loss_all):  # the one host sync per step: a NaN must never reach a checkpoint
+                raise BCBenchError(f"loss is {loss_all.item()} at step {state.step + 1} (epoch {epoch}): training "
                                    f"stopped; last good checkpoint: {latest_checkpoint(r.run_dir) or 'none'}")
             r.optimizer.zero_grad(set_to_none=True)
             loss.backward()
@@ -346,18 +354,18 @@ def train(run_dir: str | Path, opts: TrainOptions, on_step: Callable[[Run], None
             state.train_time_s += dt
             time_session += dt
             samples_session += bs
-            last_loss = loss.item()
+            last_loss = loss_all.item()
             run_loss, run_n = run_loss + last_loss, run_n + 1
             lr = r.optimizer.param_groups[0]["lr"]
-            if state.step % o.log_every == 0:
+            if state.step % o.log_every == 0 and r.dist.main:
                 _log(r, {"train_loss": run_loss / run_n, "lr": lr, "samples_per_s": samples_session / time_session},
                      t_start)
                 run_loss, run_n = 0.0, 0
             if state.step % r.steps_per_epoch == 0:
                 _end_epoch(r, t_start)
-            if opts.eval_every and state.step % opts.eval_every == 0 and state.step != r.total_steps:
+            if opts.eval_every and state.step % opts.eval_every == 0 and state.step != r.total_steps and r.dist.main:
                 _log(r, rollout_score(r, opts.eval_episodes), t_start)
-            if state.step % o.checkpoint_every == 0 and state.step != r.total_steps:
+            if state.step % o.checkpoint_every == 0 and state.step != r.total_steps and r.dist.main:
                 save(r)
             bar.update()
             bar.set_postfix(loss=f"{last_loss:.4f}", lr=f"{lr:.2e}", sps=f"{samples_session / time_session:.0f}",
@@ -370,10 +378,14 @@ def train(run_dir: str | Path, opts: TrainOptions, on_step: Callable[[Run], None
     bar.close()
     if state.step % r.steps_per_epoch != 0:  # stopped mid-epoch: recalibrate BN and validate now
         _end_epoch(r, t_start, epoch_end=False)
-    if opts.eval_every and reason == "finished":
+    if opts.eval_every and reason == "finished" and r.dist.main:
         _log(r, rollout_score(r, opts.eval_episodes), t_start)  # the learning curve's last point
-    save(r)  # the final checkpoint, with precise BatchNorm statistics
-    return _summary(r, reason, samples_session, time_session)
+    summary = {}
+    if r.dist.main:
+        save(r)  # the final checkpoint, with precise BatchNorm statistics
+        summary = _summary(r, reason, samples_session, time_session)
+    r.dist.close()
+    return summary
 
 
 def _end_epoch(r: Run, t_start: float, epoch_end: bool = True) -> None:
@@ -382,7 +394,8 @@ def _end_epoch(r: Run, t_start: float, epoch_end: bool = True) -> None:
     r.state.best_val = min(r.state.best_val, r.state.last_val)
     if epoch_end and r.o.schedule == "plateau":
         r.scheduler.step(r.state.last_val)
-    _log(r, {"val_loss": r.state.last_val}, t_start)
+    if r.dist.main:
+        _log(r, {"val_loss": r.state.last_val}, t_start)
 
 
 def _summary(r: Run, reason: str, samples: int, seconds: float) -> dict[str, Any]:

@@ -122,3 +122,74 @@ class StopFlag:
     def __exit__(self, *exc: Any) -> None:
         if self._old is not None:
             signal.signal(signal.SIGINT, self._old)
+
+
+# ---------------------------------------------------------------------- several processes (torchrun)
+class Distributed:
+    """The process group of a `torchrun --nproc-per-node N bcbench train ...` run (world 1 without torchrun).
+
+    Every process holds the whole model and draws the same epoch permutation; each takes its contiguous
+    shard of every global batch, and DistributedDataParallel averages the gradients, so the update equals
+    the single-process one on the whole batch (BatchNorm statistics aside: they are per shard, as with any
+    DDP). Rank 0 alone writes checkpoints, metrics and rollouts. NCCL on GPUs, gloo on CPUs.
+    """
+
+    def __init__(self, device: torch.device) -> None:
+        import os
+
+        self.world = int(os.environ.get("WORLD_SIZE", "1"))
+        self.rank = int(os.environ.get("RANK", "0"))
+        if self.world > 1 and device.type == "cuda":
+            torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", "0")))  # one GPU per process
+        if self.world > 1 and not torch.distributed.is_initialized():
+            torch.distributed.init_process_group("nccl" if device.type == "cuda" else "gloo")
+
+    @property
+    def main(self) -> bool:
+        return self.rank == 0
+
+    def shard(self, batch_size: int) -> slice:
+        """This process's rows of a global batch."""
+        if batch_size % self.world:
+            raise BCBenchError(f"batch size {batch_size} does not split over {self.world} processes")
+        n = batch_size // self.world
+        return slice(self.rank * n, (self.rank + 1) * n)
+
+    def wrap(self, model: torch.nn.Module) -> torch.nn.Module:
+        """The module whose forward is the loss: DDP-wrapped when there are several processes."""
+        loss = _Loss(model)
+        return torch.nn.parallel.DistributedDataParallel(loss) if self.world > 1 else loss
+
+    def mean(self, value: torch.Tensor) -> torch.Tensor:
+        """The mean over processes (the global batch's loss from the shards' losses)."""
+        if self.world == 1:
+            return value
+        value = value.detach().clone()
+        torch.distributed.all_reduce(value)
+        return value / self.world
+
+    def close(self) -> None:
+        if self.world > 1 and torch.distributed.is_initialized():
+            torch.distributed.barrier()
+            torch.distributed.destroy_process_group()
+
+
+class _Loss(torch.nn.Module):
+    """policy.compute_loss as a forward(), so DistributedDataParallel sees the forward it synchronises."""
+
+    def __init__(self, policy: torch.nn.Module) -> None:
+        super().__init__()
+        self.policy = policy
+
+    def forward(self, batch: dict[str, Any]) -> torch.Tensor:
+        return self.policy.compute_loss(batch)
+
+
+def step_noise(batch: dict[str, Any], seed: int, step: int, rows: slice, global_batch: int) -> dict[str, Any]:
+    """Attach the step's training randomness to a (shard of a) batch: a generator seeded from (seed, step)
+    and this shard's rows of the global batch, so a policy's per-sample draws (BCPolicy.train_randn) do not
+    depend on how the batch is split over processes, and a resumed run draws what it would have drawn."""
+    device = next(iter(v for v in batch.values() if isinstance(v, torch.Tensor))).device
+    gen = torch.Generator(device=device).manual_seed(int(seed) * 1_000_003 + int(step))
+    return {**batch, "rng": gen, "rows": torch.arange(global_batch, device=device)[rows],
+            "global_batch": global_batch}

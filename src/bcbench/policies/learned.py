@@ -90,6 +90,25 @@ class BCPolicy(nn.Module):
             raise ValueError(f"{len(gens)} noise generators for a batch of {shape[0]}")
         return torch.cat([torch.randn((1, *shape[1:]), generator=g, device=g.device) for g in gens]).to(device)
 
+    @staticmethod
+    def train_randn(batch: dict[str, Any], shape: tuple[int, ...]) -> torch.Tensor:
+        """Training noise of shape (B, *shape) for this batch's rows: drawn for the global batch from the step's
+        generator when the loop attached one (bcbench.training.step_noise), so sharding does not change it."""
+        ref = batch["action"]
+        if batch.get("rng") is None:
+            return torch.randn((ref.shape[0], *shape), device=ref.device, dtype=ref.dtype)
+        g = batch["rng"]
+        return torch.randn((batch["global_batch"], *shape), generator=g, device=g.device)[batch["rows"]].to(ref)
+
+    @staticmethod
+    def train_rand(batch: dict[str, Any]) -> torch.Tensor:
+        """Uniform [0, 1) numbers, one per row, drawn like train_randn."""
+        ref = batch["action"]
+        if batch.get("rng") is None:
+            return torch.rand(ref.shape[0], device=ref.device)
+        g = batch["rng"]
+        return torch.rand(batch["global_batch"], generator=g, device=g.device)[batch["rows"]].to(ref.device)
+
     def optim_groups(self, weight_decay: float) -> list[dict[str, Any]]:
         """Parameter groups for the optimiser (one group, decay on everything, unless a policy says otherwise)."""
         return [{"params": list(self.parameters()), "weight_decay": weight_decay}]
