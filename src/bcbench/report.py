@@ -151,6 +151,15 @@ def provenance_notes(rows: list[Row]) -> list[str]:
         notes.append("Warning: these results mix several commits; numbers from different code may not be comparable.")
     if any(c.endswith("-dirty") for c in commits):
         notes.append("Warning: some results come from a working tree with uncommitted changes.")
+    nodes: dict[str, list[str]] = {}
+    for r in rows:
+        if r.timed_on:
+            nodes.setdefault(r.timed_on, []).append(f"{r.label} {r.variant}")
+    if len(nodes) > 1:  # a cluster: latencies from different machines are not comparable as they stand
+        notes.append("Timed on several machines: " + "; ".join(f"{n}: {', '.join(v)}" for n, v in sorted(nodes.items()))
+                     + ".")
+    elif nodes:
+        notes.append(f"Timed on {next(iter(nodes))}.")
     return notes
 
 

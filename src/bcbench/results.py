@@ -48,6 +48,7 @@ class Row:
     latency: dict[str, Any] = field(default_factory=dict)  # mode -> stats
     train: dict[str, Any] = field(default_factory=dict)
     hardware: dict[str, Any] = field(default_factory=dict)
+    timed_on: str | None = None  # the machine that timed it (recorded by studies; matters on a cluster)
     source: str = ""
 
     def est(self, name: str) -> dict[str, Any]:
@@ -97,7 +98,9 @@ def _row_from_eval(path: Path, margin: float = 0.05) -> Row:
               git_commit=ev.get("git_commit"), hardware=ev.get("hardware", {}), source=str(path))
     lat = run_dir / f"latency-{vkey}.json"
     if lat.exists():
-        row.latency = read_json(lat)["modes"]
+        record = read_json(lat)
+        row.latency = record["modes"]
+        row.timed_on = record.get("node")
     if (run_dir / "train_summary.json").exists():
         row.train = read_json(run_dir / "train_summary.json")
         row.curve = load_curve(run_dir)
