@@ -74,9 +74,9 @@ def test_ray_study_writes_what_the_in_process_runner_writes(synthetic_zarr, tmp_
     timing = [i for i in index if i["stage"] == "latency"]
     assert len(timing) == 2 and all(i["node"] for i in timing)
     assert json.loads((tmp_path / "ray" / timing[0]["file"]).read_text())["node"]
-    from bcbench.report import write_report
-
     from pathlib import Path
+
+    from bcbench.report import write_report
 
     report = Path(write_report(tmp_path / "ray")["markdown"]).read_text()
     assert "Timed on " in report  # the report says which machine timed what
