@@ -195,19 +195,28 @@ def set_mode(model: Any, mode: str, export_dir: Path | None = None,
         deploy_openvino(model, mode.removeprefix("openvino-"), export_dir, calibration)
 
 
-def dataset_observations(model: Any, split: str, n: int, seed: int = 0) -> list[dict[str, torch.Tensor]]:
-    """`n` single observation windows (normalised, batch 1) of the dataset's training or validation split."""
+def dataset_observations(model: Any, split: str, n: int, seed: int = 0,
+                         data_split: dict[str, Any] | None = None) -> list[dict[str, torch.Tensor]]:
+    """`n` single observation windows (normalised, batch 1) of the training or validation split; `data_split`
+    is a run's (run.json: val_fraction, split_seed), so its training episodes are the ones it trained on."""
     from bcbench.data.paths import resolve_dataset
     from bcbench.data.replay_buffer import load_replay_buffer
     from bcbench.data.sequence import make_datasets
 
     c = model.config
-    train, val, _ = make_datasets(load_replay_buffer(resolve_dataset(None)), obs_horizon=c.obs_horizon,
-                                  pred_horizon=c.pred_horizon, action_horizon=c.action_horizon)
+    d = data_split or {}
+    train, val, _ = make_datasets(load_replay_buffer(resolve_dataset(None)), d.get("val_fraction", 0.1),
+                                  d.get("split_seed", 0), c.obs_horizon, c.pred_horizon, c.action_horizon)
     ds = train if split == "train" else val
     ids = np.random.default_rng(seed).choice(len(ds), size=min(n, len(ds)), replace=False)
     batches = (ds.get_batch(np.array([i])) for i in ids)
     return [{"image": torch.from_numpy(b["image"]), "agent_pos": torch.from_numpy(b["agent_pos"])} for b in batches]
+
+
+def run_data_split(run_dir: str | Path) -> dict[str, Any]:
+    from bcbench.checkpoint import read_run
+
+    return read_run(Path(run_dir)).get("data_split", {})
 
 
 def apply_mode(runner: Any, mode: str) -> None:
@@ -223,7 +232,7 @@ def apply_mode(runner: Any, mode: str) -> None:
             export_dir = Path(run_dir) / "export" / f"openvino-{'int8' if precision == 'int8' else 'float'}-{key}"
         if precision == "int8" and not (export_dir and export_dir.exists()):
             # calibration on training-split observations; an untrained model (timing only) gets random ones
-            calibration = dataset_observations(model, "train", 64) if run_dir else [model.example_obs() for _ in
-                                                                                                  range(8)]
+            calibration = (dataset_observations(model, "train", 64, data_split=run_data_split(run_dir)) if run_dir
+                           else [model.example_obs() for _ in range(8)])
     set_mode(model, mode, export_dir, calibration)
     runner.extra.update({"mode": mode, "deployment": model.deployment})

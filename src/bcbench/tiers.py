@@ -50,7 +50,7 @@ def paired(base: dict[str, Any], other: dict[str, Any]) -> dict[str, Any]:
 
 def run_tiers(run_dir: str | Path, modes: list[str], episodes: int, sampler: str | None, steps: int | None,
               out: Path, seed_start: int = 100_000, observations: int = 100, progress: bool = True) -> dict[str, Any]:
-    from bcbench.backends import apply_mode, dataset_observations
+    from bcbench.backends import apply_mode, dataset_observations, run_data_split
     from bcbench.checkpoint import configure_runner, load_runner
     from bcbench.evaluate import EvalConfig, evaluate
     from bcbench.utils.io import atomic_path, write_json
@@ -58,7 +58,7 @@ def run_tiers(run_dir: str | Path, modes: list[str], episodes: int, sampler: str
 
     runner = load_runner(run_dir)
     configure_runner(runner, sampler, steps)
-    obs = dataset_observations(runner.model, "val", observations, seed=1)
+    obs = dataset_observations(runner.model, "val", observations, seed=1, data_split=run_data_split(run_dir))
     deviation = chunk_deviation(runner, modes, obs)
     evals = {}
     for mode in [BASE, *modes]:

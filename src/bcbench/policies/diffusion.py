@@ -87,9 +87,9 @@ class DiffusionPolicy(DenoiserPolicy):
     def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         cond = self.encode(batch["image"], batch["agent_pos"])
         action = batch["action"]  # (B, Tp, 2) in [-1, 1]
-        noise = self.train_randn(batch, tuple(action.shape[1:]))
+        noise = self.train_draw(batch, torch.randn, tuple(action.shape[1:]))
         n_t = self.config.num_train_timesteps
-        t = (self.train_rand(batch) * n_t).long().clamp_(max=n_t - 1)  # uniform over 0..n_t-1
+        t = (self.train_draw(batch, torch.rand) * n_t).long().clamp_(max=n_t - 1)  # uniform over 0..n_t-1
         noisy = self.sqrt_ac[t, None, None] * action + self.sqrt_1m_ac[t, None, None] * noise
         return F.mse_loss(self.unet(noisy, t, cond), noise)
 

@@ -82,10 +82,10 @@ class FlowPolicy(DenoiserPolicy):
     def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         cond = self.encode(batch["image"], batch["agent_pos"])
         action = batch["action"]  # (B, Tp, 2) in [-1, 1]
-        noise = self.train_randn(batch, tuple(action.shape[1:]))
+        noise = self.train_draw(batch, torch.randn, tuple(action.shape[1:]))
         a, b = self.config.time_beta
         if b == 1.0:  # Beta(a, 1) by inversion, u^(1/a): drawn per row like the noise
-            s = self.train_rand(batch) ** (1.0 / a)
+            s = self.train_draw(batch, torch.rand) ** (1.0 / a)
         else:
             s = torch.distributions.Beta(torch.tensor(a), torch.tensor(b)).sample((action.shape[0],)).to(action.device)
         t = (1.0 - s).clamp(0.0, 1.0)  # (B,)

@@ -91,23 +91,15 @@ class BCPolicy(nn.Module):
         return torch.cat([torch.randn((1, *shape[1:]), generator=g, device=g.device) for g in gens]).to(device)
 
     @staticmethod
-    def train_randn(batch: dict[str, Any], shape: tuple[int, ...]) -> torch.Tensor:
-        """Training noise of shape (B, *shape) for this batch's rows: drawn for the global batch from the step's
-        generator when the loop attached one (bcbench.training.step_noise), so sharding does not change it."""
+    def train_draw(batch: dict[str, Any], draw: Any, shape: tuple[int, ...] = ()) -> torch.Tensor:
+        """`draw` (torch.randn or torch.rand) of shape (B, *shape) for this batch's rows: drawn for the global
+        batch from the step's generator when the loop attached one (bcbench.training.step_noise), so how the
+        batch is sharded over processes does not change it; else from the global stream."""
         ref = batch["action"]
         if batch.get("rng") is None:
-            return torch.randn((ref.shape[0], *shape), device=ref.device, dtype=ref.dtype)
+            return draw((ref.shape[0], *shape), device=ref.device)
         g = batch["rng"]
-        return torch.randn((batch["global_batch"], *shape), generator=g, device=g.device)[batch["rows"]].to(ref)
-
-    @staticmethod
-    def train_rand(batch: dict[str, Any]) -> torch.Tensor:
-        """Uniform [0, 1) numbers, one per row, drawn like train_randn."""
-        ref = batch["action"]
-        if batch.get("rng") is None:
-            return torch.rand(ref.shape[0], device=ref.device)
-        g = batch["rng"]
-        return torch.rand(batch["global_batch"], generator=g, device=g.device)[batch["rows"]].to(ref.device)
+        return draw((batch["global_batch"], *shape), generator=g, device=g.device)[batch["rows"]].to(ref.device)
 
     def optim_groups(self, weight_decay: float) -> list[dict[str, Any]]:
         """Parameter groups for the optimiser (one group, decay on everything, unless a policy says otherwise)."""
