@@ -27,8 +27,7 @@ import torch
 
 from bcbench.policies import learned_policies, make_config
 from bcbench.policies.config import config_to_dict
-from bcbench.train import make_optimizer
-from bcbench.training import EMA, autocast, channels_last_convs, resolve_precision
+from bcbench.training import EMA, autocast, channels_last_convs, make_optimizer, resolve_precision
 from bcbench.utils.io import atomic_path, write_json
 from bcbench.utils.system import provenance
 

@@ -97,7 +97,7 @@ def test_quick_presets_are_small(name):
 
 def test_bet_weight_decay_skips_norms_biases_and_embeddings():
     from bcbench.policies.config import OptimConfig
-    from bcbench.train import make_optimizer
+    from bcbench.training import make_optimizer
 
     model = make_policy("bet", "quick", **tiny_overrides("bet"))
     decay, no_decay = make_optimizer(model, OptimConfig(optimizer="adamw", weight_decay=0.1)).param_groups

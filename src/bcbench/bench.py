@@ -89,7 +89,7 @@ def run_latency_benchmark(policies: list[str] | None = None, presets: list[str] 
 
     from bcbench.figures import latency_bars
     from bcbench.policies import REGISTRY
-    from bcbench.train import pick_device
+    from bcbench.training import pick_device
 
     if threads:
         torch.set_num_threads(threads)

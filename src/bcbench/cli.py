@@ -141,8 +141,8 @@ def _parse_sets(items: list[str] | None) -> dict[str, Any]:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from bcbench.train import TrainOptions, new_run, pick_device, train
-    from bcbench.training import Distributed
+    from bcbench.train import TrainOptions, new_run, train
+    from bcbench.training import Distributed, pick_device
 
     dist = Distributed(pick_device(args.device))  # under torchrun: join the process group (else world 1)
 

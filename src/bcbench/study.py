@@ -31,7 +31,7 @@ DONE_TRAINING = ("finished", "stopped by time: schedule not finished")  # the la
 class StudyRunner:
     def __init__(self, spec: StudySpec, out: str | Path, data: str | None = None, progress: bool = True,
                  on_stage: Callable[[StudyRunner], None] | None = None) -> None:
-        from bcbench.train import pick_device
+        from bcbench.training import pick_device
 
         self.spec, self.out, self.data, self.progress = spec, Path(out), data, progress
         self.executed = 0  # stages executed (not skipped) in this process

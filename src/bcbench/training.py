@@ -1,9 +1,11 @@
-"""Pieces of the training loop that hold no loop state: precision, EMA, precise BatchNorm, Ctrl-C handling."""
+"""Pieces of the training loop that hold no loop state: device, optimiser and schedule, precision, EMA, precise
+BatchNorm, Ctrl-C handling, distributed data parallelism."""
 
 from __future__ import annotations
 
 import contextlib
 import copy
+import math
 import signal
 from pathlib import Path
 from typing import Any
@@ -11,8 +13,39 @@ from typing import Any
 import torch
 
 from bcbench.errors import BCBenchError
+from bcbench.policies.config import OptimConfig
 
 PRECISIONS = ("auto", "fp32", "bf16")
+
+
+def make_optimizer(model: torch.nn.Module, o: OptimConfig) -> torch.optim.Optimizer:
+    cls = torch.optim.AdamW if o.optimizer == "adamw" else torch.optim.Adam
+    return cls(model.optim_groups(o.weight_decay), lr=o.lr, betas=o.betas, weight_decay=o.weight_decay)
+
+
+def make_scheduler(opt: torch.optim.Optimizer, o: OptimConfig, total_steps: int) -> Any:
+    if o.schedule == "plateau":
+        return torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=o.plateau_factor, patience=o.plateau_patience)
+
+    def factor(step: int) -> float:
+        if step < o.warmup_steps:
+            return (step + 1) / o.warmup_steps
+        if o.schedule == "constant":
+            return 1.0
+        progress = (step - o.warmup_steps) / max(1, total_steps - o.warmup_steps)
+        return 0.5 * (1.0 + math.cos(math.pi * min(1.0, progress)))
+
+    return torch.optim.lr_scheduler.LambdaLR(opt, factor)
+
+
+def pick_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise BCBenchError("--device cuda asked for, but torch sees no CUDA device")
+    if name not in ("cpu", "cuda"):
+        raise BCBenchError(f"--device must be auto, cpu or cuda, got '{name}'")
+    return torch.device(name)
 
 
 def cpu_has_bf16() -> bool:
