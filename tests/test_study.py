@@ -89,6 +89,14 @@ def test_shipped_specs_are_valid():
         assert spec.episodes == (20 if name == "demo" else 40)
 
 
+@pytest.mark.parametrize("path", sorted((Path(__file__).parents[1] / "studies").glob("*.toml")), ids=lambda p: p.stem)
+def test_every_shipped_spec_builds_its_configs(path):
+    """Every committed spec parses and every run's config (preset plus `set` overrides) is valid."""
+    spec = load_spec(path)
+    keys = [r.key(spec.val_fraction) for r in spec.runs if r.learned]
+    assert spec.runs and len(set(keys)) == len(keys)  # no two runs train the same thing
+
+
 def test_config_hash_changes_with_the_config():
     import tomllib
 
