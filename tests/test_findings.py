@@ -112,3 +112,8 @@ def test_plateau_rule_on_learning_curves():
     rising, why = plateau(curve([0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8]))
     assert not rising and "still rising" in why
     assert not plateau(curve([0.5, 0.5, 0.5]))[0]  # too few points to show anything
+    # rising through the third quarter, flat over the last: converged (the last quarter's mean is 0.077 above
+    # the third quarter's, which is the rise *before* the plateau, not over it)
+    assert plateau(curve([0.1, 0.3, 0.5, 0.55, 0.6, 0.62, 0.74, 0.76, 0.75, 0.76]))[0]
+    # flat, then a late rise inside the last quarter: not converged
+    assert not plateau(curve([0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.58, 0.66]))[0]

@@ -187,7 +187,7 @@ def test_report_from_fixture_files(tmp_path):
     assert "0.29 / 25.0% / 2.5% / 2.20" in md  # the study's CNN-MLP numbers beside ours
     assert "10 denoising steps score as well as 100**: *supported*" in md and "Rule: DDPM-10 minus DDPM-100" in md
     assert "Produced at commit: abc123." in md and "mix several commits" not in md
-    assert "- CNN-MLP: converged: last-quarter mean score 0.290 vs 0.300 before" in md
+    assert "- CNN-MLP: converged: fitted rise over the last quarter -0.010 (2 points, last 0.290)" in md
     assert "- BCT: **not converged**: 0 rollout point(s)" in md
     assert "ResNet-50 > BCT > CNN-MLP in score**: *inconclusive*" in md  # no ResNet-50: not judged at all
     assert (tmp_path / "report" / "learning_curves.png").stat().st_size > 1000
