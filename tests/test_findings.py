@@ -117,3 +117,29 @@ def test_plateau_rule_on_learning_curves():
     assert plateau(curve([0.1, 0.3, 0.5, 0.55, 0.6, 0.62, 0.74, 0.76, 0.75, 0.76]))[0]
     # flat, then a late rise inside the last quarter: not converged
     assert not plateau(curve([0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.58, 0.66]))[0]
+
+
+# ---------------------------------------------------------------- few-step policy against DP (issue 15's goal)
+def fewstep_points(shift: float, flow_ms: float) -> list[Point]:
+    return [pt("dp100", "diffusion", BASE, 1000.0, "ddpm100"), pt("ddim10", "diffusion", BASE, 100.0, "ddim10"),
+            pt("ddim1", "diffusion", BASE * 0, 12.0, "ddim1"),
+            pt("flow1", "flow", BASE + shift, flow_ms, "euler1"), pt("flow10", "flow", BASE + shift, 90.0, "euler10")]
+
+
+@pytest.mark.parametrize("shift, flow_ms, goal", [(0.0, 15.0, "met at K = 1"), (0.0, 30.0, "not met"),
+                                                  (-0.3, 15.0, "not met"), (0.2, 15.0, "met at K = 1")])
+def test_fewstep_goal_needs_both_the_score_and_the_speed(shift, flow_ms, goal):
+    from bcbench.fewstep import fewstep_lines
+
+    lines = fewstep_lines(fewstep_points(shift, flow_ms), 0.05)
+    assert f"**{goal}**" in lines[-2]
+    row1 = next(line for line in lines if line.startswith("| 1 |"))
+    assert f"{flow_ms / 100:.2f} |" in row1 and "| 0.000 [" in row1  # share of DDIM-10; DP DDIM-1 beside it
+    assert ("better" if shift > 0.05 else "worse" if shift < -0.05 else "no worse") in row1
+
+
+def test_fewstep_section_is_absent_without_flow_or_ddpm100():
+    from bcbench.fewstep import fewstep_lines
+
+    pts = fewstep_points(0.0, 15.0)
+    assert fewstep_lines(pts[1:], 0.05) == [] and fewstep_lines(pts[:3], 0.05) == []

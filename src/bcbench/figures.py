@@ -19,6 +19,7 @@ COLOURS = {"cnn_mlp": "tab:blue", "resnet50": "tab:orange", "bet": "tab:purple",
 def _save(fig: Any, path: Path) -> Path:
     from bcbench.utils.io import atomic_path
 
+    fig.tight_layout()  # keeps a right-hand panel's axis label off its neighbour
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=120, bbox_inches="tight")
     plt.close(fig)

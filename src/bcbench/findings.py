@@ -107,7 +107,7 @@ def _combine(verdicts: list[str]) -> str:
     return SUPPORTED if set(verdicts) == {SUPPORTED} else INCONCLUSIVE
 
 
-def _dp(points: list[Point], sampler: str, steps: int, schedule: str = "squaredcos_cap_v2") -> Point | None:
+def dp_point(points: list[Point], sampler: str, steps: int, schedule: str = "squaredcos_cap_v2") -> Point | None:
     """A cosine-beta DP setting, trailing spacing preferred over leading."""
     for variant in (f"{sampler}{steps}", f"{sampler}{steps}-leading"):
         for p in points:
@@ -137,7 +137,7 @@ def finding_1(points: list[Point], m: float) -> Finding:
 def finding_2(points: list[Point], m: float) -> Finding:
     claim = "10 denoising steps score as well as 100"
     rule = f"DDPM-10 minus DDPM-100 (cosine model): supported if the interval lies above -{m}, contradicted if below."
-    p10, p100 = _dp(points, "ddpm", 10), _dp(points, "ddpm", 100)
+    p10, p100 = dp_point(points, "ddpm", 10), dp_point(points, "ddpm", 100)
     if p10 is None or p100 is None:
         return Finding(2, claim, INCONCLUSIVE, "DDPM-10 and DDPM-100 of the cosine model are not both evaluated", rule)
     est, lo, hi, n = paired_interval(p10, [p100])
@@ -150,7 +150,7 @@ def finding_3(points: list[Point], m: float) -> Finding:
     rule = (f"DDIM-k minus DDPM-k for every k evaluated with both (cosine model): supported if every interval lies "
             f"inside (-{m}, +{m}) and every latency ratio in [0.8, 1.25]; contradicted if any interval lies wholly "
             "outside the margin or any ratio outside that range.")
-    pairs = [(a, b) for k in range(1, 101) if (a := _dp(points, "ddim", k)) and (b := _dp(points, "ddpm", k))]
+    pairs = [(a, b) for k in range(1, 101) if (a := dp_point(points, "ddim", k)) and (b := dp_point(points, "ddpm", k))]
     if not pairs:
         return Finding(3, claim, INCONCLUSIVE, "no step count evaluated with both DDIM and DDPM (cosine model)", rule)
     notes, verdicts = [], []

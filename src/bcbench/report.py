@@ -12,6 +12,7 @@ import html
 from pathlib import Path
 from typing import Any
 
+from bcbench.fewstep import fewstep_lines
 from bcbench.figures import figure3, figure4, figure5, learning_curves, realtime_figure
 from bcbench.findings import DEFAULT_MARGIN, judge, points_from_rows
 from bcbench.results import STUDY_REFERENCE, Row, load_realtime, load_rows
@@ -200,7 +201,8 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
           "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
     md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
     md += ["", "## Results", "", _md_table(COLUMNS, table), "", "## Training: converged?", "",
-           *convergence_lines(rows), "", *deviation_lines(rows), *realtime_lines(realtime, margin)]
+           *convergence_lines(rows), "", *deviation_lines(rows), *fewstep_lines(points_from_rows(rows, "fast"), margin),
+           *realtime_lines(realtime, margin)]
     for title, path in figs.items():
         if path:
             md += [f"## {title}", "", f"![{title}]({path.name})", ""]

@@ -1,0 +1,66 @@
+"""Few-step generative policies against Diffusion Policy (issue 15's goal), from a study's result rows.
+
+Flow matching on DP's network is sampled with K Euler steps; its claim is DP-level accuracy at a fraction of
+DP's time. Per K this compares, on the same episode seeds, flow-K with DP DDPM-100 (the study's reference
+setting; paired bootstrap interval of the difference, as the findings do) and puts flow-K's latency beside
+DP DDIM-10's (the fast sampler a DP user deploys) in the same inference mode. The goal holds when some
+K <= 2 is no worse than DDPM-100 by more than the margin (interval above -margin) at <= 1/5 of DDIM-10's
+median latency.
+"""
+
+from __future__ import annotations
+
+from bcbench.findings import Point, dp_point, paired_interval
+
+GOAL_STEPS = 2  # few-step: at most this many network calls
+GOAL_SPEEDUP = 5.0  # at most 1/5 of DP DDIM-10's latency
+
+
+def _verdict(lo: float, hi: float, m: float) -> str:
+    if lo > m:
+        return "better by more than the margin"
+    if lo > 0:
+        return "better"
+    if lo > -m:
+        return "no worse (within the margin)"
+    return "worse" if hi < -m else "inconclusive"
+
+
+def _ms(p: Point | None) -> str:
+    return "-" if p is None or p.latency_ms is None else f"{p.latency_ms:.1f}"
+
+
+def fewstep_lines(points: list[Point], margin: float, mode: str = "fast") -> list[str]:
+    """Markdown lines: a table row per flow K and the goal's verdict; [] when there is no flow or no DP DDPM-100.
+    `points` carry their latency in `mode` (bcbench.findings.points_from_rows)."""
+    flows = sorted((p for p in points if p.policy == "flow" and p.variant.startswith("euler")),
+                   key=lambda p: int(p.variant.removeprefix("euler")))
+    ref, ddim10 = dp_point(points, "ddpm", 100), dp_point(points, "ddim", 10)
+    if not flows or ref is None:
+        return []
+    out = ["## Few-step generative policy against Diffusion Policy", "",
+           f"Flow matching on DP's network with K Euler steps, against DP DDPM-100 on the same seeds (paired "
+           f"interval of the difference; margin {margin}) and DP DDIM-K; latency: median of one call in the "
+           f"'{mode}' mode, as a share of DP DDIM-10's ({_ms(ddim10)} ms). DP DDPM-100: "
+           f"{ref.score:.3f} [{ref.ci[0]:.3f}, {ref.ci[1]:.3f}].", "",
+           "| flow K | flow score | DP DDIM-K | flow-K - DP DDPM-100 (paired) | verdict | flow ms | / DDIM-10 |",
+           "|---|---|---|---|---|---|---|"]
+    met = []
+    for p in flows:
+        k = int(p.variant.removeprefix("euler"))
+        est, lo, hi, n = paired_interval(p, [ref])
+        verdict = _verdict(lo, hi, margin)
+        dk = dp_point(points, "ddim", k)
+        share = (p.latency_ms / ddim10.latency_ms if p.latency_ms is not None and ddim10 is not None
+                 and ddim10.latency_ms else None)
+        out.append(f"| {k} | {p.score:.3f} [{p.ci[0]:.3f}, {p.ci[1]:.3f}] | "
+                   f"{'-' if dk is None else f'{dk.score:.3f} [{dk.ci[0]:.3f}, {dk.ci[1]:.3f}]'} | "
+                   f"{est:+.3f} [{lo:+.3f}, {hi:+.3f}] ({n} seeds) | {verdict} | {_ms(p)} | "
+                   f"{'-' if share is None else f'{share:.2f}'} |")
+        if k <= GOAL_STEPS and lo > -margin and share is not None and share <= 1 / GOAL_SPEEDUP:
+            met.append(k)
+    goal = (f"met at K = {', '.join(map(str, met))}" if met else
+            "not met" if ddim10 is not None and ddim10.latency_ms else "not judged (no latency for DP DDIM-10)")
+    out += ["", f"Goal (K <= {GOAL_STEPS} no worse than DDPM-100 by more than the margin, at <= 1/{GOAL_SPEEDUP:.0f} "
+            f"of DDIM-10's latency): **{goal}**.", ""]
+    return out
