@@ -115,4 +115,38 @@ def test_realtime_sweep_cli(tmp_path, capsys):
     names = sorted(p.name for p in out.glob("realtime-*.json"))
     assert names == ["realtime-async-d2.json", "realtime-blocking-d2.json", "realtime-sync.json"]
     assert (out / "realtime.png").stat().st_size > 1000
-    assert "realtime-async-d2" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "realtime-async-d2" in printed and "Largest safe delay (async): d = " in printed
+    assert not (out / "fig5_realtime.png").exists()  # no measured setting: no real-time Figure 5
+
+
+def _setting(scores: np.ndarray, median_ms: float | None = None) -> dict:
+    summary = {"mean_score": {"value": float(scores.mean()), "ci95": [float(scores.mean()) - 0.05,
+                                                                      float(scores.mean()) + 0.05]}}
+    if median_ms is not None:
+        summary["latency_source"] = {"kind": "measured", "calls": 100, "median_ms": median_ms, "max_ms": 2 * median_ms}
+    return {"episodes": [{"seed": 100_000 + i, "score": float(s)} for i, s in enumerate(scores)], "summary": summary}
+
+
+def test_realtime_report_states_the_largest_safe_delay_and_the_highest_safe_rate(tmp_path):
+    """A policy unhurt up to d = 2 at 50 ms a call is safe up to 2 / 0.05 s = 40 Hz (20 Hz at its slowest
+    call, 100 ms); one that loses 0.3 at d = 1 has no safe real-time rate. Figure 5, real time, is drawn."""
+    from bcbench.figures import figure5_realtime
+    from bcbench.realtime import highest_safe_rate
+    from bcbench.report import realtime_lines
+
+    base = np.random.default_rng(0).uniform(0.3, 0.9, 100)
+    steady = {"realtime-sync": _setting(base), "realtime-async-d1": _setting(base), "realtime-async-d2":
+              _setting(base - 0.01), "realtime-async-d4": _setting(base - 0.3),
+              "realtime-async-measured": _setting(base, median_ms=50.0)}
+    fragile = {"realtime-sync": _setting(base), "realtime-async-d1": _setting(base - 0.3),
+               "realtime-async-measured": _setting(base - 0.3, median_ms=500.0)}
+    lines = "\n".join(realtime_lines({"steady": steady, "fragile": fragile}, 0.05))
+    assert "d = 2; its measured median call 50 ms fits within it at 10 Hz; highest safe control rate 40.0 Hz " \
+           "(20.0 Hz at its slowest call)" in lines
+    assert "d = 0; its measured median call 500 ms does not fit within it at 10 Hz; highest safe control " \
+           "rate 0.0 Hz" in lines
+    assert highest_safe_rate(None, 50.0) is None
+    path = figure5_realtime({"steady": steady, "fragile": fragile}, tmp_path / "fig5_realtime.png")
+    assert path is not None and path.stat().st_size > 1000
+    assert figure5_realtime({"steady": {"realtime-sync": steady["realtime-sync"]}}, tmp_path / "x.png") is None

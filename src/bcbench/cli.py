@@ -236,8 +236,10 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_realtime(args: argparse.Namespace) -> int:
-    from bcbench.figures import realtime_figure
+    from bcbench.figures import figure5_realtime, realtime_figure
+    from bcbench.findings import DEFAULT_MARGIN
     from bcbench.realtime import sweep
+    from bcbench.report import safe_delay_sentence
     from bcbench.stats import fmt_estimate
     from bcbench.utils.io import write_json
 
@@ -253,7 +255,10 @@ def cmd_realtime(args: argparse.Namespace) -> int:
         d = ", ".join(f"d={k}: {v}" for k, v in s["delay_steps"].items()) or "d=0"
         print(f"  {name:<28} {fmt_estimate(s['mean_score'])}   ({d} calls)")
     realtime_figure({policy.name: results}, out / "realtime.png")
-    print(f"  results and plot: {out}")
+    if figure5_realtime({policy.name: results}, out / "fig5_realtime.png") is None:
+        (out / "fig5_realtime.png").unlink(missing_ok=True)  # no measured setting this time: no stale figure
+    print(f"  {safe_delay_sentence(results, DEFAULT_MARGIN)}")
+    print(f"  results and plots: {out}")
     return 0
 
 

@@ -234,3 +234,27 @@ def realtime_figure(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path)
     _score_axis(ax, "delay d (control steps of 0.1 s at 10 Hz; d = 0: sync, the world waits)")
     ax.set_title("Score under real-time execution")
     return _save(fig, path)
+
+
+def figure5_realtime(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path) -> Path | None:
+    """'Figure 5, real time': each policy's async score at its measured latency on this machine against that
+    latency (filled), its sync score at the same latency (hollow, the world waits) joined by the real-time cost."""
+    pts = []
+    for i, (label, results) in enumerate(by_policy.items()):
+        rt, sync = results.get("realtime-async-measured"), results.get("realtime-sync")
+        if rt and sync:
+            ms = rt["summary"]["latency_source"]["median_ms"]
+            pts.append((label, f"C{i % 10}", ms, rt["summary"]["mean_score"], sync["summary"]["mean_score"]))
+    if not pts:
+        return None
+    fig, ax = plt.subplots(figsize=(9, 5.5))
+    for label, colour, ms, rt, sync in pts:
+        ax.plot([ms, ms], [sync["value"], rt["value"]], color=colour, alpha=0.5, lw=1)
+        ax.scatter(ms, sync["value"], s=60, facecolor="none", edgecolor=colour)
+        ax.errorbar(ms, rt["value"], yerr=[[rt["value"] - rt["ci95"][0]], [rt["ci95"][1] - rt["value"]]],
+                    fmt="o", color=colour, capsize=3, label=f"{label} ({ms:.0f} ms)")
+    ax.set_xscale("log")
+    _budget_lines(ax)
+    _score_axis(ax, "median latency per call on this machine (ms, log scale)")
+    ax.set_title("Figure 5, real time: score under async execution at measured latency (hollow: sync)")
+    return _save(fig, path)

@@ -174,3 +174,16 @@ def delay_curve(results: dict[str, dict[str, Any]], execution: str) -> list[tupl
     pts += sorted((int(k[len(prefix):]), r["summary"]["mean_score"]) for k, r in results.items()
                   if k.startswith(prefix))
     return pts
+
+
+def highest_safe_rate(safe_d: int | None, latency_ms: float) -> float | None:
+    """The highest control rate (Hz) at which calls of `latency_ms` stay within `safe_d` steps of delay.
+
+    At rate f a call of L seconds takes d = ceil(L f) steps, so d <= safe_d for every f <= safe_d / L. This
+    reads the score-against-delay curve, measured in 10 Hz steps, as holding in steps at other rates too
+    (Diffusion Policy's Fig. 6 and Real-Time Chunking count delay in steps the same way). 0: no real-time
+    rate keeps the score (even one step of delay costs more than the margin); None: no sweep to read.
+    """
+    if safe_d is None:
+        return None
+    return safe_d / (latency_ms / 1e3) if latency_ms > 0 else math.inf

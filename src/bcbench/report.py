@@ -2,7 +2,8 @@
 
 Reads result files only (evaluations, latencies, training summaries); never trains or evaluates.
 Writes RESULTS_DIR/report/{report.md, report.html, fig5_accuracy_vs_latency.png, fig3_denoising_steps.png,
-fig4_samplers.png}. Beside each of our numbers stand the study's own (measured on an A100 by the study).
+fig4_samplers.png, learning_curves.png} and, for a study with a real-time sweep, realtime.png (score against
+delay) and fig5_realtime.png (score under async execution at measured latency). Beside each of our numbers stand the study's own (measured on an A100 by the study).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from bcbench.fewstep import fewstep_lines
-from bcbench.figures import figure3, figure4, figure5, learning_curves, realtime_figure
+from bcbench.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
 from bcbench.findings import DEFAULT_MARGIN, judge, points_from_rows
 from bcbench.results import STUDY_REFERENCE, Row, load_realtime, load_rows
 from bcbench.stats import fmt_estimate
@@ -97,26 +98,35 @@ def _spacing_note(rows: list[Row]) -> str:
             "and K = 40 at t = 78; variants marked -LEADING use it).")
 
 
-def realtime_lines(realtime: dict[str, dict[str, Any]], margin: float) -> list[str]:
-    """Per swept policy: sync, each delay, measured and profile scores, and the largest safe delay."""
-    from bcbench.realtime import largest_safe_delay
+def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float) -> str:
+    """One policy's largest safe async delay and, with a measured setting, its highest safe control rate."""
+    from bcbench.realtime import highest_safe_rate, largest_safe_delay
 
+    safe = largest_safe_delay(settings, "async", margin)
+    measured = settings.get("realtime-async-measured", {}).get("summary", {}).get("latency_source", {})
+    fits = ""
+    if measured and safe is not None:
+        med, slow = (highest_safe_rate(safe, measured[k]) for k in ("median_ms", "max_ms"))
+        fits = (f"; its measured median call {measured['median_ms']:.0f} ms "
+                f"{'fits' if measured['median_ms'] <= 100 * safe else 'does not fit'} within it at 10 Hz; "
+                f"highest safe control rate {med:.1f} Hz ({slow:.1f} Hz at its slowest call)")
+    return f"Largest safe delay (async): d = {safe}{fits}."
+
+
+def realtime_lines(realtime: dict[str, dict[str, Any]], margin: float) -> list[str]:
+    """Per swept policy: sync, each delay, measured and profile scores, the largest safe delay and rate."""
     if not realtime:
         return []
     out = ["## Under real-time execution (10 Hz control)", "",
            f"Largest safe delay: the largest d up to which every async score stays within the margin ({margin}) "
            "of the sync score (paired interval of the difference above -margin); at 10 Hz, d steps allow a call "
-           "of up to d x 100 ms.", ""]
+           "of up to d x 100 ms. Highest safe control rate: the fastest rate at which the policy's measured call "
+           "(median; slowest timed call) still takes at most that many steps (d / L), reading the delay curve "
+           "as holding in steps at other rates.", ""]
     for label, settings in realtime.items():
         parts = [f"{name.removeprefix('realtime-')} {fmt_estimate(r['summary']['mean_score'])}"
                  for name, r in settings.items()]
-        safe = largest_safe_delay(settings, "async", margin)
-        measured = settings.get("realtime-async-measured", {}).get("summary", {}).get("latency_source", {})
-        fits = ""
-        if measured and safe is not None:
-            fits = (f"; its measured median call {measured['median_ms']:.0f} ms "
-                    f"{'fits' if measured['median_ms'] <= 100 * safe else 'does not fit'} within it")
-        out.append(f"- {label}: " + "; ".join(parts) + f". Largest safe delay (async): d = {safe}{fits}.")
+        out.append(f"- {label}: " + "; ".join(parts) + ". " + safe_delay_sentence(settings, margin))
     return [*out, ""]
 
 
@@ -189,6 +199,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     realtime = load_realtime(results)
     if realtime:
         figs["Score under real-time execution"] = realtime_figure(realtime, out / "realtime.png")
+        figs["Figure 5, real time"] = figure5_realtime(realtime, out / "fig5_realtime.png")
     findings = judge(points_from_rows(rows), margin)
     table = table_rows(rows)
     intro = (f"Results directory `{results.name}`; {len(rows)} evaluated settings. "
