@@ -3,7 +3,8 @@
 Reads result files only (evaluations, latencies, training summaries); never trains or evaluates.
 Writes RESULTS_DIR/report/{report.md, report.html, fig5_accuracy_vs_latency.png, fig3_denoising_steps.png,
 fig4_samplers.png, learning_curves.png} and, for a study with a real-time sweep, realtime.png (score against
-delay) and fig5_realtime.png (score under async execution at measured latency). Beside each of our numbers stand the study's own (measured on an A100 by the study).
+delay) and fig5_realtime.png (score under async execution at measured latency).
+Beside each of our numbers stand the study's own (measured on an A100 by the study).
 """
 
 from __future__ import annotations
