@@ -206,3 +206,27 @@ def test_export_copies_results_but_no_checkpoints(tmp_path):
     (src / "runs" / "a" / "checkpoints" / "step_1" / "model.safetensors").write_bytes(b"w")
     assert export_results(src, tmp_path / "out") == 2
     assert not (tmp_path / "out" / "runs" / "a" / "checkpoints").exists()
+
+
+def test_study_time_sums_the_recorded_work(tmp_path):
+    """Optimiser time over every session of a resumed run, its curve rollouts, and each other stage's seconds."""
+    from bcbench.report import time_lines
+    from bcbench.results import study_time
+    from bcbench.utils.io import append_jsonl, write_json
+
+    run = tmp_path / "runs" / "dp"
+    write_json(run / "train_summary.json", {"train_time_s": 5400.0, "train_time_s_this_session": 60.0})
+    for wall in (30.0, 90.0):
+        append_jsonl(run / "metrics.jsonl", {"step": 1, "eval_wall_s": wall})
+    append_jsonl(run / "metrics.jsonl", {"step": 2, "train_loss": 0.1})
+    stages = [("train", "runs/dp/train_summary.json", 61.0), ("eval", "runs/dp/eval-a.json", 600.0),
+              ("eval", "runs/dp/eval-b.json", 300.0), ("latency", "runs/dp/latency-a.json", 120.0),
+              ("realtime", "runs/dp/realtime-a.json", 3600.0)]
+    for stage, file, seconds in stages:
+        append_jsonl(tmp_path / "index.jsonl", {"stage": stage, "file": file, "seconds": seconds})
+    assert study_time(tmp_path) == {"training": 5400.0, "curve rollouts": 120.0, "evaluation": 900.0,
+                                    "timing": 120.0, "real-time sweep": 3600.0}
+    text = "\n".join(time_lines(tmp_path))
+    assert "training 90 min, curve rollouts 2 min, evaluation 15 min, timing 2 min, real-time sweep 60 min" in text
+    assert "Training, evaluation and timing: 1.82 h; with the real-time sweep: 2.82 h" in text
+    assert time_lines(tmp_path / "nothing") == []

@@ -17,7 +17,7 @@ from typing import Any
 from bcbench.fewstep import fewstep_lines
 from bcbench.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
 from bcbench.findings import DEFAULT_MARGIN, judge, points_from_rows
-from bcbench.results import STUDY_REFERENCE, Row, load_realtime, load_rows
+from bcbench.results import STUDY_REFERENCE, Row, load_realtime, load_rows, study_time
 from bcbench.stats import fmt_estimate
 from bcbench.utils.io import atomic_path, read_json
 
@@ -131,6 +131,19 @@ def realtime_lines(realtime: dict[str, dict[str, Any]], margin: float) -> list[s
     return [*out, ""]
 
 
+def time_lines(results: Path) -> list[str]:
+    """Where the study's time went (summed work, not wall time: a study may be stopped and resumed)."""
+    spent = study_time(results)
+    if not any(spent.values()):
+        return []
+    budget = sum(v for k, v in spent.items() if k != "real-time sweep")
+    parts = ", ".join(f"{k} {v / 60:.0f} min" for k, v in spent.items() if v)
+    total = f"; with the real-time sweep: {sum(spent.values()) / 3600:.2f} h" if spent["real-time sweep"] else ""
+    return ["## Study time", "", f"{parts}. Training, evaluation and timing: {budget / 3600:.2f} h{total} (sums "
+            "of recorded work on the machines named in the table; a run resumed after other work shared its "
+            "machine records that slower time).", ""]
+
+
 def deviation_lines(rows: list[Row]) -> list[str]:
     """How each cpu-preset policy departs from its paper's recipe."""
     from bcbench.policies import CPU_DEVIATIONS
@@ -214,6 +227,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
     md += ["", "## Results", "", _md_table(COLUMNS, table), "", "## Training: converged?", "",
            *convergence_lines(rows), "", *deviation_lines(rows), *fewstep_lines(points_from_rows(rows, "fast"), margin),
+           *time_lines(results),
            *realtime_lines(realtime, margin)]
     for title, path in figs.items():
         if path:

@@ -152,3 +152,30 @@ def load_realtime(results: str | Path) -> dict[str, dict[str, Any]]:
         label = study.get("label", f.parent.name) + (f" {v['sampler'].upper()}{v['steps']}" if v.get("sampler") else "")
         out[label] = data["settings"]
     return out
+
+
+def study_time(results: str | Path) -> dict[str, float]:
+    """Seconds a study spent, by kind of work, from its index.jsonl and its runs' training records.
+
+    Training stages split into optimiser time (train_summary.json's train_time_s, summed over every session
+    of a resumed run) and learning-curve rollouts (metrics.jsonl's eval_wall_s); the other stages count their
+    recorded seconds. A stopped and resumed study has no single wall time: this is the sum of its work.
+    """
+    from bcbench.utils.io import read_jsonl
+
+    results = Path(results)
+    index = results / "index.jsonl"
+    out = {"training": 0.0, "curve rollouts": 0.0, "evaluation": 0.0, "timing": 0.0, "real-time sweep": 0.0}
+    if not index.exists():
+        return out
+    kinds = {"eval": "evaluation", "latency": "timing", "realtime": "real-time sweep"}
+    for rec in read_jsonl(index):
+        if rec["stage"] in kinds:
+            out[kinds[rec["stage"]]] += float(rec["seconds"])
+        elif rec["stage"] == "train":
+            run = (results / rec["file"]).parent
+            out["training"] += float(read_json(run / "train_summary.json").get("train_time_s", 0.0))
+            metrics = run / "metrics.jsonl"
+            if metrics.exists():
+                out["curve rollouts"] += sum(float(m.get("eval_wall_s", 0.0)) for m in read_jsonl(metrics))
+    return out
