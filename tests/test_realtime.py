@@ -112,12 +112,16 @@ def test_realtime_sweep_cli(tmp_path, capsys):
     assert "no inference time for 'scripted'" in capsys.readouterr().err
     assert main(["realtime", "--policy", "scripted", "--episodes", "2", "--delays", "0", "2", "--out", str(out),
                  "--max-steps", "30", "--quiet"]) == 0
-    names = sorted(p.name for p in out.glob("realtime-*.json"))
+    names = sorted(p.name for p in out.glob("realtime-*.json") if p.name != "realtime-sweep.json")
     assert names == ["realtime-async-d2.json", "realtime-blocking-d2.json", "realtime-sync.json"]
     assert (out / "realtime.png").stat().st_size > 1000
     printed = capsys.readouterr().out
     assert "realtime-async-d2" in printed and "Largest safe delay (async): d = " in printed
     assert not (out / "fig5_realtime.png").exists()  # no measured setting: no real-time Figure 5
+    from bcbench.results import load_realtime
+
+    found = load_realtime(tmp_path)  # the sweep's record: what a study's report reads when it lies inside one
+    assert list(found) == ["scripted"] and sorted(found["scripted"]) == [n.removesuffix(".json") for n in names]
 
 
 def _setting(scores: np.ndarray, median_ms: float | None = None) -> dict:

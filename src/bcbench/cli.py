@@ -236,9 +236,10 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_realtime(args: argparse.Namespace) -> int:
+    from bcbench.backends import mode_name
     from bcbench.figures import figure5_realtime, realtime_figure
     from bcbench.findings import DEFAULT_MARGIN
-    from bcbench.realtime import sweep
+    from bcbench.realtime import realtime_record, sweep
     from bcbench.report import safe_delay_sentence
     from bcbench.stats import fmt_estimate
     from bcbench.utils.io import write_json
@@ -258,6 +259,13 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     if figure5_realtime({policy.name: results}, out / "fig5_realtime.png") is None:
         (out / "fig5_realtime.png").unlink(missing_ok=True)  # no measured setting this time: no stale figure
     print(f"  {safe_delay_sentence(results, DEFAULT_MARGIN)}")
+    # One record of the whole sweep, the form a study's report reads: inside a study's folder (e.g. beside a
+    # run's own sweep, with another --backend), `bcbench report` shows it under its label.
+    mode = mode_name(args.backend, args.precision, args.reference) if args.checkpoint else "reference"
+    label = args.label or (f"{policy.name} ({mode})" if args.checkpoint else policy.name)
+    variant = {"sampler": args.sampler, "steps": args.steps, "spacing": args.spacing}
+    write_json(out / "realtime-sweep.json", realtime_record(results, "bcbench realtime", label, variant,
+                                                            DEFAULT_MARGIN, args.device))
     print(f"  results and plots: {out}")
     return 0
 

@@ -181,7 +181,9 @@ def _add_study_commands(sub: Any) -> None:
     _add_backend_args(p)
     p.add_argument("--episodes", type=_positive_int, default=100, help="episodes per setting (default 100)")
     p.add_argument("--max-steps", type=_positive_int, default=300, help="steps per episode at most (default 300)")
-    p.add_argument("--out", metavar="DIR", help="output folder")
+    p.add_argument("--out", metavar="DIR", help="output folder (its realtime-sweep.json is what a report reads: "
+                   "put it inside a study's folder to add this sweep to the study's report)")
+    p.add_argument("--label", help="the sweep's name in reports (default: the policy and its inference mode)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func="cmd_realtime")
 

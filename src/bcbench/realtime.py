@@ -187,3 +187,15 @@ def highest_safe_rate(safe_d: int | None, latency_ms: float) -> float | None:
     if safe_d is None:
         return None
     return safe_d / (latency_ms / 1e3) if latency_ms > 0 else math.inf
+
+
+def realtime_record(settings: dict[str, dict[str, Any]], study: str, label: str, variant: dict[str, Any],
+                    margin: float, device: str = "cpu") -> dict[str, Any]:
+    """One sweep's record, as a study's report reads it (`bcbench.results.load_realtime`): its settings'
+    evaluation results under a label, with where and at which commit it ran."""
+    import platform
+
+    from bcbench.utils.system import provenance
+
+    return {"type": "realtime", "study": {"name": study, "label": label, "variant": variant}, "margin": margin,
+            "settings": settings, "node": platform.node(), **provenance(device)}

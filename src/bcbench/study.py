@@ -118,15 +118,13 @@ class StudyRunner:
         return rec
 
     def _realtime(self, run: RunSpec, variant: Variant) -> dict[str, Any]:
-        from bcbench.realtime import sweep
-        from bcbench.utils.system import provenance
+        from bcbench.realtime import realtime_record, sweep
 
         rt = self.spec.realtime or {}
         settings = sweep(self._policy(run, variant), rt["delays"], rt["executions"], self.spec.episodes,
                          rt["profiles"], rt["measured"], self.progress, self.spec.max_steps, self.spec.seed_start,
                          skip_missing_profiles=True)  # e.g. the study gives no A100 time for BeT
-        return {"type": "realtime", "study": {"name": self.spec.name, "label": run.label, "variant": asdict(variant)},
-                "margin": self.spec.margin, "settings": settings, "node": platform.node(), **provenance(self.device)}
+        return realtime_record(settings, self.spec.name, run.label, asdict(variant), self.spec.margin, self.device)
 
     # ------------------------------------------------------------------ driver
     def compute(self, stage: str, run: RunSpec, variant: Variant | None) -> dict[str, Any] | None:
