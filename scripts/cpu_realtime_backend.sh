@@ -12,7 +12,8 @@ STUDY="${1:-$HOME/.cache/bcbench/cpu}"
 PRECISION="${2:-fp32}"
 [ -f "$STUDY/index.jsonl" ] || { echo "error: $STUDY is not a study folder (no index.jsonl)" >&2; exit 2; }
 # run folder, label, sampler, steps of each of the study's own sweeps (not of earlier runs of this script)
-.venv/bin/python - "$STUDY" <<'PY' > /tmp/cpu_realtime_backend.$$
+list_sweeps() {
+  .venv/bin/python - "$STUDY" <<'PY'
 import json, sys
 from pathlib import Path
 for f in sorted(Path(sys.argv[1]).glob("runs/*/realtime-*.json")):
@@ -21,6 +22,7 @@ for f in sorted(Path(sys.argv[1]).glob("runs/*/realtime-*.json")):
         v = rec["study"]["variant"]
         print("\t".join([str(f.parent), rec["study"]["label"], v.get("sampler") or "-", str(v.get("steps") or "-")]))
 PY
+}
 while IFS=$'\t' read -r run label sampler steps; do
   [ -f "$run/run.json" ] || continue  # a baseline: nothing to deploy
   gen=()
@@ -28,5 +30,4 @@ while IFS=$'\t' read -r run label sampler steps; do
   echo "== $label: OpenVINO $PRECISION"
   .venv/bin/bcbench realtime --checkpoint "$run" "${gen[@]}" --backend openvino --precision "$PRECISION" \
       --measured --delays 0 --out "$run/realtime-openvino-$PRECISION" --label "$label [OpenVINO $PRECISION]" --quiet
-done < /tmp/cpu_realtime_backend.$$
-rm -f /tmp/cpu_realtime_backend.$$
+done < <(list_sweeps)

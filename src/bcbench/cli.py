@@ -236,7 +236,6 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_realtime(args: argparse.Namespace) -> int:
-    from bcbench.backends import mode_name
     from bcbench.figures import figure5_realtime, realtime_figure
     from bcbench.findings import DEFAULT_MARGIN
     from bcbench.realtime import realtime_record, sweep
@@ -261,8 +260,8 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     print(f"  {safe_delay_sentence(results, DEFAULT_MARGIN)}")
     # One record of the whole sweep, the form a study's report reads: inside a study's folder (e.g. beside a
     # run's own sweep, with another --backend), `bcbench report` shows it under its label.
-    mode = mode_name(args.backend, args.precision, args.reference) if args.checkpoint else "reference"
-    label = args.label or (f"{policy.name} ({mode})" if args.checkpoint else policy.name)
+    mode = getattr(policy, "extra", {}).get("mode")  # what apply_mode put a trained run in; baselines: none
+    label = args.label or (f"{policy.name} ({mode})" if mode else policy.name)
     variant = {"sampler": args.sampler, "steps": args.steps, "spacing": args.spacing}
     write_json(out / "realtime-sweep.json", realtime_record(results, "bcbench realtime", label, variant,
                                                             DEFAULT_MARGIN, args.device))

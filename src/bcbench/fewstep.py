@@ -30,6 +30,10 @@ def _ms(p: Point | None) -> str:
     return "-" if p is None or p.latency_ms is None else f"{p.latency_ms:.1f}"
 
 
+def _score(p: Point | None) -> str:
+    return "-" if p is None else f"{p.score:.3f} [{p.ci[0]:.3f}, {p.ci[1]:.3f}]"
+
+
 def fewstep_lines(points: list[Point], margin: float, mode: str = "fast") -> list[str]:
     """Markdown lines: a table row per flow K and the goal's verdict; [] when there is no flow or no DP DDPM-100.
     `points` carry their latency in `mode` (bcbench.findings.points_from_rows)."""
@@ -38,11 +42,11 @@ def fewstep_lines(points: list[Point], margin: float, mode: str = "fast") -> lis
     ref, ddim10 = dp_point(points, "ddpm", 100), dp_point(points, "ddim", 10)
     if not flows or ref is None:
         return []
+    base_ms = ddim10.latency_ms if ddim10 is not None else None  # the goal's yardstick
     out = ["## Few-step generative policy against Diffusion Policy", "",
            f"Flow matching on DP's network with K Euler steps, against DP DDPM-100 on the same seeds (paired "
            f"interval of the difference; margin {margin}) and DP DDIM-K; latency: median of one call in the "
-           f"'{mode}' mode, as a share of DP DDIM-10's ({_ms(ddim10)} ms). DP DDPM-100: "
-           f"{ref.score:.3f} [{ref.ci[0]:.3f}, {ref.ci[1]:.3f}].", "",
+           f"'{mode}' mode, as a share of DP DDIM-10's ({_ms(ddim10)} ms). DP DDPM-100: {_score(ref)}.", "",
            "| flow K | flow score | DP DDIM-K | flow-K - DP DDPM-100 (paired) | verdict | flow ms | / DDIM-10 |",
            "|---|---|---|---|---|---|---|"]
     met = []
@@ -50,17 +54,14 @@ def fewstep_lines(points: list[Point], margin: float, mode: str = "fast") -> lis
         k = int(p.variant.removeprefix("euler"))
         est, lo, hi, n = paired_interval(p, [ref])
         verdict = _verdict(lo, hi, margin)
-        dk = dp_point(points, "ddim", k)
-        share = (p.latency_ms / ddim10.latency_ms if p.latency_ms is not None and ddim10 is not None
-                 and ddim10.latency_ms else None)
-        out.append(f"| {k} | {p.score:.3f} [{p.ci[0]:.3f}, {p.ci[1]:.3f}] | "
-                   f"{'-' if dk is None else f'{dk.score:.3f} [{dk.ci[0]:.3f}, {dk.ci[1]:.3f}]'} | "
+        share = p.latency_ms / base_ms if p.latency_ms is not None and base_ms else None
+        out.append(f"| {k} | {_score(p)} | {_score(dp_point(points, 'ddim', k))} | "
                    f"{est:+.3f} [{lo:+.3f}, {hi:+.3f}] ({n} seeds) | {verdict} | {_ms(p)} | "
                    f"{'-' if share is None else f'{share:.2f}'} |")
         if k <= GOAL_STEPS and lo > -margin and share is not None and share <= 1 / GOAL_SPEEDUP:
             met.append(k)
     goal = (f"met at K = {', '.join(map(str, met))}" if met else
-            "not met" if ddim10 is not None and ddim10.latency_ms else "not judged (no latency for DP DDIM-10)")
+            "not met" if base_ms else "not judged (no latency for DP DDIM-10)")
     out += ["", f"Goal (K <= {GOAL_STEPS} no worse than DDPM-100 by more than the margin, at <= 1/{GOAL_SPEEDUP:.0f} "
             f"of DDIM-10's latency): **{goal}**.", ""]
     return out

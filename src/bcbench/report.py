@@ -101,7 +101,7 @@ def _spacing_note(rows: list[Row]) -> str:
 
 def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float) -> str:
     """One policy's largest safe async delay and, with a measured setting, its highest safe control rate."""
-    from bcbench.realtime import highest_safe_rate, largest_safe_delay
+    from bcbench.realtime import CONTROL_DT_S, highest_safe_rate, largest_safe_delay
 
     safe = largest_safe_delay(settings, "async", margin)
     measured = settings.get("realtime-async-measured", {}).get("summary", {}).get("latency_source", {})
@@ -109,7 +109,7 @@ def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float) -> s
     if measured and safe is not None:
         med, slow = (highest_safe_rate(safe, measured[k]) for k in ("median_ms", "max_ms"))
         fits = (f"; its measured median call {measured['median_ms']:.0f} ms "
-                f"{'fits' if measured['median_ms'] <= 100 * safe else 'does not fit'} within it at 10 Hz; "
+                f"{'fits' if med >= 1 / CONTROL_DT_S else 'does not fit'} within it at 10 Hz; "
                 f"highest safe control rate {med:.1f} Hz ({slow:.1f} Hz at its slowest call)")
     return f"Largest safe delay (async): d = {safe}{fits}."
 

@@ -12,7 +12,7 @@ from typing import Any
 
 from bcbench.curves import Curve, load_curve, plateau
 from bcbench.errors import BCBenchError
-from bcbench.utils.io import read_json
+from bcbench.utils.io import read_json, read_jsonl
 
 # The study's own numbers (measured on an A100 by the study), shown beside ours.
 STUDY_REFERENCE: dict[str, dict[str, Any]] = {
@@ -161,8 +161,6 @@ def study_time(results: str | Path) -> dict[str, float]:
     of a resumed run) and learning-curve rollouts (metrics.jsonl's eval_wall_s); the other stages count their
     recorded seconds. A stopped and resumed study has no single wall time: this is the sum of its work.
     """
-    from bcbench.utils.io import read_jsonl
-
     results = Path(results)
     index = results / "index.jsonl"
     out = {"training": 0.0, "curve rollouts": 0.0, "evaluation": 0.0, "timing": 0.0, "real-time sweep": 0.0}
