@@ -22,7 +22,7 @@ lint: install
 	$(VENV)/bin/ruff check src tests benchmarks
 
 test: install lint
-	$(VENV)/bin/pytest -q
+	$(VENV)/bin/pytest -q --durations=15
 
 demo: install
 	$(VENV)/bin/bcbench data replay --quiet --out runs/demo/replay.json

@@ -5,19 +5,19 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
+import tempfile
 
 import numpy as np
 import pytest
 import torch
 
 from bcbench.backends import EXACT_MODES, MODES, apply_mode, mode_name, record_graph_inputs, set_mode
+from bcbench.cli import main
 from bcbench.errors import BCBenchError
 from bcbench.policies import learned_policies, make_policy
 from tests.tiny import tiny_overrides
 
-EXE = os.path.join(os.path.dirname(sys.executable), "bcbench")
 TOL = 1e-4  # normalised action units ([-1, 1]): 0.0256 px of the 512 px world
 
 
@@ -73,7 +73,8 @@ def test_one_step_samplers_make_one_denoiser_call():
 
 
 @pytest.mark.parametrize("name, modes", [("diffusion", ["openvino-bf16"]), ("cnn_mlp", ["openvino-int8"])])
-def test_approximate_modes_are_close_and_labelled(name, modes, exports):
+def test_approximate_modes_are_close_and_labelled(name, modes, exports, tmp_path, monkeypatch):
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # where an export without a cache folder goes
     model = _model(name)
     calib = [model.example_obs(1) for _ in range(4)]
     obs = model.example_obs(2)
@@ -83,6 +84,7 @@ def test_approximate_modes_are_close_and_labelled(name, modes, exports):
         assert np.isfinite(c[mode]).all()
         assert np.abs(c[mode] - c["fast"]).max() < 0.5, mode  # approximate, not unrelated
     assert model.deployment["backend"] == "openvino" and model.deployment["precision"] == modes[0][9:]
+    assert not list(tmp_path.iterdir())  # a temporary export is deleted once compiled (it leaked 15 GB)
     set_mode(model, "fast")
     assert model.deployed is None and model.deployment == {"backend": "torch", "precision": "fp32"}
 
@@ -104,27 +106,22 @@ def test_mode_names_and_errors(monkeypatch):
 
 def _train_tiny(run, data) -> None:
     sets = [a for k, v in tiny_overrides("cnn_mlp", max_steps=2).items() for a in ("--set", f"{k}={json.dumps(v)}")]
-    proc = subprocess.run([EXE, "train", "--policy", "cnn_mlp", "--out", str(run), "--data", str(data), "--quiet",
-                           *sets], capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr
+    assert main(["train", "--policy", "cnn_mlp", "--out", str(run), "--data", str(data), "--quiet", *sets]) == 0
 
 
-def test_export_cache_and_the_eval_cli(synthetic_zarr, tmp_path, monkeypatch):
+def test_export_cache_and_the_eval_cli(synthetic_zarr, tmp_path, monkeypatch, capsys):
     from bcbench.checkpoint import latest_checkpoint, load_runner
 
     run = tmp_path / "run"
     _train_tiny(run, synthetic_zarr)
     monkeypatch.setenv("BCBENCH_DATA", str(synthetic_zarr))  # int8 calibrates on the run's training split
-    proc = subprocess.run([EXE, "export", str(run), "--precision", "int8"], capture_output=True, text=True,
-                          timeout=300, env={**os.environ})
-    assert proc.returncode == 0, proc.stderr
+    # in-process CLI calls: a subprocess per command cost this test about 30 s of start-up
+    assert main(["export", str(run), "--precision", "int8"]) == 0
     exports = list((run / "export").iterdir())
     assert [p.name.split("-")[1] for p in exports] == ["int8"] and (exports[0] / "forward.xml").exists()
 
-    proc = subprocess.run([EXE, "eval", "--checkpoint", str(run), "--backend", "openvino", "--episodes", "2",
-                           "--max-steps", "16", "--out", str(tmp_path / "ev"), "--quiet"], capture_output=True,
-                          text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr
+    assert main(["eval", "--checkpoint", str(run), "--backend", "openvino", "--episodes", "2", "--max-steps", "16",
+                 "--out", str(tmp_path / "ev"), "--quiet"]) == 0
     result = json.loads((tmp_path / "ev" / "eval.json").read_text())
     assert result["policy"]["mode"] == "openvino-fp32" and result["policy"]["deployment"]["backend"] == "openvino"
     assert sorted(p.name.split("-")[1] for p in (run / "export").iterdir()) == ["float", "int8"]
@@ -144,13 +141,13 @@ def test_export_cache_and_the_eval_cli(synthetic_zarr, tmp_path, monkeypatch):
     apply_mode(runner, "openvino-fp32")
     assert runner.model.deployment["export"] != first
 
-    proc = subprocess.run([EXE, "realtime", "--checkpoint", str(run), "--backend", "openvino", "--delays", "1",
-                           "--execution", "async", "--measured", "--episodes", "2", "--max-steps", "16", "--out",
-                           str(tmp_path / "rt"), "--quiet"], capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr
+    assert main(["realtime", "--checkpoint", str(run), "--backend", "openvino", "--delays", "1", "--execution",
+                 "async", "--measured", "--episodes", "2", "--max-steps", "16", "--out", str(tmp_path / "rt"),
+                 "--quiet"]) == 0
     measured = json.loads(next((tmp_path / "rt").glob("*measured*.json")).read_text())
     assert measured["policy"]["mode"] == "openvino-fp32"  # timed and run in the deployed backend
 
-    proc = subprocess.run([EXE, "eval", "--checkpoint", str(run), "--precision", "bf16"], capture_output=True,
-                          text=True, timeout=300)
-    assert proc.returncode == 2 and proc.stderr.strip().count("\n") == 0 and "--backend openvino" in proc.stderr
+    capsys.readouterr()
+    assert main(["eval", "--checkpoint", str(run), "--precision", "bf16"]) == 2
+    err = capsys.readouterr().err
+    assert err.strip().count("\n") == 0 and "--backend openvino" in err

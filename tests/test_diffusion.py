@@ -3,9 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 
 import pytest
 import torch
@@ -130,16 +127,14 @@ def test_linear_beta_config():
 
 
 def test_eval_with_sampler_from_a_checkpoint(synthetic_zarr, tmp_path):
-    exe = os.path.join(os.path.dirname(sys.executable), "bcbench")
+    from bcbench.cli import main  # in-process: a subprocess per command cost this test 40 s of start-up
+
     run = tmp_path / "dp"
     sets = [a for k, v in tiny_overrides("diffusion", max_steps=2).items() for a in ("--set", f"{k}={json.dumps(v)}")]
-    proc = subprocess.run([exe, "train", "--policy", "diffusion", "--out", str(run), "--data", str(synthetic_zarr),
-                           "--quiet", *sets], capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr
-    proc = subprocess.run([exe, "eval", "--checkpoint", str(run), "--sampler", "ddim", "--steps", "3", "--episodes",
-                           "2", "--max-steps", "8", "--out", str(tmp_path / "ev"), "--quiet"],
-                          capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr
+    assert main(["train", "--policy", "diffusion", "--out", str(run), "--data", str(synthetic_zarr), "--quiet",
+                 *sets]) == 0
+    assert main(["eval", "--checkpoint", str(run), "--sampler", "ddim", "--steps", "3", "--episodes", "2",
+                 "--max-steps", "8", "--out", str(tmp_path / "ev"), "--quiet"]) == 0
     policy = json.loads((tmp_path / "ev" / "eval.json").read_text())["policy"]
     assert policy["sampler"] == "ddim" and policy["steps"] == 3 and policy["weights"] == "ema"
 

@@ -77,13 +77,13 @@ def _per_seed(result: dict) -> dict[int, tuple]:
 def test_an_episode_depends_only_on_its_own_seed():
     """Per-seed results of seeds 100000-100002 do not change with --episodes or --workers (random policy:
     every action is drawn from the episode's noise stream)."""
-    runs = [evaluate(make_policy("random"), EvalConfig(episodes=n, workers=w, max_steps=120), None, progress=False)
+    runs = [evaluate(make_policy("random"), EvalConfig(episodes=n, workers=w, max_steps=40), None, progress=False)
             for n, w in ((3, 1), (6, 1), (3, 2), (6, 2))]
     first = _per_seed(runs[0])
     for r in runs[1:]:
         assert {s: v for s, v in _per_seed(r).items() if s in first} == first
     assert len({v[3][2:] for v in first.values()}) == 3  # the episodes really differ
-    other = evaluate(make_policy("random", seed=1), EvalConfig(episodes=3, workers=1, max_steps=120), None,
+    other = evaluate(make_policy("random", seed=1), EvalConfig(episodes=3, workers=1, max_steps=40), None,
                      progress=False)
     assert _per_seed(other) != first  # and the policy seed matters
 

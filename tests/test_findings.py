@@ -51,6 +51,18 @@ def test_finding_1_slowest_against_the_best_faster(shift, noise, expected):
     assert verdict([*fast, slow], 1) == expected
 
 
+@pytest.mark.parametrize("slow_converged, fast_converged, shift, expected", [
+    (True, False, EQUAL, SUPPORTED),  # more training of the faster ones could only confirm it
+    (False, True, EQUAL, UNDERTRAINED),  # the slow one might still rise above them
+    (True, False, FAR, UNDERTRAINED)])  # a faster one might still rise to it
+def test_finding_1_waits_only_for_the_policies_that_could_change_it(slow_converged, fast_converged, shift,
+                                                                    expected):
+    fast = [pt("cnn", "cnn_mlp", BASE, ms=2.0, converged=True),
+            pt("bct", "bct", BASE - 0.2, ms=12.0, converged=fast_converged)]
+    slow = pt("dp100", "diffusion", BASE + shift, ms=1000.0, variant="ddpm100", converged=slow_converged)
+    assert verdict([*fast, slow], 1) == expected
+
+
 @pytest.mark.parametrize("shift, noise, expected", [(EQUAL, 0.0, SUPPORTED), (-FAR, 0.0, CONTRADICTED),
                                                     (-EDGE, NOISY, INCONCLUSIVE)])
 def test_finding_2_ten_steps_against_a_hundred(shift, noise, expected):
@@ -143,3 +155,18 @@ def test_fewstep_section_is_absent_without_flow_or_ddpm100():
 
     pts = fewstep_points(0.0, 15.0)
     assert fewstep_lines(pts[1:], 0.05) == [] and fewstep_lines(pts[:3], 0.05) == []
+
+
+def test_interleaved_timings_replace_the_study_blocks_where_given():
+    """A study times settings in separate blocks minutes apart; a paired (interleaved) file corrects both the
+    few-step latency share and finding 3's DDIM/DDPM time ratio, in the mode it was timed in only."""
+    from bcbench.fewstep import fewstep_lines
+
+    pts = fewstep_points(0.0, 30.0)  # by the study's blocks: 0.30 of DDIM-10, goal not met
+    paired = {"mode": "fast", "rounds": 5, "threads": 2, "median_ms": {"euler1": 15.0, "ddim10": 100.0}}
+    assert "**met at K = 1**" in fewstep_lines(pts, 0.05, paired=paired)[-2]
+    assert "**not met**" in fewstep_lines(pts, 0.05, paired={**paired, "mode": "reference"})[-2]
+    blocks = [pt("ddim10", "diffusion", BASE, 70.0, "ddim10"), pt("ddpm10", "diffusion", BASE, 100.0, "ddpm10")]
+    assert judge(blocks)[2].verdict == CONTRADICTED  # a 0.70 time ratio from the blocks
+    f3 = judge(blocks, ratios={"ddim10/ddpm10": 0.99})[2]
+    assert f3.verdict == SUPPORTED and "0.99 (interleaved timing)" in f3.evidence

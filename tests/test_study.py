@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -14,8 +13,6 @@ from bcbench.errors import BCBenchError
 from bcbench.report import write_report
 from bcbench.spec import load_spec, parse_spec
 from tests.tiny import TINY
-
-EXE = os.path.join(os.path.dirname(sys.executable), "bcbench")
 
 
 def _spec_text(tmp_path) -> str:
@@ -114,20 +111,21 @@ run_study(load_spec(sys.argv[1]), sys.argv[2], sys.argv[3], progress=False, on_s
 """
 
 
-def test_study_killed_then_rerun_resumes_without_redoing(synthetic_zarr, tmp_path):
+def test_study_killed_then_rerun_resumes_without_redoing(synthetic_zarr, tmp_path, capsys):
+    from bcbench.cli import main  # the reruns in-process (a subprocess each cost 10 s of start-up)
+
     spec = tmp_path / "tiny.toml"
     spec.write_text(_spec_text(tmp_path))
     out = tmp_path / "out"
-    cmd = [EXE, "study", str(spec), "--out", str(out), "--data", str(synthetic_zarr), "--quiet"]
+    cmd = ["study", str(spec), "--out", str(out), "--data", str(synthetic_zarr), "--quiet"]
     proc = subprocess.run([sys.executable, "-c", KILL_AFTER_3_STAGES, str(spec), str(out), str(synthetic_zarr)],
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == -9, proc.stderr  # SIGKILL after 3 finished stages
     index = [json.loads(x) for x in (out / "index.jsonl").read_text().splitlines()]
     assert [i["stage"] for i in index] == ["eval", "train", "eval"]  # timing comes after every evaluation
     first_files = {i["file"]: (out / i["file"]).stat().st_mtime_ns for i in index}
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr
-    assert "3 already done" in proc.stdout
+    assert main(cmd) == 0
+    assert "3 already done" in capsys.readouterr().out
     for f, mtime in first_files.items():
         assert (out / f).stat().st_mtime_ns == mtime  # finished stages were not redone
     index = [json.loads(x) for x in (out / "index.jsonl").read_text().splitlines()]
@@ -137,8 +135,8 @@ def test_study_killed_then_rerun_resumes_without_redoing(synthetic_zarr, tmp_pat
     text = report.read_text()
     assert "The study's findings" in text and "DDPM2" in text
     assert "## Under real-time execution" in text and "async-d1" in text and (out / "report" / "realtime.png").exists()
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
-    assert "0 stage(s) run" in proc.stdout
+    assert main(cmd) == 0
+    assert "0 stage(s) run" in capsys.readouterr().out
 
 
 def test_report_from_fixture_files(tmp_path):

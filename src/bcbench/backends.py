@@ -79,8 +79,9 @@ class _Compiled:
     """
 
     def __init__(self, core: Any, xml: Path, config: dict[str, Any], static_batch1: bool) -> None:
-        self.core, self.xml, self.config, self.static_batch1 = core, xml, config, static_batch1
-        model = core.read_model(str(xml))
+        self.core, self.config, self.static_batch1 = core, config, static_batch1
+        # keep the graph in memory (not its path): an export to a temporary folder is deleted once compiled
+        self.model = model = core.read_model(str(xml))
         self.requests = {None: core.compile_model(model, "CPU", config).create_infer_request()}
         self.n_out = len(model.outputs)
 
@@ -88,7 +89,7 @@ class _Compiled:
         if batch != 1 or not self.static_batch1:
             return self.requests[None]
         if 1 not in self.requests:
-            static = self.core.read_model(str(self.xml))
+            static = self.model.clone()
             static.reshape({inp.get_any_name(): [1, *(d.get_length() for d in list(inp.get_partial_shape())[1:])]
                             for inp in static.inputs})
             self.requests[1] = self.core.compile_model(static, "CPU", self.config).create_infer_request()
@@ -167,10 +168,13 @@ def deploy_openvino(model: Any, precision: str, export_dir: Path | None = None,
     """Compile the policy's graphs with OpenVINO and plug them in (`model.deployed`); exports cached in export_dir."""
     import tempfile
 
+    if export_dir is None:  # nothing to cache it in (an untrained policy): export, compile, delete
+        with tempfile.TemporaryDirectory(prefix="bcbench-ov-") as tmp:
+            deploy_openvino(model, precision, Path(tmp) / "graphs", calibration, threads)
+        model.deployment["export"] = None
+        return
     ov = _openvino()
-    if export_dir is None or not all((export_dir / f"{n}.xml").exists() for n in model.graphs):
-        if export_dir is None:
-            export_dir = Path(tempfile.mkdtemp(prefix="bcbench-ov-")) / "graphs"
+    if not all((export_dir / f"{n}.xml").exists() for n in model.graphs):
         export_openvino(model, precision, export_dir, calibration)
     core = ov.Core()
     bf16 = "bf16" in " ".join(core.get_property("CPU", "OPTIMIZATION_CAPABILITIES")).lower()

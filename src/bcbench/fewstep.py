@@ -6,11 +6,22 @@ setting; paired bootstrap interval of the difference, as the findings do) and pu
 DP DDIM-10's (the fast sampler a DP user deploys) in the same inference mode. The goal holds when some
 K <= 2 is no worse than DDPM-100 by more than the margin (interval above -margin) at <= 1/5 of DDIM-10's
 median latency.
+
+Latency comes from the study's timing stages, unless the study's folder holds `latency-paired.json`
+(benchmarks/paired_latency.py): settings timed in interleaved rounds, so that a drifting machine does not
+change their ratio (a study times each setting in its own block, minutes apart from the others).
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
 from bcbench.findings import Point, dp_point, paired_interval
+from bcbench.utils.io import read_json
+
+PAIRED_FILE = "latency-paired.json"
 
 GOAL_STEPS = 2  # few-step: at most this many network calls
 GOAL_SPEEDUP = 5.0  # at most 1/5 of DP DDIM-10's latency
@@ -34,19 +45,36 @@ def _score(p: Point | None) -> str:
     return "-" if p is None else f"{p.score:.3f} [{p.ci[0]:.3f}, {p.ci[1]:.3f}]"
 
 
-def fewstep_lines(points: list[Point], margin: float, mode: str = "fast") -> list[str]:
+def load_paired(study_dir: str | Path) -> dict[str, Any] | None:
+    path = Path(study_dir) / PAIRED_FILE
+    return read_json(path) if path.exists() else None
+
+
+def _with_paired(p: Point | None, paired: dict[str, Any] | None) -> Point | None:
+    if p is None or paired is None or p.variant not in paired["median_ms"]:
+        return p
+    return replace(p, latency_ms=paired["median_ms"][p.variant])
+
+
+def fewstep_lines(points: list[Point], margin: float, mode: str = "fast",
+                  paired: dict[str, Any] | None = None) -> list[str]:
     """Markdown lines: a table row per flow K and the goal's verdict; [] when there is no flow or no DP DDPM-100.
-    `points` carry their latency in `mode` (bcbench.findings.points_from_rows)."""
-    flows = sorted((p for p in points if p.policy == "flow" and p.variant.startswith("euler")),
+    `points` carry their latency in `mode` (bcbench.findings.points_from_rows); `paired` (load_paired), when
+    given and timed in the same mode, replaces the flow and DDIM-10 latencies."""
+    paired = paired if paired is not None and paired.get("mode") == mode else None
+    flows = sorted((_with_paired(p, paired) for p in points if p.policy == "flow" and p.variant.startswith("euler")),
                    key=lambda p: int(p.variant.removeprefix("euler")))
-    ref, ddim10 = dp_point(points, "ddpm", 100), dp_point(points, "ddim", 10)
+    ref, ddim10 = dp_point(points, "ddpm", 100), _with_paired(dp_point(points, "ddim", 10), paired)
     if not flows or ref is None:
         return []
     base_ms = ddim10.latency_ms if ddim10 is not None else None  # the goal's yardstick
+    source = (f"timed in {paired['rounds']} interleaved rounds ({PAIRED_FILE}, {paired['threads']} threads)"
+              if paired else "timed by the study's stages")
     out = ["## Few-step generative policy against Diffusion Policy", "",
            f"Flow matching on DP's network with K Euler steps, against DP DDPM-100 on the same seeds (paired "
            f"interval of the difference; margin {margin}) and DP DDIM-K; latency: median of one call in the "
-           f"'{mode}' mode, as a share of DP DDIM-10's ({_ms(ddim10)} ms). DP DDPM-100: {_score(ref)}.", "",
+           f"'{mode}' mode, {source}, as a share of DP DDIM-10's ({_ms(ddim10)} ms). DP DDPM-100: {_score(ref)}.",
+           "",
            "| flow K | flow score | DP DDIM-K | flow-K - DP DDPM-100 (paired) | verdict | flow ms | / DDIM-10 |",
            "|---|---|---|---|---|---|---|"]
     met = []

@@ -16,6 +16,20 @@ COLOURS = {"cnn_mlp": "tab:blue", "resnet50": "tab:orange", "bet": "tab:purple",
            "diffusion": "tab:red", "flow": "tab:pink", "random": "tab:gray", "scripted": "tab:brown"}
 
 
+MARKERS, LINES = ("o", "s", "^", "D"), ("-", "--", ":", "-.")
+
+
+def _nth_of_policy(rows: list[Any]) -> dict[str, int]:
+    """label -> 0, 1, ...: the how-manieth run of its policy (DP cosine and DP linear share a colour, not a
+    marker or line style)."""
+    seen: dict[str, list[str]] = {}
+    for r in rows:
+        labels = seen.setdefault(r.policy, [])
+        if r.label not in labels:
+            labels.append(r.label)
+    return {label: i for labels in seen.values() for i, label in enumerate(labels)}
+
+
 def _save(fig: Any, path: Path) -> Path:
     from bcbench.utils.io import atomic_path
 
@@ -41,13 +55,14 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference") -> Path | None
         return None
     fig, ax = plt.subplots(figsize=(9, 5.5))
     legend: dict[str, Any] = {}
+    nth = _nth_of_policy(pts)
     for r in pts:
         lo, hi = r.est("mean_score")["ci95"]
         size = 30 + 400 * (r.params / 1e8) ** 0.5
         ax.errorbar(r.latency_ms(mode), r.score, yerr=[[r.score - lo], [hi - r.score]], fmt="none",
                     ecolor=COLOURS.get(r.policy, "k"), alpha=0.6, capsize=3)
         dot = ax.scatter(r.latency_ms(mode), r.score, s=size, color=COLOURS.get(r.policy, "k"), alpha=0.8,
-                         edgecolor="k", lw=0.5)
+                         edgecolor="k", lw=0.5, marker=MARKERS[nth[r.label] % len(MARKERS)])
         legend.setdefault(f"{r.label}, {r.params / 1e6:.2f} M", dot)
         deployed = r.deployed_ms() if mode == "reference" else None
         if deployed and deployed[1] < 0.95 * r.latency_ms(mode):  # an arrow to the deployed (exact) time
@@ -187,14 +202,15 @@ def learning_curves(rows: list[Any], path: Path) -> Path | None:
     if not runs:
         return None
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, 4.5))
+    nth = _nth_of_policy(list(runs.values()))
     for r in runs.values():
-        c, colour = r.curve, COLOURS.get(r.policy, "k")
+        c, colour, ls = r.curve, COLOURS.get(r.policy, "k"), LINES[nth[r.label] % len(LINES)]
         mark = "" if r.converged else " (not converged)"
         if c.score:
-            ax.plot(c.samples, c.score, marker="o", ms=3, color=colour, label=f"{r.label}{mark}")
+            ax.plot(c.samples, c.score, ls=ls, marker="o", ms=3, color=colour, label=f"{r.label}{mark}")
             ax.fill_between(c.samples, c.lo, c.hi, color=colour, alpha=0.12)
         if c.val_loss:
-            ax2.plot(c.val_samples, c.val_loss, color=colour, label=r.label)
+            ax2.plot(c.val_samples, c.val_loss, ls=ls, color=colour, label=r.label)
     if not _score_axis(ax, "training samples", "mean score on validation seeds (95% CI)"):
         ax.text(0.5, 0.5, "no rollouts logged while training\n(train with --eval-every)", ha="center",
                 transform=ax.transAxes, alpha=0.6)

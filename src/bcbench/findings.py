@@ -119,7 +119,8 @@ def dp_point(points: list[Point], sampler: str, steps: int, schedule: str = "squ
 def finding_1(points: list[Point], m: float) -> Finding:
     claim = "Accuracy does not rise in proportion to inference time"
     rule = (f"The slowest timed learned setting minus the best of those at least {SLOWER:g}x faster (best chosen "
-            f"inside each bootstrap resample): supported if the interval lies below +{m}, contradicted if above.")
+            f"inside each bootstrap resample): supported if the interval lies below +{m}, contradicted if above; "
+            "undertrained if the slow setting, or (unless supported) any faster one, had not reached its plateau.")
     timed = [p for p in points if p.latency_ms and p.policy not in ("random", "scripted") and p.scores]
     if not timed:
         return Finding(1, claim, INCONCLUSIVE, "no timed learned settings", rule)
@@ -131,7 +132,10 @@ def finding_1(points: list[Point], m: float) -> Finding:
     best = max(fast, key=lambda p: p.score)
     evidence = (f"{_fmt(slow)} against the best of {len(fast)} settings >= {SLOWER:g}x faster ({_fmt(best)}): "
                 f"{_fmt_diff(est, lo, hi, n)}")
-    return _finish(1, claim, rule, _at_most(lo, hi, m), evidence, [slow, *fast])
+    verdict = _at_most(lo, hi, m)
+    # more training can only raise the faster settings' scores, which keeps "supported" supported: then only
+    # the slow setting's convergence matters (an undertrained slow one could still rise above them)
+    return _finish(1, claim, rule, verdict, evidence, [slow] if verdict == SUPPORTED else [slow, *fast])
 
 
 def finding_2(points: list[Point], m: float) -> Finding:
@@ -145,10 +149,13 @@ def finding_2(points: list[Point], m: float) -> Finding:
     return _finish(2, claim, rule, _at_least(lo, hi, -m), evidence, [p10, p100])
 
 
-def finding_3(points: list[Point], m: float) -> Finding:
+def finding_3(points: list[Point], m: float, ratios: dict[str, float] | None = None) -> Finding:
+    """`ratios`: DDIM-k / DDPM-k latency ratios timed in interleaved rounds ("ddim10/ddpm10": 0.99; see
+    benchmarks/paired_latency.py), used instead of the ratio of the two settings' own timings where given."""
     claim = "DDIM changes neither accuracy nor inference time meaningfully"
     rule = (f"DDIM-k minus DDPM-k for every k evaluated with both (cosine model): supported if every interval lies "
-            f"inside (-{m}, +{m}) and every latency ratio in [0.8, 1.25]; contradicted if any interval lies wholly "
+            f"inside (-{m}, +{m}) and every latency ratio (timed in interleaved rounds where the study has them) in "
+            "[0.8, 1.25]; contradicted if any interval lies wholly "
             "outside the margin or any ratio outside that range.")
     pairs = [(a, b) for k in range(1, 101) if (a := dp_point(points, "ddim", k)) and (b := dp_point(points, "ddpm", k))]
     if not pairs:
@@ -157,11 +164,14 @@ def finding_3(points: list[Point], m: float) -> Finding:
     for a, b in pairs:
         est, lo, hi, n = paired_interval(a, [b])
         ratio = a.latency_ms / b.latency_ms if a.latency_ms and b.latency_ms else None
+        key = f"{a.variant}/{b.variant}"
+        interleaved = ratios is not None and key in ratios
+        ratio = ratios[key] if interleaved else ratio
         if lo > m or hi < -m or (ratio is not None and not 0.8 <= ratio <= 1.25):
             verdicts.append(CONTRADICTED)
         else:
             verdicts.append(SUPPORTED if -m < lo and hi < m else INCONCLUSIVE)
-        time_note = f", time ratio {ratio:.2f}" if ratio else ""
+        time_note = f", time ratio {ratio:.2f}{' (interleaved timing)' if interleaved else ''}" if ratio else ""
         notes.append(f"{a.name} vs {b.name}: {_fmt_diff(est, lo, hi, n)}{time_note}")
     return _finish(3, claim, rule, _combine(verdicts), "; ".join(notes), [p for ab in pairs for p in ab])
 
@@ -193,8 +203,10 @@ def finding_5(points: list[Point], m: float) -> Finding:
     return _finish(5, claim, rule, _at_most(lo, hi, m), evidence, [bet])
 
 
-def judge(points: list[Point], margin: float = DEFAULT_MARGIN) -> list[Finding]:
-    return [f(points, margin) for f in (finding_1, finding_2, finding_3, finding_4, finding_5)]
+def judge(points: list[Point], margin: float = DEFAULT_MARGIN, ratios: dict[str, float] | None = None) -> list[Finding]:
+    """The five findings; `ratios` as for finding_3."""
+    return [finding_1(points, margin), finding_2(points, margin), finding_3(points, margin, ratios),
+            finding_4(points, margin), finding_5(points, margin)]
 
 
 def points_from_rows(rows: list, mode: str = "reference") -> list[Point]:

@@ -14,7 +14,7 @@ import html
 from pathlib import Path
 from typing import Any
 
-from bcbench.fewstep import fewstep_lines
+from bcbench.fewstep import fewstep_lines, load_paired
 from bcbench.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
 from bcbench.findings import DEFAULT_MARGIN, judge, points_from_rows
 from bcbench.results import STUDY_REFERENCE, Row, load_realtime, load_rows, study_time
@@ -214,7 +214,8 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     if realtime:
         figs["Score under real-time execution"] = realtime_figure(realtime, out / "realtime.png")
         figs["Figure 5, real time"] = figure5_realtime(realtime, out / "fig5_realtime.png")
-    findings = judge(points_from_rows(rows), margin)
+    paired = load_paired(results)  # latency timed in interleaved rounds, when the study's folder has it
+    findings = judge(points_from_rows(rows), margin, paired and paired.get("ratios"))
     table = table_rows(rows)
     intro = (f"Results directory `{results.name}`; {len(rows)} evaluated settings. "
              "Scores: mean over the evaluation episodes of the max reward min(coverage/0.95, 1), with 95% bootstrap "
@@ -226,7 +227,8 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
           "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
     md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
     md += ["", "## Results", "", _md_table(COLUMNS, table), "", "## Training: converged?", "",
-           *convergence_lines(rows), "", *deviation_lines(rows), *fewstep_lines(points_from_rows(rows, "fast"), margin),
+           *convergence_lines(rows), "", *deviation_lines(rows), *fewstep_lines(points_from_rows(rows, "fast"), margin,
+                                                                   paired=paired),
            *time_lines(results),
            *realtime_lines(realtime, margin)]
     for title, path in figs.items():

