@@ -154,3 +154,26 @@ def test_realtime_report_states_the_largest_safe_delay_and_the_highest_safe_rate
     path = figure5_realtime({"steady": steady, "fragile": fragile}, tmp_path / "fig5_realtime.png")
     assert path is not None and path.stat().st_size > 1000
     assert figure5_realtime({"steady": {"realtime-sync": steady["realtime-sync"]}}, tmp_path / "x.png") is None
+
+
+def test_an_interrupted_sweep_keeps_its_finished_settings(monkeypatch):
+    """A study's sweep saves after every setting; rerun with what was saved, it evaluates only the rest."""
+    import bcbench.evaluate
+    from bcbench.realtime import sweep
+
+    real, ran, saved = bcbench.evaluate.evaluate, [], []
+
+    def counting(policy, cfg, *args, **kw):
+        ran.append(kw["extra"]["realtime"]["setting"])
+        return real(policy, cfg, *args, **kw)
+
+    monkeypatch.setattr(bcbench.evaluate, "evaluate", counting)
+    kw = {"delays": [2], "executions": ["async", "blocking"], "episodes": 1, "profiles": [], "measured": False,
+          "progress": False, "max_steps": 20}
+    full = sweep(make_policy("scripted"), **kw, on_setting=lambda r: saved.append(dict(r)))
+    assert ran == ["realtime-sync", "realtime-async-d2", "realtime-blocking-d2"] and len(saved) == 3
+    ran.clear()
+    resumed = sweep(make_policy("scripted"), **kw, done=saved[1])  # interrupted after two settings
+    assert ran == ["realtime-blocking-d2"]
+    assert {k: v["summary"]["mean_score"] for k, v in resumed.items()} == \
+        {k: v["summary"]["mean_score"] for k, v in full.items()}

@@ -130,6 +130,7 @@ def test_study_killed_then_rerun_resumes_without_redoing(synthetic_zarr, tmp_pat
         assert (out / f).stat().st_mtime_ns == mtime  # finished stages were not redone
     index = [json.loads(x) for x in (out / "index.jsonl").read_text().splitlines()]
     assert len(index) == 3 + 3 + 5  # random: eval, latency, realtime; cnn: train, eval, latency; dp: train, 2+2
+    assert not list(out.rglob(".realtime-*.partial.json"))  # a finished sweep leaves no partial file behind
     report = out / "report" / "report.md"
     assert report.exists() and (out / "report" / "report.html").exists()
     text = report.read_text()

@@ -126,9 +126,12 @@ def sweep_settings(delays: list[int], executions: list[str], profiles: list[str]
 
 def sweep(policy: Any, delays: list[int], executions: list[str], episodes: int, profiles: list[str],
           measured: bool, progress: bool = True, max_steps: int = 300, seed_start: int = 100_000,
-          skip_missing_profiles: bool = False) -> dict[str, dict[str, Any]]:
+          skip_missing_profiles: bool = False, done: dict[str, dict[str, Any]] | None = None,
+          on_setting: Callable[[dict[str, dict[str, Any]]], None] | None = None) -> dict[str, dict[str, Any]]:
     """Score against delay d for each execution mode (sync as the d = 0 reference), plus the policy's score at
-    its measured latency on this machine and under each hardware profile: evaluation results by setting."""
+    its measured latency on this machine and under each hardware profile: evaluation results by setting.
+    `done`: settings finished by an interrupted sweep (kept, not rerun); `on_setting(results so far)` is called
+    after each setting, so a caller can save them (a sweep is 13 evaluations of 100 episodes in a study)."""
     from bcbench.evaluate import EvalConfig, evaluate
 
     usable = []
@@ -140,11 +143,15 @@ def sweep(policy: Any, delays: list[int], executions: list[str], episodes: int, 
             if not skip_missing_profiles:
                 raise
     settings = sweep_settings(delays, executions, usable, measured)
-    out = {}
+    out = {name: r for name, r in (done or {}).items() if name in {s[0] for s in settings}}
     for name, execution, latency in settings:
+        if name in out:
+            continue
         cfg = EvalConfig(episodes=episodes, execution=execution, max_steps=max_steps, seed_start=seed_start,
                          **latency)
         out[name] = evaluate(policy, cfg, None, progress=progress, extra={"realtime": {"setting": name}})
+        if on_setting is not None:
+            on_setting(out)
     return out
 
 

@@ -63,6 +63,10 @@ class StudyRunner:
             return d / "train_summary.json"
         return d / f"{stage}-{variant.key}.json"
 
+    def partial_file(self, run: RunSpec, variant: Variant) -> Path:
+        """The finished settings of an interrupted real-time sweep (hidden: no report or export reads it)."""
+        return self.run_dir(run) / f".realtime-{variant.key}.partial.json"
+
     def is_done(self, stage: str, run: RunSpec, variant: Variant | None) -> bool:
         f = self.result_file(stage, run, variant)
         if not f.exists():
@@ -121,9 +125,12 @@ class StudyRunner:
         from bcbench.realtime import realtime_record, sweep
 
         rt = self.spec.realtime or {}
+        partial = self.partial_file(run, variant)
         settings = sweep(self._policy(run, variant), rt["delays"], rt["executions"], self.spec.episodes,
                          rt["profiles"], rt["measured"], self.progress, self.spec.max_steps, self.spec.seed_start,
-                         skip_missing_profiles=True)  # e.g. the study gives no A100 time for BeT
+                         skip_missing_profiles=True,  # e.g. the study gives no A100 time for BeT
+                         done=read_json(partial) if partial.exists() else None,
+                         on_setting=lambda results: write_json(partial, results))
         return realtime_record(settings, self.spec.name, run.label, asdict(variant), self.spec.margin, self.device)
 
     # ------------------------------------------------------------------ driver
@@ -139,6 +146,8 @@ class StudyRunner:
         """Write a finished stage's result file and its index line (atomically, in this process)."""
         if record is not None:
             write_json(self.result_file(stage, run, variant), record)
+        if stage == "realtime":
+            self.partial_file(run, variant).unlink(missing_ok=True)  # only once the whole sweep is written
         append_jsonl(self.out / "index.jsonl", {
             "stage": stage, "run": self.run_dir(run).name, "policy": run.policy, "config": run.config,
             "seed": run.seed, "variant": variant.key if variant else None,
