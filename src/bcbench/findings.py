@@ -155,18 +155,16 @@ def finding_3(points: list[Point], m: float, ratios: dict[str, float] | None = N
     claim = "DDIM changes neither accuracy nor inference time meaningfully"
     rule = (f"DDIM-k minus DDPM-k for every k evaluated with both (cosine model): supported if every interval lies "
             f"inside (-{m}, +{m}) and every latency ratio (timed in interleaved rounds where the study has them) in "
-            "[0.8, 1.25]; contradicted if any interval lies wholly "
-            "outside the margin or any ratio outside that range.")
+            "[0.8, 1.25]; contradicted if any interval lies wholly outside the margin or any ratio outside that range.")
     pairs = [(a, b) for k in range(1, 101) if (a := dp_point(points, "ddim", k)) and (b := dp_point(points, "ddpm", k))]
     if not pairs:
         return Finding(3, claim, INCONCLUSIVE, "no step count evaluated with both DDIM and DDPM (cosine model)", rule)
     notes, verdicts = [], []
     for a, b in pairs:
         est, lo, hi, n = paired_interval(a, [b])
-        ratio = a.latency_ms / b.latency_ms if a.latency_ms and b.latency_ms else None
-        key = f"{a.variant}/{b.variant}"
-        interleaved = ratios is not None and key in ratios
-        ratio = ratios[key] if interleaved else ratio
+        interleaved = f"{a.variant}/{b.variant}" in (ratios or {})
+        ratio = (ratios[f"{a.variant}/{b.variant}"] if interleaved else
+                 a.latency_ms / b.latency_ms if a.latency_ms and b.latency_ms else None)
         if lo > m or hi < -m or (ratio is not None and not 0.8 <= ratio <= 1.25):
             verdicts.append(CONTRADICTED)
         else:
