@@ -116,7 +116,7 @@ def test_realtime_sweep_cli(tmp_path, capsys):
     assert names == ["realtime-async-d2.json", "realtime-blocking-d2.json", "realtime-sync.json"]
     assert (out / "realtime.png").stat().st_size > 1000
     printed = capsys.readouterr().out
-    assert "realtime-async-d2" in printed and "Largest safe delay (async): d = " in printed
+    assert "realtime-async-d2" in printed and "Largest safe delay: async d = " in printed
     assert not (out / "fig5_realtime.png").exists()  # no measured setting: no real-time Figure 5
     from bcbench.results import load_realtime
 
@@ -134,7 +134,8 @@ def _setting(scores: np.ndarray, median_ms: float | None = None) -> dict:
 
 def test_realtime_report_states_the_largest_safe_delay_and_the_highest_safe_rate(tmp_path):
     """A policy unhurt up to d = 2 at 50 ms a call is safe up to 2 / 0.05 s = 40 Hz (20 Hz at its slowest
-    call, 100 ms); one that loses 0.3 at d = 1 has no safe real-time rate. Figure 5, real time, is drawn."""
+    call, 100 ms); one that loses 0.3 at d = 1 has no safe real-time rate; one that keeps its score blocking
+    but not async gets the blocking rate. Figure 5, real time, is drawn."""
     from bcbench.figures import figure5_realtime
     from bcbench.realtime import highest_safe_rate
     from bcbench.report import realtime_lines
@@ -145,11 +146,17 @@ def test_realtime_report_states_the_largest_safe_delay_and_the_highest_safe_rate
               "realtime-async-measured": _setting(base, median_ms=50.0)}
     fragile = {"realtime-sync": _setting(base), "realtime-async-d1": _setting(base - 0.3),
                "realtime-async-measured": _setting(base - 0.3, median_ms=500.0)}
-    lines = "\n".join(realtime_lines({"steady": steady, "fragile": fragile}, 0.05))
-    assert "d = 2; its measured median call 50 ms fits within it at 10 Hz; highest safe control rate 40.0 Hz " \
-           "(20.0 Hz at its slowest call)" in lines
-    assert "d = 0; its measured median call 500 ms does not fit within it at 10 Hz; highest safe control " \
-           "rate 0.0 Hz" in lines
+    # async loses at d = 1 but blocking holds it: the rate comes from the mode that keeps the score
+    mixed = {"realtime-sync": _setting(base), "realtime-async-d1": _setting(base - 0.3),
+             "realtime-blocking-d1": _setting(base), "realtime-blocking-d2": _setting(base - 0.3),
+             "realtime-blocking-measured": _setting(base, median_ms=50.0)}
+    lines = "\n".join(realtime_lines({"steady": steady, "fragile": fragile, "mixed": mixed}, 0.05))
+    assert "async d = 0, blocking d = 1; its measured median call 50 ms fits within blocking d = 1 at 10 Hz; " \
+           "highest safe control rate 20.0 Hz (10.0 Hz at its slowest call), blocking." in lines
+    assert "async d = 2; its measured median call 50 ms fits within async d = 2 at 10 Hz; highest safe " \
+           "control rate 40.0 Hz (20.0 Hz at its slowest call), async." in lines
+    assert "async d = 0: no delay is shown within the margin (d = 1 minus sync: async -0.300 [-0.300, -0.300])" \
+           ", so no real-time control rate" in lines
     assert highest_safe_rate(None, 50.0) is None
     path = figure5_realtime({"steady": steady, "fragile": fragile}, tmp_path / "fig5_realtime.png")
     assert path is not None and path.stat().st_size > 1000

@@ -155,20 +155,25 @@ def sweep(policy: Any, delays: list[int], executions: list[str], episodes: int, 
     return out
 
 
-def largest_safe_delay(results: dict[str, dict[str, Any]], execution: str, margin: float) -> int | None:
-    """The largest d whose score stays within the margin of sync (paired: the interval of d minus sync lies
-    above -margin) for every delay up to it; None without a sync result."""
+def delay_vs_sync(results: dict[str, dict[str, Any]], setting: str) -> tuple[float, float, float, int]:
+    """A setting's score minus sync over shared seeds, with its 95% paired-bootstrap interval and n seeds."""
     from bcbench.findings import Point, paired_interval
 
     def point(r: dict[str, Any]) -> Point:
         return Point("", "", "", 0.0, (0.0, 1.0), None, None, {e["seed"]: e["score"] for e in r["episodes"]})
 
+    return paired_interval(point(results[setting]), [point(results["realtime-sync"])])
+
+
+def largest_safe_delay(results: dict[str, dict[str, Any]], execution: str, margin: float) -> int | None:
+    """The largest d whose score stays within the margin of sync (paired: the interval of d minus sync lies
+    above -margin) for every delay up to it; None without a sync result."""
     if "realtime-sync" not in results:
         return None
-    sync, safe = point(results["realtime-sync"]), 0
+    safe = 0
     delays = sorted(int(k.rsplit("-d", 1)[1]) for k in results if k.startswith(f"realtime-{execution}-d"))
     for d in delays:
-        if paired_interval(point(results[f"realtime-{execution}-d{d}"]), [sync])[1] <= -margin:
+        if delay_vs_sync(results, f"realtime-{execution}-d{d}")[1] <= -margin:
             break
         safe = d
     return safe

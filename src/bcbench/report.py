@@ -100,18 +100,29 @@ def _spacing_note(rows: list[Row]) -> str:
 
 
 def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float) -> str:
-    """One policy's largest safe async delay and, with a measured setting, its highest safe control rate."""
-    from bcbench.realtime import CONTROL_DT_S, highest_safe_rate, largest_safe_delay
+    """One policy's largest safe delay per execution mode and, from the better mode's measured setting, its
+    highest safe control rate; where no delay is shown safe, the d = 1 differences that say why."""
+    from bcbench.realtime import CONTROL_DT_S, delay_vs_sync, highest_safe_rate, largest_safe_delay
 
-    safe = largest_safe_delay(settings, "async", margin)
-    measured = settings.get("realtime-async-measured", {}).get("summary", {}).get("latency_source", {})
+    safe = {e: largest_safe_delay(settings, e, margin) for e in ("async", "blocking")
+            if any(k.startswith(f"realtime-{e}-d") for k in settings)}
+    if not safe or "realtime-sync" not in settings:
+        return "Largest safe delay: no sync and delay settings to compare."
+    head = "Largest safe delay: " + ", ".join(f"{e} d = {d}" for e, d in safe.items())
+    mode, best = max(safe.items(), key=lambda kv: kv[1])  # ties: async, listed first
+    if best == 0:
+        d1 = "; ".join(f"{e} {est:+.3f} [{lo:+.3f}, {hi:+.3f}]" for e in safe if f"realtime-{e}-d1" in settings
+                       for est, lo, hi, _ in [delay_vs_sync(settings, f"realtime-{e}-d1")])
+        return (f"{head}: no delay is shown within the margin (d = 1 minus sync: {d1}), so no real-time control "
+                "rate is shown to keep its sync score.")
+    measured = settings.get(f"realtime-{mode}-measured", {}).get("summary", {}).get("latency_source", {})
     fits = ""
-    if measured and safe is not None:
-        med, slow = (highest_safe_rate(safe, measured[k]) for k in ("median_ms", "max_ms"))
+    if measured:
+        med, slow = (highest_safe_rate(best, measured[k]) for k in ("median_ms", "max_ms"))
         fits = (f"; its measured median call {measured['median_ms']:.0f} ms "
-                f"{'fits' if med >= 1 / CONTROL_DT_S else 'does not fit'} within it at 10 Hz; "
-                f"highest safe control rate {med:.1f} Hz ({slow:.1f} Hz at its slowest call)")
-    return f"Largest safe delay (async): d = {safe}{fits}."
+                f"{'fits' if med >= 1 / CONTROL_DT_S else 'does not fit'} within {mode} d = {best} at 10 Hz; "
+                f"highest safe control rate {med:.1f} Hz ({slow:.1f} Hz at its slowest call), {mode}")
+    return f"{head}{fits}."
 
 
 def realtime_lines(realtime: dict[str, dict[str, Any]], margin: float) -> list[str]:
@@ -119,9 +130,10 @@ def realtime_lines(realtime: dict[str, dict[str, Any]], margin: float) -> list[s
     if not realtime:
         return []
     out = ["## Under real-time execution (10 Hz control)", "",
-           f"Largest safe delay: the largest d up to which every async score stays within the margin ({margin}) "
-           "of the sync score (paired interval of the difference above -margin); at 10 Hz, d steps allow a call "
-           "of up to d x 100 ms. Highest safe control rate: the fastest rate at which the policy's measured call "
+           f"Largest safe delay, per execution mode: the largest d up to which every score stays within the margin "
+           f"({margin}) of the sync score (paired interval of the difference above -margin); at 10 Hz, d steps "
+           "allow a call of up to d x 100 ms. Highest safe control rate, in the mode with the larger safe delay: "
+           "the fastest rate at which the policy's measured call "
            "(median; slowest timed call) still takes at most that many steps (d / L), reading the delay curve "
            "as holding in steps at other rates.", ""]
     for label, settings in realtime.items():
