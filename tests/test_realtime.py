@@ -150,7 +150,10 @@ def test_realtime_report_states_the_largest_safe_delay_and_the_highest_safe_rate
     mixed = {"realtime-sync": _setting(base), "realtime-async-d1": _setting(base - 0.3),
              "realtime-blocking-d1": _setting(base), "realtime-blocking-d2": _setting(base - 0.3),
              "realtime-blocking-measured": _setting(base, median_ms=50.0)}
-    lines = "\n".join(realtime_lines({"steady": steady, "fragile": fragile, "mixed": mixed}, 0.05))
+    backend = {"realtime-sync": _setting(base), "realtime-async-measured": _setting(base - 0.1, median_ms=20.0)}
+    lines = "\n".join(realtime_lines({"steady": steady, "fragile": fragile, "mixed": mixed, "backend": backend},
+                                     0.05))
+    assert "At its measured latency, minus sync: async -0.100 [-0.100, -0.100]." in lines  # no delay settings
     assert "async d = 0, blocking d = 1; its measured median call 50 ms fits within blocking d = 1 at 10 Hz; " \
            "highest safe control rate 20.0 Hz (10.0 Hz at its slowest call), blocking." in lines
     assert "async d = 2; its measured median call 50 ms fits within async d = 2 at 10 Hz; highest safe " \

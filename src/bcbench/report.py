@@ -104,10 +104,15 @@ def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float) -> s
     highest safe control rate; where no delay is shown safe, the d = 1 differences that say why."""
     from bcbench.realtime import CONTROL_DT_S, delay_vs_sync, highest_safe_rate, largest_safe_delay
 
+    if "realtime-sync" not in settings:
+        return ""
     safe = {e: largest_safe_delay(settings, e, margin) for e in ("async", "blocking")
             if any(k.startswith(f"realtime-{e}-d") for k in settings)}
-    if not safe or "realtime-sync" not in settings:
-        return "Largest safe delay: no sync and delay settings to compare."
+    if not safe:  # e.g. a backend's sweep: sync and measured only
+        diffs = "; ".join(f"{e} {est:+.3f} [{lo:+.3f}, {hi:+.3f}]" for e in ("async", "blocking")
+                          if f"realtime-{e}-measured" in settings
+                          for est, lo, hi, _ in [delay_vs_sync(settings, f"realtime-{e}-measured")])
+        return f"At its measured latency, minus sync: {diffs}." if diffs else ""
     head = "Largest safe delay: " + ", ".join(f"{e} d = {d}" for e, d in safe.items())
     mode, best = max(safe.items(), key=lambda kv: kv[1])  # ties: async, listed first
     if best == 0:
