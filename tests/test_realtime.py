@@ -154,6 +154,8 @@ def test_realtime_report_states_the_largest_safe_delay_and_the_highest_safe_rate
     lines = "\n".join(realtime_lines({"steady": steady, "fragile": fragile, "mixed": mixed, "backend": backend},
                                      0.05))
     assert "At its measured latency, minus sync: async -0.100 [-0.100, -0.100]." in lines  # no delay settings
+    m = float(base.mean())  # the table: one row per policy, "-" where a setting was not run
+    assert f"| backend | {m:.3f} | - | - | - | - | - | - | - | - | {m - 0.1:.3f} (20 ms) | - | - |" in lines
     assert "async d = 0, blocking d = 1; its measured median call 50 ms fits within blocking d = 1 at 10 Hz; " \
            "highest safe control rate 20.0 Hz (10.0 Hz at its slowest call), blocking." in lines
     assert "async d = 2; its measured median call 50 ms fits within async d = 2 at 10 Hz; highest safe " \

@@ -130,6 +130,25 @@ def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float) -> s
     return f"{head}{fits}."
 
 
+REALTIME_COLUMNS = ("sync", *(f"{e}-d{d}" for e in ("async", "blocking") for d in (1, 2, 4, 8)),
+                    "async-measured", "blocking-measured", "async-a100")
+
+
+def realtime_table(realtime: dict[str, dict[str, Any]]) -> list[str]:
+    """Mean score per policy (rows) and setting (columns); measured settings with their median call."""
+    def cell(settings: dict[str, Any], col: str) -> str:
+        r = settings.get(f"realtime-{col}")
+        if r is None:
+            return "-"
+        ms = r["summary"].get("latency_source", {}).get("median_ms") if col.endswith("measured") else None
+        return f"{r['summary']['mean_score']['value']:.3f}" + (f" ({ms:.0f} ms)" if ms is not None else "")
+
+    head = "| policy | " + " | ".join(REALTIME_COLUMNS) + " |"
+    rows = [f"| {label} | " + " | ".join(cell(settings, c) for c in REALTIME_COLUMNS) + " |"
+            for label, settings in realtime.items()]
+    return [head, "|---" * (len(REALTIME_COLUMNS) + 1) + "|", *rows]
+
+
 def realtime_lines(realtime: dict[str, dict[str, Any]], margin: float) -> list[str]:
     """Per swept policy: sync, each delay, measured and profile scores, the largest safe delay and rate."""
     if not realtime:
@@ -141,6 +160,7 @@ def realtime_lines(realtime: dict[str, dict[str, Any]], margin: float) -> list[s
            "the fastest rate at which the policy's measured call "
            "(median; slowest timed call) still takes at most that many steps (d / L), reading the delay curve "
            "as holding in steps at other rates.", ""]
+    out += [*realtime_table(realtime), "", "Every setting with its 95% interval, and what the sweep says:", ""]
     for label, settings in realtime.items():
         parts = [f"{name.removeprefix('realtime-')} {fmt_estimate(r['summary']['mean_score'])}"
                  for name, r in settings.items()]
