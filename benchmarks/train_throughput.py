@@ -1,6 +1,7 @@
 """Training samples/s of every learned policy's CPU config: the old settings beside the new, in one run.
 
-    .venv/bin/python benchmarks/train_throughput.py [--steps 8] [--threads 2] [--policy NAME ...] [--out DIR]
+    .venv/bin/python benchmarks/train_throughput.py [--steps 3] [--rounds 4] [--threads 2] [--policy NAME ...]
+        [--ablation] [--out DIR]
 
 old: fp32, batch 64, contiguous weights (what the trainer did before the cpu profile);
 new: the config's precision (auto = bf16 autocast on CPUs with AVX512-BF16/AMX), its batch (256 in the cpu
@@ -71,17 +72,25 @@ def step_fn(name: str, cfg, precision: str, batch: int, channels_last: bool, ds)
     return step
 
 
-def compare(name: str, old_cfg, new_cfg, rounds: int, steps: int, ds) -> tuple[float, float]:
-    """Old and new settings interleaved (round by round), so that a noisy neighbour on a shared machine slows
-    both alike; median samples/s of each over all timed steps (each round's first step is warm-up)."""
-    old = step_fn(name, old_cfg, "fp32", 64, False, ds)
-    new = step_fn(name, new_cfg, new_cfg.optim.precision, new_cfg.optim.batch_size, True, ds)
-    t_old, t_new = [], []
+def compare(name: str, settings: dict[str, tuple[Any, str, int, bool]], rounds: int, steps: int, ds
+            ) -> dict[str, float]:
+    """Every setting (config, precision, batch, channels-last) interleaved round by round, so that a noisy
+    neighbour on a shared machine slows all alike; median samples/s of each over all its timed steps (each
+    round's first step is warm-up)."""
+    fns = {k: step_fn(name, cfg, prec, batch, cl, ds) for k, (cfg, prec, batch, cl) in settings.items()}
+    times: dict[str, list[float]] = {k: [] for k in settings}
     for _ in range(rounds):
-        for fn, times in ((old, t_old), (new, t_new)):
+        for k, fn in fns.items():
             fn()
-            times += [fn() for _ in range(steps)]
-    return 64 / float(np.median(t_old)), new_cfg.optim.batch_size / float(np.median(t_new))
+            times[k] += [fn() for _ in range(steps)]
+    return {k: settings[k][2] / float(np.median(t)) for k, t in times.items()}
+
+
+def ablation_settings(cfg, old_cfg, prec: str) -> dict[str, tuple[Any, str, int, bool]]:
+    """The new settings with one of their three changes undone at a time: which change buys what."""
+    b = cfg.optim.batch_size
+    return {"new without bf16": (old_cfg, "fp32", b, True), "new at batch 64": (cfg, prec, 64, True),
+            "new without channels-last": (cfg, prec, b, False)}
 
 
 def main() -> None:
@@ -91,6 +100,8 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--config", default="cpu", help="policy preset (default cpu)")
     ap.add_argument("--policy", action="append")
+    ap.add_argument("--ablation", action="store_true",
+                    help="also time the new settings with each of their changes undone (bf16, batch, layout)")
     ap.add_argument("--out", default="results/train-throughput")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -107,23 +118,30 @@ def main() -> None:
     for name in args.policy or learned_policies():
         cfg = make_config(name, args.config)
         old_cfg = dataclasses.replace(cfg, optim=dataclasses.replace(cfg.optim, batch_size=64, precision="fp32"))
-        old, new = compare(name, old_cfg, cfg, args.rounds, args.steps, ds)
         prec = resolve_precision(cfg.optim.precision, torch.device("cpu"))
+        settings = {"old": (old_cfg, "fp32", 64, False), "new": (cfg, cfg.optim.precision, cfg.optim.batch_size, True)}
+        if args.ablation:
+            settings |= ablation_settings(cfg, old_cfg, prec)
+        sps = compare(name, settings, args.rounds, args.steps, ds)
+        old, new = sps.pop("old"), sps.pop("new")
         rows.append({"policy": name, "config": args.config, "old_samples_per_s": old, "new_samples_per_s": new,
                      "new_precision": prec, "new_batch": cfg.optim.batch_size, "speedup": new / old,
-                     "policy_config": config_to_dict(cfg)})
-        print(f"| {name} | {old:.0f} | {new:.0f} ({prec}, batch {cfg.optim.batch_size}) | {new / old:.2f}x |",
+                     "ablation_samples_per_s": sps, "policy_config": config_to_dict(cfg)})
+        more = "".join(f"; {k} {v:.0f}" for k, v in sps.items())
+        print(f"| {name} | {old:.0f} | {new:.0f} ({prec}, batch {cfg.optim.batch_size}{more}) | {new / old:.2f}x |",
               flush=True)
     out = Path(args.out)
     write_json(out / "throughput.json", {"type": "train-throughput", "steps": args.steps, "rounds": args.rounds,
                                          "real_data": ds is not None,
                                          "rows": rows, **provenance("cpu")})
+    cols = list(rows[0]["ablation_samples_per_s"]) if rows else []
     with atomic_path(out / "throughput.md") as tmp:
-        tmp.write_text("| policy | old samples/s (fp32, batch 64) | new samples/s | precision, batch | speed-up |\n"
-                       "|---|---|---|---|---|\n" + "".join(
+        tmp.write_text("| policy | old samples/s (fp32, batch 64) | new samples/s | precision, batch | speed-up |"
+                       + "".join(f" {c} |" for c in cols) + "\n" + "|---" * (5 + len(cols)) + "|\n" + "".join(
                            f"| {r['policy']} ({r['config']}) | {r['old_samples_per_s']:.0f} | "
                            f"{r['new_samples_per_s']:.0f} | {r['new_precision']}, {r['new_batch']} | "
-                           f"{r['speedup']:.2f}x |\n" for r in rows))
+                           f"{r['speedup']:.2f}x |" + "".join(f" {r['ablation_samples_per_s'][c]:.0f} |" for c in cols)
+                           + "\n" for r in rows))
 
 
 if __name__ == "__main__":
