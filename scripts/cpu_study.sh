@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
-# Start or resume the converged CPU study (studies/cpu.toml) in the background at low priority, with its
-# run folder outside the work tree so that a later session on this machine resumes it where it stopped.
-#   scripts/cpu_study.sh [start]    start / resume        scripts/cpu_study.sh stop     stop it (it saves)
-#   scripts/cpu_study.sh status     progress              then: bcbench report ~/.cache/bcbench/cpu --export results/cpu
+# Start or resume a long study (default: the converged CPU study, studies/cpu.toml) in the background at low
+# priority, with its run folder outside the work tree so that a later session on this machine resumes it
+# where it stopped. SPEC names another study file; its folder, log and pin are named after it.
+#   scripts/cpu_study.sh [start] [SPEC]   start / resume     scripts/cpu_study.sh stop [SPEC]   stop it (it saves)
+#   scripts/cpu_study.sh status [SPEC]    progress           then: bcbench report ~/.cache/bcbench/cpu --export results/cpu
 # The study runs at ONE commit from start to end: the first start pins the current (clean) HEAD and runs
 # from its own clone of it ($BCBENCH_HOME/src-<commit>), so the work tree can move on while it runs for
 # hours and every result it writes carries the same commit. Starting afresh at a newer commit means
@@ -11,10 +12,13 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export BCBENCH_HOME="${BCBENCH_HOME:-$HOME/.cache/bcbench}"
-OUT="$BCBENCH_HOME/cpu"
-LOG="$BCBENCH_HOME/cpu.log"
-PIN="$BCBENCH_HOME/cpu.commit"
-PATTERN="bcbench.cli study .*studies/cpu.toml"
+SPEC="${2:-studies/cpu.toml}"
+[ -f "$SPEC" ] || { echo "error: no study file $SPEC" >&2; exit 2; }
+NAME="$(basename "$SPEC" .toml)"
+OUT="$BCBENCH_HOME/$NAME"
+LOG="$BCBENCH_HOME/$NAME.log"
+PIN="$BCBENCH_HOME/$NAME.commit"
+PATTERN="bcbench.cli study .*$SPEC"
 case "${1:-start}" in
   start)
     if pgrep -f "$PATTERN" >/dev/null; then echo "already running (log: $LOG)"; exit 0; fi
@@ -36,7 +40,7 @@ case "${1:-start}" in
     # ahead of the work tree's editable install; the work tree's .venv supplies the libraries.
     export BCBENCH_DATA="${BCBENCH_DATA:-$PWD/../shared/data/pusht/pusht_cchi_v7_replay.zarr}"
     (cd "$SRC" && PYTHONPATH="$SRC/src" nohup nice -n 10 "$OLDPWD/.venv/bin/python" -m bcbench.cli \
-        study studies/cpu.toml --out "$OUT" >>"$LOG" 2>&1 &)
+        study "$SPEC" --out "$OUT" >>"$LOG" 2>&1 &)
     echo "started at commit ${COMMIT:0:12}: results in $OUT, log $LOG" ;;
   stop)
     pkill -INT -f "$PATTERN" && echo "asked to stop (it checkpoints and exits)" || echo "not running" ;;
@@ -45,5 +49,5 @@ case "${1:-start}" in
     [ -f "$PIN" ] && echo "pinned commit: $(cut -c1-12 "$PIN")"
     [ -f "$OUT/index.jsonl" ] && echo "finished stages: $(wc -l < "$OUT/index.jsonl")"
     tail -c 400 "$LOG" 2>/dev/null | tr '\r' '\n' | grep -v '^$' | tail -1 ;;
-  *) echo "usage: $0 [start|stop|status]" >&2; exit 2 ;;
+  *) echo "usage: $0 [start|stop|status] [SPEC]" >&2; exit 2 ;;
 esac
