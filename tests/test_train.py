@@ -201,3 +201,22 @@ def test_periodic_rollouts_log_a_learning_curve(synthetic_zarr, tmp_path, one_th
     evals = [m for m in read_jsonl(run / "metrics.jsonl") if "eval_score" in m]
     assert [m["step"] for m in evals] == [2, 4] and all(m["eval_seed_start"] == 200_000 for m in evals)
     assert all(m["samples"] == m["step"] * 4 and m["wall_time_s"] > 0 for m in evals)
+
+
+def test_old_trainer_worker_times_steps_and_refuses_what_it_cannot_build(synthetic_zarr):
+    """benchmarks/old_trainer_step.py (train_throughput --old-commit) answers 'ready', then one step time per
+    requested step; a policy its code lacks gets one error line instead of a crash."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": str(root / "src"), "BCBENCH_DATA": str(synthetic_zarr)}
+    worker = [sys.executable, str(root / "benchmarks" / "old_trainer_step.py")]
+    net = {k: v for k, v in tiny_overrides("cnn_mlp").items() if not k.startswith("optim.batch")}
+    proc = subprocess.run([*worker, "cnn_mlp", json.dumps(net), "4", "1"], input="2\n1\n", capture_output=True,
+                          text=True, env=env, timeout=300)
+    lines = [json.loads(x) for x in proc.stdout.splitlines()]
+    assert proc.returncode == 0 and "ready" in lines[0], proc.stderr
+    assert [len(x) for x in lines[1:]] == [2, 1] and all(t > 0 for x in lines[1:] for t in x)
+    proc = subprocess.run([*worker, "no_such_policy", "{}", "4", "1"], input="1\n", capture_output=True, text=True,
+                          env=env, timeout=300)
+    assert proc.returncode == 0 and "unknown policy" in json.loads(proc.stdout.splitlines()[0])["error"]
