@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -124,17 +125,16 @@ def checkout_src(commit: str, dest: Path) -> Path:
     return dest
 
 
-def compare(name: str, settings: dict[str, tuple], rounds: int, steps: int, ds) -> dict[str, float]:
-    """Every setting (config, precision, batch, channels-last[, a ready step closure]) interleaved round by
-    round, so that a noisy neighbour on a shared machine slows all alike; median samples/s of each over all
-    its timed steps (each round's first step is warm-up)."""
-    fns = {k: v[4] if len(v) > 4 else step_fn(name, *v[:4], ds) for k, v in settings.items()}
+def compare(settings: dict[str, tuple[int, Callable[[], float]]], rounds: int, steps: int) -> dict[str, float]:
+    """Every setting (its batch, a closure timing one step) interleaved round by round, so that a noisy
+    neighbour on a shared machine slows all alike; median samples/s of each over all its timed steps (each
+    round's first step is warm-up)."""
     times: dict[str, list[float]] = {k: [] for k in settings}
     for _ in range(rounds):
-        for k, fn in fns.items():
+        for k, (_, fn) in settings.items():
             fn()
             times[k] += [fn() for _ in range(steps)]
-    return {k: settings[k][2] / float(np.median(t)) for k, t in times.items()}
+    return {k: settings[k][0] / float(np.median(t)) for k, t in times.items()}
 
 
 def ablation_settings(cfg, old_cfg, prec: str) -> dict[str, tuple[Any, str, int, bool]]:
@@ -194,13 +194,14 @@ def main() -> None:
         cfg = make_config(name, args.config)
         old_cfg = dataclasses.replace(cfg, optim=dataclasses.replace(cfg.optim, batch_size=64, precision="fp32"))
         prec = resolve_precision(cfg.optim.precision, torch.device("cpu"))
-        settings = {"old": (old_cfg, "fp32", 64, False), "new": (cfg, cfg.optim.precision, cfg.optim.batch_size, True)}
+        specs = {"old": (old_cfg, "fp32", 64, False), "new": (cfg, cfg.optim.precision, cfg.optim.batch_size, True)}
         if args.ablation:
-            settings |= ablation_settings(cfg, old_cfg, prec)
+            specs |= ablation_settings(cfg, old_cfg, prec)
+        settings = {k: (batch, step_fn(name, c, p, batch, cl, ds)) for k, (c, p, batch, cl) in specs.items()}
         trainer_fn = old_trainer_fn(name, cfg, old_src, args.threads) if old_src else None
         if trainer_fn is not None:
-            settings[f"old trainer ({args.old_commit[:7]})"] = (old_cfg, "fp32", 64, False, trainer_fn)
-        sps = compare(name, settings, args.rounds, args.steps, ds)
+            settings[f"old trainer ({args.old_commit[:7]})"] = (64, trainer_fn)
+        sps = compare(settings, args.rounds, args.steps)
         old, new = sps.pop("old"), sps.pop("new")
         rows.append({"policy": name, "config": args.config, "old_samples_per_s": old, "new_samples_per_s": new,
                      "new_precision": prec, "new_batch": cfg.optim.batch_size, "speedup": new / old,

@@ -108,18 +108,20 @@ def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float) -> s
         return ""
     safe = {e: largest_safe_delay(settings, e, margin) for e in ("async", "blocking")
             if any(k.startswith(f"realtime-{e}-d") for k in settings)}
+
+    def minus_sync(modes: Any, setting: str) -> str:  # "async -0.036 [-0.106, +0.031]; blocking ..."
+        keys = [(e, f"realtime-{e}-{setting}") for e in modes if f"realtime-{e}-{setting}" in settings]
+        return "; ".join(f"{e} {est:+.3f} [{lo:+.3f}, {hi:+.3f}]"
+                         for e, k in keys for est, lo, hi, _ in [delay_vs_sync(settings, k)])
+
     if not safe:  # e.g. a backend's sweep: sync and measured only
-        diffs = "; ".join(f"{e} {est:+.3f} [{lo:+.3f}, {hi:+.3f}]" for e in ("async", "blocking")
-                          if f"realtime-{e}-measured" in settings
-                          for est, lo, hi, _ in [delay_vs_sync(settings, f"realtime-{e}-measured")])
+        diffs = minus_sync(("async", "blocking"), "measured")
         return f"At its measured latency, minus sync: {diffs}." if diffs else ""
     head = "Largest safe delay: " + ", ".join(f"{e} d = {d}" for e, d in safe.items())
     mode, best = max(safe.items(), key=lambda kv: kv[1])  # ties: async, listed first
     if best == 0:
-        d1 = "; ".join(f"{e} {est:+.3f} [{lo:+.3f}, {hi:+.3f}]" for e in safe if f"realtime-{e}-d1" in settings
-                       for est, lo, hi, _ in [delay_vs_sync(settings, f"realtime-{e}-d1")])
-        return (f"{head}: no delay is shown within the margin (d = 1 minus sync: {d1}), so no real-time control "
-                "rate is shown to keep its sync score.")
+        return (f"{head}: no delay is shown within the margin (d = 1 minus sync: {minus_sync(safe, 'd1')}), so no "
+                "real-time control rate is shown to keep its sync score.")
     measured = settings.get(f"realtime-{mode}-measured", {}).get("summary", {}).get("latency_source", {})
     fits = ""
     if measured:
