@@ -67,7 +67,8 @@ def step_fn(name: str, cfg, precision: str, batch: int, channels_last: bool, ds)
     def step() -> float:
         count[0] += 1
         t = time.perf_counter()
-        b = get_batch(batch, count[0], ds)
+        with torch.profiler.record_function("data: gather batch"):  # a label for train_profile.py; free otherwise
+            b = get_batch(batch, count[0], ds)
         with autocast(torch.device("cpu"), prec):
             loss = model.compute_loss(b)
         opt.zero_grad(set_to_none=True)
@@ -111,6 +112,17 @@ def old_trainer_fn(name: str, cfg, commit_src: Path, threads: int) -> Any:
         return json.loads(line)[0]
 
     return step
+
+
+def load_train_windows() -> Any:
+    """The real training windows when the dataset is beside the repo, else None (random batches)."""
+    try:
+        from bcbench.data import load_replay_buffer, make_datasets, resolve_dataset
+
+        return make_datasets(load_replay_buffer(resolve_dataset(None)))[0]
+    except Exception as exc:  # no dataset: random tensors of the same shapes
+        print(f"(dataset not found, random batches: {exc})")
+        return None
 
 
 def checkout_src(commit: str, dest: Path) -> Path:
@@ -175,13 +187,7 @@ def main() -> None:
     ap.add_argument("--out", default="results/train-throughput")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
-    ds = None
-    try:
-        from bcbench.data import load_replay_buffer, make_datasets, resolve_dataset
-
-        ds = make_datasets(load_replay_buffer(resolve_dataset(None)))[0]
-    except Exception as exc:  # no dataset: random tensors of the same shapes
-        print(f"(dataset not found, random batches: {exc})")
+    ds = load_train_windows()
     old_src = None
     if args.old_commit:
         import tempfile

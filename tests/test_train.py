@@ -220,3 +220,27 @@ def test_old_trainer_worker_times_steps_and_refuses_what_it_cannot_build(synthet
     proc = subprocess.run([*worker, "no_such_policy", "{}", "4", "1"], input="1\n", capture_output=True, text=True,
                           env=env, timeout=300)
     assert proc.returncode == 0 and "unknown policy" in json.loads(proc.stdout.splitlines()[0])["error"]
+
+
+def test_train_profile_sums_op_time_into_families():
+    """benchmarks/train_profile.py: aten ops land in their family, unknown ones in 'other', and a profiled
+    step's convolution shows up as convolution forward and backward."""
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    try:
+        import train_profile as tp
+    finally:
+        sys.path.pop(0)
+    assert tp.family("aten::convolution_backward") == "convolution backward"
+    assert tp.family("aten::native_group_norm_backward").startswith("normalisation")
+    assert tp.family("aten::_fused_adamw_") == "optimiser and EMA" and tp.family("aten::no_such_op") == "other"
+    conv = torch.nn.Conv2d(3, 4, 3)
+    x = torch.rand(2, 3, 8, 8)
+
+    def step() -> None:
+        conv(x).relu().sum().backward()
+
+    fams, top, wall = tp.profile_steps(step, 2)
+    assert fams["convolution backward"] > 0 and fams["convolution forward"] > 0 and wall > 0
+    assert len(top) <= 12 and all(ms >= 0 for ms in top.values())
