@@ -10,7 +10,7 @@ import torch
 from bcbench.policies import make_policy
 from bcbench.policies.diffusion import STUDY_PARAMETERS, DiffusionConfig
 from bcbench.policies.samplers import make_diffusers_sampler, make_train_scheduler, plan, run_diffusers, run_plan
-from bcbench.policies.unet1d import ConditionalResidualBlock1D, ConditionalUnet1D
+from bcbench.policies.unet1d import ConditionalResidualBlock1D, ConditionalUnet1D, Conv1d
 from tests.tiny import tiny_overrides
 
 
@@ -210,3 +210,20 @@ def test_flow_rejects_diffusion_options(tiny_flow):
         tiny_flow.set_sampler("ddim", 10)
     with pytest.raises(BCBenchError, match="spacing"):
         tiny_flow.set_sampler("euler", 2, "leading")
+
+
+@pytest.mark.parametrize("cin,cout,k,stride,t", [(4, 6, 5, 1, 8), (3, 5, 3, 2, 8), (6, 2, 1, 1, 4), (4, 4, 5, 1, 16),
+                                                 (600, 7, 5, 1, 16)])
+def test_conv1d_matrix_forms_equal_the_convolution_with_gradients(cin, cout, k, stride, t):
+    """The U-Net's Conv1d in training (banded product for T <= 8, im2col for wide layers, else oneDNN) gives
+    the convolution's output and the same input and weight gradients."""
+    torch.manual_seed(0)
+    conv = Conv1d(cin, cout, k, stride, k // 2).train()
+    x = torch.randn(5, cin, t, requires_grad=True)
+    got = conv(x)
+    want = torch.nn.functional.conv1d(x, conv.weight, conv.bias, stride, k // 2)
+    assert got.shape == want.shape and torch.allclose(got, want, atol=1e-4)
+    grad = torch.randn_like(want)
+    g_got = torch.autograd.grad(got, [x, conv.weight, conv.bias], grad)
+    g_want = torch.autograd.grad(want, [x, conv.weight, conv.bias], grad)
+    assert all(torch.allclose(a, b, atol=1e-3) for a, b in zip(g_got, g_want, strict=True))
