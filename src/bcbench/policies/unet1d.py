@@ -10,7 +10,6 @@ At the study's size (down dims 256/512/1024, kernel 5, 8 groups, step embedding 
 
 from __future__ import annotations
 
-import functools
 import itertools
 import math
 import typing
@@ -43,53 +42,29 @@ def im2col(x: torch.Tensor, k: int, stride: int, pad: int) -> torch.Tensor:
     return u.transpose(1, 2).reshape(x.shape[0], u.shape[2], -1)
 
 
-@functools.lru_cache(maxsize=64)
-def tap_of(t_in: int, t_out: int, k: int, stride: int, pad: int, device: torch.device) -> torch.Tensor:
-    """(k, T, T') 0/1: tap j of a stride/pad convolution links input step t to output step u."""
-    j = torch.arange(t_in, device=device)[:, None] - stride * torch.arange(t_out, device=device)[None, :] + pad
-    return (j[None] == torch.arange(k, device=device)[:, None, None]).float()
-
-
 class Conv1d(nn.Conv1d):
-    """nn.Conv1d (same parameters and state dict) that on a CPU runs as matrix products where that is faster.
+    """nn.Conv1d (same parameters and state dict) that on a CPU runs wide layers as one matrix product.
 
-    oneDNN's 1-D convolution kernels are slow for the U-Net's shapes (4-16 time steps, 64-1024 channels):
-    - training on short sequences (T <= BANDED_MAX_T, i.e. the lower U-Net levels): the whole layer is one
-      product of the flattened input (B, Cin*T) with the banded matrix (Cin*T, Cout*T') that the kernel
-      spans (built from the weights by one small product with the constant tap pattern, so its gradient is
-      a product too). It does more multiply-adds than the convolution (zeros in the band) but they run on
-      AMX/tensor units, and there is no im2col to scatter back in the backward pass: measured on the cpu
-      Diffusion Policy at batch 256, bf16, 2 cores, interleaved: 649 -> 494 ms a training step;
-    - wide layers (Cin * k >= MATMUL_MIN_FAN_IN) otherwise: im2col + matmul (forward + backward of a
-      512->512 kernel-5 layer at batch 256: 146 ms as a convolution, 39 ms this way in bf16, 103 vs 77 fp32).
-    Same arithmetic, summed in another order (equal to float tolerance). Exported graphs keep the convolution.
+    oneDNN's 1-D convolution kernels are slow for the U-Net's shapes (4-16 time steps, 256-1024 channels):
+    measured at batch 256 on 2 cores, forward + backward of a 512->512 kernel-5 layer takes 146 ms as a
+    convolution and 39 ms as im2col + matmul in bf16 (103 vs 77 ms in fp32); narrow layers are as fast or
+    faster as convolutions. Same arithmetic, summed in another order (equal to float tolerance).
     """
 
     # Cin * k from which the matmul wins, under bf16 autocast (True) and in fp32 (False)
     MATMUL_MIN_FAN_IN: typing.ClassVar[dict[bool, int]] = {True: 1280, False: 2560}
-    BANDED_MAX_T: typing.ClassVar[int] = 8  # longest input run as one banded product in training
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:  # (B, Cin, T) -> (B, Cout, T')
-        if x.device.type != "cpu" or torch.jit.is_tracing():
-            return super().forward(x)
-        if self.training and x.shape[2] <= self.BANDED_MAX_T:
-            return self._banded(x)
-        if self.in_channels * self.kernel_size[0] < self.MATMUL_MIN_FAN_IN[torch.is_autocast_enabled("cpu")]:
+        fan_in = self.in_channels * self.kernel_size[0]
+        # exported graphs (OpenVINO) keep the convolution: the runtime picks its own kernels for it
+        if x.device.type != "cpu" or fan_in < self.MATMUL_MIN_FAN_IN[torch.is_autocast_enabled("cpu")] or \
+                torch.jit.is_tracing():
             return super().forward(x)
         out = im2col(x, self.kernel_size[0], self.stride[0], self.padding[0]) @ self.weight.reshape(
             self.out_channels, -1).t()  # (B, T', Cout)
         if self.bias is not None:
             out = out + self.bias
         return out.transpose(1, 2)
-
-    def _banded(self, x: torch.Tensor) -> torch.Tensor:
-        b, cin, t = x.shape
-        k, stride, pad = self.kernel_size[0], self.stride[0], self.padding[0]
-        t_out = (t + 2 * pad - k) // stride + 1
-        taps = tap_of(t, t_out, k, stride, pad, x.device)  # (k, T, T')
-        band = torch.einsum("oik,ktu->itou", self.weight, taps).reshape(cin * t, -1)  # (Cin*T, Cout*T')
-        out = (x.reshape(b, cin * t) @ band).view(b, self.out_channels, t_out)
-        return out if self.bias is None else out + self.bias[:, None]
 
 
 class Conv1dBlock(nn.Sequential):
