@@ -40,8 +40,8 @@ FAMILIES: list[tuple[str, tuple[str, ...]]] = [
         "aten::mish", "aten::threshold_backward", "aten::clamp_min", "aten::relu", "aten::gelu", "aten::silu")),
     ("pooling fwd+bwd", ("aten::max_pool", "aten::avg_pool", "aten::adaptive_avg_pool", "aten::mean")),
     ("random crop and im2col (unfold, index)", ("aten::unfold", "aten::index", "aten::im2col")),
-    ("copies, casts, fills", ("aten::copy_", "aten::_to_copy", "aten::to", "aten::fill_", "aten::zero_",
-                              "aten::contiguous", "aten::clone", "aten::empty")),
+    ("copies, casts, fills, allocation", ("aten::copy_", "aten::_to_copy", "aten::fill_", "aten::zero_",
+                                          "aten::contiguous", "aten::clone", "aten::empty")),
     ("optimiser and EMA", ("aten::_fused_adam", "aten::lerp", "aten::_foreach", "Optimizer.")),
     ("gathering the batch (numpy)", ("data: gather batch",)),
     ("element-wise and reductions", ("aten::add", "aten::mul", "aten::sub", "aten::div", "aten::sum",
@@ -63,7 +63,8 @@ def profile_steps(step, steps: int) -> tuple[dict[str, float], dict[str, float],
     ops = {e.key: e.self_cpu_time_total / 1e3 / steps for e in prof.key_averages()}
     fams: dict[str, float] = {}
     for op, ms in ops.items():
-        fams[family(op)] = fams.get(family(op), 0.0) + ms
+        f = family(op)
+        fams[f] = fams.get(f, 0.0) + ms
     top = dict(sorted(ops.items(), key=lambda kv: -kv[1])[:12])
     return dict(sorted(fams.items(), key=lambda kv: -kv[1])), top, wall
 

@@ -214,7 +214,7 @@ def test_flow_rejects_diffusion_options(tiny_flow):
 
 @pytest.mark.parametrize("cin,cout,k,stride,t", [(4, 6, 5, 1, 8), (3, 5, 3, 2, 8), (6, 2, 1, 1, 4), (4, 4, 5, 1, 16),
                                                  (600, 7, 5, 1, 16)])
-def test_conv1d_matrix_forms_equal_the_convolution_with_gradients(cin, cout, k, stride, t):
+def test_conv1d_equals_the_convolution_with_gradients(cin, cout, k, stride, t):
     """The U-Net's Conv1d (im2col + matmul for wide layers, else oneDNN's convolution) gives the convolution's
     output and the same input and weight gradients."""
     torch.manual_seed(0)
