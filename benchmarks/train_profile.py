@@ -24,7 +24,7 @@ from torch.profiler import ProfilerActivity, profile
 from train_throughput import load_train_windows, step_fn
 
 from bcbench.policies import make_config
-from bcbench.training import resolve_precision
+from bcbench.training import keep_freed_memory, resolve_precision
 from bcbench.utils.io import atomic_path, write_json
 from bcbench.utils.system import provenance
 
@@ -93,6 +93,7 @@ def main() -> None:
     if args.steps < 1:
         raise SystemExit("error: --steps must be >= 1")
     torch.set_num_threads(args.threads)
+    keep_freed_memory()  # as `bcbench train` does on a CPU
     cfg = make_config(args.policy, args.config)
     batch, prec = cfg.optim.batch_size, resolve_precision(cfg.optim.precision, torch.device("cpu"))
     step = step_fn(args.policy, cfg, cfg.optim.precision, batch, True, load_train_windows())

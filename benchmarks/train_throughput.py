@@ -18,8 +18,10 @@ random tensors of the real shapes otherwise), forward, loss, backward, the confi
 config keeps one, the same code as `bcbench train` (bcbench.training). Old and new run interleaved in
 --rounds rounds of --steps timed steps each (after one warm-up step per round): this machine is a shared
 VM whose speed drifts by tens of percent within minutes, and interleaving exposes both settings to it
-alike. Median samples/s of each over all its timed steps. Stop anything else running first: timings from a
-busy machine mean nothing.
+alike. Median samples/s of each over all its timed steps. Like `bcbench train`, the process first makes
+malloc keep freed memory (bcbench.training.keep_freed_memory), so every setting in it, old ones included,
+runs with it; the old trainer's subprocess runs without it, as that trainer did. Stop anything else running
+first: timings from a busy machine mean nothing.
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ import torch
 
 from bcbench.policies import learned_policies, make_config
 from bcbench.policies.config import config_to_dict
-from bcbench.training import EMA, autocast, channels_last_convs, make_optimizer, resolve_precision
+from bcbench.training import EMA, autocast, channels_last_convs, keep_freed_memory, make_optimizer, resolve_precision
 from bcbench.utils.io import atomic_path, write_json
 from bcbench.utils.system import provenance
 
@@ -187,6 +189,7 @@ def main() -> None:
     ap.add_argument("--out", default="results/train-throughput")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
+    keeps_freed = keep_freed_memory()  # as `bcbench train` does on a CPU: for every setting of this process
     ds = load_train_windows()
     old_src = None
     if args.old_commit:
@@ -222,7 +225,7 @@ def main() -> None:
     out = Path(args.out)
     write_json(out / "throughput.json", {"type": "train-throughput", "steps": args.steps, "rounds": args.rounds,
                                          "old_commit": args.old_commit,
-                                         "real_data": ds is not None,
+                                         "real_data": ds is not None, "malloc_keeps_freed": keeps_freed,
                                          "rows": rows, **provenance("cpu")})
     with atomic_path(out / "throughput.md") as tmp:
         tmp.write_text(markdown(rows))

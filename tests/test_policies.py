@@ -9,6 +9,7 @@ import torch
 from bcbench.data import MinMaxNormalizer
 from bcbench.policies import REGISTRY, learned_policies, make_config, make_policy
 from bcbench.policies.config import config_from_dict, config_to_dict
+from bcbench.policies.encoders import resnet18, resnet50
 from bcbench.policies.learned import PolicyRunner
 from tests.tiny import TINY, tiny_overrides
 
@@ -74,3 +75,26 @@ def test_runner_maps_raw_observations_to_pixels(name):
     chunk = runner.predict_action_chunk(obs)
     assert chunk.shape == (2, 16, 2) and chunk.dtype == np.float32
     assert runner.chunk_start == 1 and runner.describe()["parameters"] == model.num_parameters()
+
+
+@pytest.mark.parametrize("make, norm", [(resnet18, "group"), (resnet50, "batch")])
+@pytest.mark.parametrize("bf16", [False, True])
+def test_resnet_stem_relu_after_pool_keeps_values_and_gradients(make, norm, bf16):
+    """The stem runs ReLU after the max-pool (faster): it must equal the textbook order bit for bit, forward and
+    backward, also in bf16, where ties inside a pooling window are frequent."""
+    torch.manual_seed(0)
+    net = make(norm, width=16, layers=(1, 1))
+    x = torch.randn(4, 3, 40, 40)
+
+    def textbook(x: torch.Tensor) -> torch.Tensor:
+        y = net.maxpool(net.relu(net.bn1(net.conv1(x))))
+        return net.layer2(net.layer1(y))
+
+    outs = []
+    for fn in (net, textbook):
+        with torch.autocast("cpu", torch.bfloat16, enabled=bf16):
+            out = fn(x)
+        outs.append((out, torch.autograd.grad(out.float().square().sum(), list(net.parameters()))))
+    (out, grads), (ref, ref_grads) = outs
+    assert torch.equal(out, ref)
+    assert all(torch.equal(a, b) for a, b in zip(grads, ref_grads, strict=True))

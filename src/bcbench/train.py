@@ -36,6 +36,7 @@ from bcbench.training import (
     autocast,
     channels_last_convs,
     has_batchnorm,
+    keep_freed_memory,
     make_optimizer,
     make_scheduler,
     pick_device,
@@ -126,6 +127,7 @@ class Run:
     state: TrainState
     dist: Distributed  # this process in a torchrun group (world 1 without torchrun)
     loss_fn: torch.nn.Module  # the model's loss as a module: DDP-wrapped with several processes
+    malloc_keeps_freed: bool = False  # keep_freed_memory() took effect (CPU training on glibc)
 
     @property
     def o(self) -> OptimConfig:
@@ -161,6 +163,7 @@ def prepare(run_dir: str | Path, opts: TrainOptions) -> Run:
     if opts.threads:
         torch.set_num_threads(opts.threads)
     device = pick_device(opts.device)
+    keeps_freed = device.type == "cpu" and keep_freed_memory()  # before the big tensors
     split = meta.get("data_split", {})
     buf = load_replay_buffer(resolve_dataset(opts.data))
     torch.manual_seed(meta["config"]["seed"])  # initialisation is part of the seeded run
@@ -180,7 +183,7 @@ def prepare(run_dir: str | Path, opts: TrainOptions) -> Run:
     dist = Distributed(device)
     r = Run(run_dir, meta, model, ema, optimizer, make_scheduler(optimizer, o, total_steps), train_ds, val_ds, norm,
             device, resolve_precision(o.precision, device), steps_per_epoch, int(total_steps), TrainState(), dist,
-            dist.wrap(model))
+            dist.wrap(model), keeps_freed)
     norm_file = run_dir / "normalizer.json"
     if norm_file.exists():  # resumed: keep the statistics the weights were trained with
         r.normalizer = MinMaxNormalizer.from_dict(read_json(norm_file))
@@ -379,7 +382,7 @@ def _summary(r: Run, reason: str, samples: int, seconds: float) -> dict[str, Any
         "parameters": r.model.num_parameters(), "samples_per_s": samples / seconds if seconds else None,
         "train_time_s_this_session": seconds, "train_time_s": s.train_time_s,
         "val_loss": s.last_val, "best_val_loss": s.best_val, "precision": r.precision,
-        "device": str(r.device), "threads": torch.get_num_threads(),
+        "malloc_keeps_freed": r.malloc_keeps_freed, "device": str(r.device), "threads": torch.get_num_threads(),
         "train_windows": len(r.train_ds), "val_windows": len(r.val_ds), **provenance(str(r.device)),
     }
     write_json(r.run_dir / "train_summary.json", summary)

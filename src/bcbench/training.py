@@ -86,6 +86,25 @@ def channels_last_convs(model: torch.nn.Module) -> torch.nn.Module:
     return model
 
 
+def keep_freed_memory() -> bool:
+    """Make glibc's malloc keep freed memory in the process instead of handing it back to the kernel.
+
+    By default glibc serves large blocks (a batch-256 activation is tens of MB) with mmap and unmaps them when
+    freed, so every training step maps them afresh and the kernel zero-fills them page by page. Measured for
+    DP's cpu config on 2 cores: 13-30k page faults and 25-130 ms of kernel time a step, 2k and ~20 ms with
+    this (about 12% more samples/s, 130 MB more resident memory). No mmap for blocks (M_MMAP_MAX 0) and a
+    1 GiB trim threshold; process-wide, for the rest of the process. Returns False where libc is not glibc.
+    """
+    import ctypes
+
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        m_trim_threshold, m_mmap_max = -1, -4  # glibc's mallopt parameter numbers (malloc.h)
+        return bool(libc.mallopt(m_mmap_max, 0)) and bool(libc.mallopt(m_trim_threshold, 1 << 30))
+    except (OSError, AttributeError):
+        return False
+
+
 class EMA:
     """Exponential moving average of weights with Diffusion Policy's warm-up: decay = 1 - (1 + step)^-power."""
 

@@ -96,7 +96,10 @@ class ResNet(nn.Module):
         self.out_channels = inplanes
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        x = self.maxpool(self.relu(self.bn1(self.conv1(x))))
+        # ReLU after the max-pool: max commutes with the monotone ReLU, so values and gradients are the same,
+        # but ReLU then runs on a quarter of the stem's largest tensor (measured: stem forward + backward
+        # 62 -> 40 ms at batch 512, 84x84, bf16, 2 cores)
+        x = self.relu(self.maxpool(self.bn1(self.conv1(x))))
         for i in range(self.n_layers):
             x = getattr(self, f"layer{i + 1}")(x)
         return x
