@@ -14,6 +14,7 @@ import html
 from pathlib import Path
 from typing import Any
 
+from bcbench.errors import BCBenchError
 from bcbench.fewstep import fewstep_lines, load_paired
 from bcbench.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
 from bcbench.findings import DEFAULT_MARGIN, judge, points_from_rows
@@ -191,7 +192,41 @@ def deviation_lines(rows: list[Row]) -> list[str]:
     if not cpu:
         return []
     return ["## Deviations from the papers' recipes (cpu presets)", "",
-            *[f"- {p}: {CPU_DEVIATIONS[p]}" for p in cpu], ""]
+            *[f"- {p}: {CPU_DEVIATIONS[p]}" for p in cpu], *preset_change_lines(rows), ""]
+
+
+# not recipe changes: how a run is kept, and its step budget (the table's training column shows the epochs)
+_NOT_RECIPE = {"optim.checkpoint_every", "seed", "optim.max_steps"}
+
+
+def preset_change_lines(rows: list[Row]) -> list[str]:
+    """A line per trained run whose config departs from its preset (a study's `set`)."""
+    from bcbench.policies import make_config
+    from bcbench.policies.config import config_to_dict
+
+    def flat(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for k, v in d.items():
+            out |= flat(v, f"{prefix}{k}.") if isinstance(v, dict) else {f"{prefix}{k}": list(v) if isinstance(
+                v, tuple) else v}  # tuples as a file reads them back: lists
+        return out
+
+    lines, seen = [], set()
+    for r in rows:
+        run = str(Path(r.source).parent)  # one line per run, not per evaluated variant
+        if not r.config or not r.preset or run in seen:
+            continue
+        seen.add(run)
+        try:
+            preset = flat(config_to_dict(make_config(r.policy, r.preset)))
+        except BCBenchError:  # a preset this version no longer has: nothing to compare with
+            continue
+        own = flat(r.config)
+        diff = [f"{k} {own[k]} (preset {preset[k]})" for k in sorted(own)
+                if k in preset and k not in _NOT_RECIPE and own[k] != preset[k]]
+        if diff:
+            lines.append(f"- {r.label} changes its {r.preset} preset: {', '.join(diff)}")
+    return lines
 
 
 def convergence_lines(rows: list[Row]) -> list[str]:
