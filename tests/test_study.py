@@ -233,20 +233,16 @@ def test_study_time_sums_the_recorded_work(tmp_path):
 
 def test_report_lists_what_a_run_changed_in_its_preset():
     """A study's `set` (batch, lr) is a recipe change the report must name; bookkeeping and budget are not."""
-    from bcbench.policies import make_config
-    from bcbench.policies.config import config_to_dict
     from bcbench.report import preset_change_lines
     from bcbench.results import Row
 
-    def row(label, source, **optim):
-        cfg = config_to_dict(make_config("diffusion", "cpu"))
-        cfg["optim"] |= optim
-        return Row(key=label, label=label, policy="diffusion", preset="cpu", variant="ddpm100", sampler="ddpm",
-                   steps=100, spacing="trailing", beta_schedule=None, params=1, summary={}, source=source,
-                   config=json.loads(json.dumps(cfg)))  # as read back from a file: tuples become lists
+    def row(label, variant, **overrides):
+        return Row(key=f"{label}:{variant}", label=label, policy="diffusion", preset="cpu", variant=variant,
+                   sampler="ddpm", steps=100, spacing="trailing", beta_schedule=None, params=1, summary={},
+                   overrides=overrides)
 
-    rows = [row("DP as preset", "r/a/eval-ddpm100.json", checkpoint_every=7, max_steps=99),
-            row("DP batch 64", "r/b/eval-ddpm100.json", batch_size=64, lr=5e-4),
-            row("DP batch 64", "r/b/eval-ddim10.json", batch_size=64, lr=5e-4)]
+    rows = [row("DP as preset", "ddpm100", **{"optim.checkpoint_every": 7, "optim.max_steps": 99, "seed": 0}),
+            row("DP batch 64", "ddpm100", **{"optim.batch_size": 64, "optim.lr": 5e-4}),
+            row("DP batch 64", "ddim10", **{"optim.batch_size": 64, "optim.lr": 5e-4})]
     assert preset_change_lines(rows) == [
         "- DP batch 64 changes its cpu preset: optim.batch_size 64 (preset 256), optim.lr 0.0005 (preset 0.001)"]

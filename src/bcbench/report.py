@@ -200,32 +200,27 @@ _NOT_RECIPE = {"optim.checkpoint_every", "seed", "optim.max_steps"}
 
 
 def preset_change_lines(rows: list[Row]) -> list[str]:
-    """A line per trained run whose config departs from its preset (a study's `set`)."""
+    """A line per trained run that overrode its preset (a study's `set`), from the overrides its run.json records."""
     from bcbench.policies import make_config
     from bcbench.policies.config import config_to_dict
 
-    def flat(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-        out: dict[str, Any] = {}
-        for k, v in d.items():
-            out |= flat(v, f"{prefix}{k}.") if isinstance(v, dict) else {f"{prefix}{k}": list(v) if isinstance(
-                v, tuple) else v}  # tuples as a file reads them back: lists
-        return out
+    def preset_value(preset: dict[str, Any], key: str) -> Any:
+        for part in key.split("."):
+            preset = preset[part]
+        return list(preset) if isinstance(preset, tuple) else preset  # as a file reads it back
 
     lines, seen = [], set()
     for r in rows:
-        run = str(Path(r.source).parent)  # one line per run, not per evaluated variant
-        if not r.config or not r.preset or run in seen:
+        changed = sorted(k for k in r.overrides if k not in _NOT_RECIPE)
+        if not changed or not r.preset or r.key.split(":")[0] in seen:  # one line per run, not per variant
             continue
-        seen.add(run)
+        seen.add(r.key.split(":")[0])
         try:
-            preset = flat(config_to_dict(make_config(r.policy, r.preset)))
+            preset = config_to_dict(make_config(r.policy, r.preset))
         except BCBenchError:  # a preset this version no longer has: nothing to compare with
             continue
-        own = flat(r.config)
-        diff = [f"{k} {own[k]} (preset {preset[k]})" for k in sorted(own)
-                if k in preset and k not in _NOT_RECIPE and own[k] != preset[k]]
-        if diff:
-            lines.append(f"- {r.label} changes its {r.preset} preset: {', '.join(diff)}")
+        lines.append(f"- {r.label} changes its {r.preset} preset: "
+                     + ", ".join(f"{k} {r.overrides[k]} (preset {preset_value(preset, k)})" for k in changed))
     return lines
 
 

@@ -50,7 +50,7 @@ class Row:
     hardware: dict[str, Any] = field(default_factory=dict)
     timed_on: str | None = None  # the machine that timed it (recorded by studies; matters on a cluster)
     source: str = ""
-    config: dict[str, Any] = field(default_factory=dict)  # the policy config it ran with (as evaluated)
+    overrides: dict[str, Any] = field(default_factory=dict)  # dotted preset overrides (its run.json)
 
     def est(self, name: str) -> dict[str, Any]:
         return self.summary[name]
@@ -96,13 +96,14 @@ def _row_from_eval(path: Path, margin: float = 0.05) -> Row:
               preset=pol.get("preset"), variant=vkey, sampler=sampler, steps=steps, spacing=spacing,
               beta_schedule=cfg.get("beta_schedule"), params=int(pol.get("parameters", 0)), summary=ev["summary"],
               scores={int(e["seed"]): float(e["score"]) for e in ev.get("episodes", [])},
-              git_commit=ev.get("git_commit"), hardware=ev.get("hardware", {}), source=str(path),
-              config=cfg)
+              git_commit=ev.get("git_commit"), hardware=ev.get("hardware", {}), source=str(path))
     lat = run_dir / f"latency-{vkey}.json"
     if lat.exists():
         record = read_json(lat)
         row.latency = record["modes"]
         row.timed_on = record.get("node")
+    if (run_dir / "run.json").exists():
+        row.overrides = read_json(run_dir / "run.json").get("overrides") or {}
     if (run_dir / "train_summary.json").exists():
         row.train = read_json(run_dir / "train_summary.json")
         row.curve = load_curve(run_dir)
