@@ -58,6 +58,14 @@ eval = [{{ sampler = "ddpm", steps = [2] }}, {{ sampler = "ddim", steps = [2] }}
     ("[[run]]\npolicy = 'cnn_mlp'\nset = {'optim.nope' = 1}", "unknown config field"),
     ("[[run]]\npolicy = 'cnn_mlp'\ncolour = 'red'", "unknown key(s) colour"),
     ("[study]\nepisodes = 0\n[[run]]\npolicy = 'random'", "study.episodes"),
+    # the seed protocol: an explore study (where choices are made) never reads the test seeds 100000-100099
+    ("[study]\npurpose = 'explore'\nepisodes = 50\n[[run]]\npolicy = 'random'", "validation seeds"),
+    ("[study]\npurpose = 'explore'\nseed_start = 99990\nepisodes = 50\n[[run]]\npolicy = 'random'",
+     "validation seeds"),
+    ("[study]\npurpose = 'explore'\nseed_start = 200000\nepisodes = 20\n[[run]]\npolicy = 'random'",
+     "episodes >= 50"),
+    ("[study]\npurpose = 'confirm'\nseed_start = 200000\n[[run]]\npolicy = 'random'", "test seeds from 100000"),
+    ("[study]\npurpose = 'tune'\n[[run]]\npolicy = 'random'", "purpose must be explore or confirm"),
     ("[studdy]\n[[run]]\npolicy = 'random'", "unknown key(s) in the spec: studdy"),
 ])
 def test_bad_specs_are_clear_errors(text, message, tmp_path):
@@ -246,3 +254,15 @@ def test_report_lists_what_a_run_changed_in_its_preset():
             row("DP batch 64", "ddim10", **{"optim.batch_size": 64, "optim.lr": 5e-4})]
     assert preset_change_lines(rows) == [
         "- DP batch 64 changes its cpu preset: optim.batch_size 64 (preset 256), optim.lr 0.0005 (preset 0.001)"]
+
+
+def test_runner_refuses_test_seeds_in_an_explore_study(tmp_path):
+    """A spec built in code (not parsed) is checked again where the study starts: nothing runs, nothing is written."""
+    from bcbench.study import run_study
+
+    spec = parse_spec({"study": {"purpose": "explore", "seed_start": 200000, "episodes": 50},
+                       "run": [{"policy": "random"}]})
+    spec.seed_start = 100000
+    with pytest.raises(BCBenchError, match="validation seeds"):
+        run_study(spec, tmp_path / "out", progress=False)
+    assert not (tmp_path / "out").exists()

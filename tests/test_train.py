@@ -183,7 +183,7 @@ def test_precise_batchnorm_sets_exact_population_statistics():
 
 
 def test_bf16_autocast_trains_and_is_recorded(synthetic_zarr, tmp_path, one_thread):
-    from bcbench.training import cpu_has_bf16
+    from bcbench.utils.system import cpu_has_bf16
 
     run = new_run("diffusion", "quick", tiny_overrides("diffusion", max_steps=3, precision="bf16"), tmp_path / "b",
                   _opts(synthetic_zarr))
@@ -192,6 +192,29 @@ def test_bf16_autocast_trains_and_is_recorded(synthetic_zarr, tmp_path, one_thre
     auto = prepare(new_run("cnn_mlp", "quick", tiny_overrides("cnn_mlp"), tmp_path / "a", _opts(synthetic_zarr)),
                    _opts(synthetic_zarr))
     assert auto.precision == ("bf16" if cpu_has_bf16() else "fp32")
+
+
+def test_precision_is_fixed_at_the_first_segment_and_every_segment_names_its_cpu(synthetic_zarr, tmp_path,
+                                                                               one_thread, monkeypatch):
+    """`auto` resolves once: a run resumed on a CPU that would resolve differently keeps its precision and its
+    segments.jsonl says the new machine computes it natively or not (no silent change of numerics)."""
+    import bcbench.train as train_mod
+    from bcbench.utils.system import cpu_flags
+
+    run = new_run("cnn_mlp", "quick", tiny_overrides("cnn_mlp", max_steps=2, epochs=10), tmp_path / "p",
+                  _opts(synthetic_zarr))
+    monkeypatch.setattr(train_mod, "resolve_precision", lambda requested, device: "bf16")
+    train(run, _opts(synthetic_zarr))  # first segment: auto -> bf16 (as on an AVX512-BF16 CPU)
+    meta = json.loads((run / "run.json").read_text())
+    meta["config"]["optim"]["max_steps"] = 4  # a longer budget, so that a second segment trains
+    (run / "run.json").write_text(json.dumps(meta))
+    monkeypatch.setattr(train_mod, "resolve_precision", lambda requested, device: "fp32")  # an AVX2-only CPU
+    monkeypatch.setattr(train_mod, "cpu_has_bf16", lambda: False)
+    s = train(run, _opts(synthetic_zarr))
+    seg = read_jsonl(run / "segments.jsonl")
+    assert [x["start_step"] for x in seg] == [0, 2] and s["precision"] == "bf16"
+    assert [x["precision"] for x in seg] == ["bf16", "bf16"] and seg[1]["precision_native"] is False
+    assert "emulated" in seg[1]["note"] and seg[1]["cpu_flags"] == list(cpu_flags()) and s["segments"] == seg
 
 
 def test_periodic_rollouts_log_a_learning_curve(synthetic_zarr, tmp_path, one_thread):

@@ -336,7 +336,8 @@ def _html(intro: str, findings: list[Any], table: list[list[str]], figs: dict[st
             f"{_html_table(COLUMNS, table)}<h2>Training: converged?</h2><ul>{train_items}</ul>{images}</body></html>\n")
 
 
-EXPORTED = ("spec.json", "index.jsonl", "run.json", "train_summary.json", "normalizer.json", "metrics.jsonl")
+EXPORTED = ("spec.json", "index.jsonl", "run.json", "train_summary.json", "normalizer.json", "metrics.jsonl",
+            "segments.jsonl")
 
 
 def export_results(results: str | Path, dest: str | Path) -> int:

@@ -13,6 +13,8 @@
     precision = "fp32"      # with openvino: fp32 (exact), bf16 or int8 (approximate)
     latency_modes = ["reference", "fast"]   # timed forms (bcbench.backends.MODES)
     resources = { train = { cpus = 2, gpus = 1 }, eval = { cpus = 1 } }   # per stage kind, under --ray
+    purpose = "explore"     # explore: validation seeds 200000+ only, >= 50 episodes (choices are made here);
+                            # confirm: fixed presets on the test seeds 100000+ (bcbench.protocol)
 
     [[run]]
     policy = "diffusion"
@@ -38,10 +40,11 @@ from pathlib import Path
 from typing import Any
 
 from bcbench.errors import BCBenchError
+from bcbench.protocol import check_purpose
 
 STUDY_KEYS = {"name", "episodes", "seed_start", "val_fraction", "latency", "threads", "max_steps", "rate_hz",
               "latency_min_calls", "latency_min_seconds", "device", "margin", "curve_episodes", "realtime",
-              "backend", "precision", "latency_modes", "resources"}
+              "backend", "precision", "latency_modes", "resources", "purpose"}
 RUN_KEYS = {"policy", "config", "steps", "max_minutes", "seeds", "set", "eval", "label", "eval_every", "realtime"}
 REALTIME_KEYS = {"delays", "execution", "profiles", "measured"}
 
@@ -114,6 +117,7 @@ class StudySpec:
     resources: dict[str, dict[str, float]] = field(default_factory=dict)  # stage kind -> cpus, gpus (Ray)
     runs: list[RunSpec] = field(default_factory=list)
     source: str = ""
+    purpose: str | None = None  # explore or confirm (bcbench.protocol); None: written before the seed protocol
 
 
 def _where(i: int, run: dict[str, Any]) -> str:
@@ -250,6 +254,10 @@ def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
             if not good or (typ is int and isinstance(v, bool)) or not ok(v):
                 raise BCBenchError(f"study.{key} has an invalid value {v!r}")
             setattr(spec, key, v)
+    spec.purpose = study.get("purpose")
+    problem = check_purpose(spec.purpose, spec.seed_start, spec.episodes)
+    if problem:
+        raise BCBenchError(f"study.purpose: {problem}")
     if "realtime" in study:
         spec.realtime = _realtime_table(study["realtime"])
     _backend_keys(study, spec)

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from bcbench.errors import BCBenchError
+from bcbench.protocol import check_purpose
 from bcbench.spec import RunSpec, StudySpec, Variant
 from bcbench.utils.io import append_jsonl, read_json, write_json
 
@@ -103,8 +104,8 @@ class StudyRunner:
         from bcbench.evaluate import EvalConfig, evaluate
 
         cfg = EvalConfig(episodes=self.spec.episodes, seed_start=self.spec.seed_start, max_steps=self.spec.max_steps)
-        extra = {"study": {"name": self.spec.name, "label": run.label, "variant": asdict(variant),
-                           "run_dir": str(self.run_dir(run))}}
+        extra = {"study": {"name": self.spec.name, "purpose": self.spec.purpose, "label": run.label,
+                           "variant": asdict(variant), "run_dir": str(self.run_dir(run))}}
         return evaluate(self._policy(run, variant), cfg, None, progress=self.progress, extra=extra)
 
     def _latency(self, run: RunSpec, variant: Variant) -> dict[str, Any]:
@@ -191,6 +192,9 @@ def run_study(spec: StudySpec, out: str | Path | None = None, data: str | None =
     out = (Path(out) if out else Path("runs") / "studies" / spec.name).resolve()  # Ray workers: any cwd
     if not spec.runs:
         raise BCBenchError("the study has no runs")
+    problem = check_purpose(spec.purpose, spec.seed_start, spec.episodes)  # a spec built in code, not parsed
+    if problem:
+        raise BCBenchError(f"study {spec.name}: {problem}")
     runner = StudyRunner(spec, out, str(Path(data).resolve()) if data else None, progress, on_stage)
     if ray is None:
         return runner.run()

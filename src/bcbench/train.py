@@ -29,6 +29,7 @@ from bcbench.data import MinMaxNormalizer, load_replay_buffer, make_datasets, re
 from bcbench.errors import BCBenchError
 from bcbench.policies import REGISTRY
 from bcbench.policies.config import OptimConfig, config_to_dict, with_overrides
+from bcbench.protocol import VALIDATION_SEED_START
 from bcbench.training import (
     EMA,
     Distributed,
@@ -45,10 +46,10 @@ from bcbench.training import (
     step_noise,
 )
 from bcbench.utils.io import append_jsonl, read_json, read_jsonl, write_json, write_jsonl
-from bcbench.utils.system import provenance
+from bcbench.utils.system import cpu_flags, cpu_has_bf16, cpu_model, git_commit, provenance
 
 STOPPED_BY_TIME = "stopped by time: schedule not finished"
-VALIDATION_SEED_START = 200_000  # rollouts during training: disjoint from the test seeds 100000+
+
 PRECISE_BN_BATCHES = 50
 
 __all__ = ["EMA", "STOPPED_BY_TIME", "TrainOptions", "TrainState", "new_run", "pick_device", "precise_batchnorm",
@@ -182,7 +183,7 @@ def prepare(run_dir: str | Path, opts: TrainOptions) -> Run:
     optimizer = make_optimizer(model, o)
     dist = Distributed(device)
     r = Run(run_dir, meta, model, ema, optimizer, make_scheduler(optimizer, o, total_steps), train_ds, val_ds, norm,
-            device, resolve_precision(o.precision, device), steps_per_epoch, int(total_steps), TrainState(), dist,
+            device, _run_precision(run_dir, o.precision, device), steps_per_epoch, int(total_steps), TrainState(), dist,
             dist.wrap(model), keeps_freed)
     norm_file = run_dir / "normalizer.json"
     if norm_file.exists():  # resumed: keep the statistics the weights were trained with
@@ -192,6 +193,25 @@ def prepare(run_dir: str | Path, opts: TrainOptions) -> Run:
     train_ds.normalizer = val_ds.normalizer = r.normalizer
     _resume(r)
     return r
+
+
+def _run_precision(run_dir: Path, requested: str, device: torch.device) -> str:
+    """The precision is resolved once, at a run's first training segment, and kept when the run resumes on
+    another machine: `auto` must not switch a half-trained run between bf16 and fp32 (a segment on a CPU
+    without native bf16 then says so in segments.jsonl instead of silently changing numerics)."""
+    first = next(iter(read_jsonl(run_dir / "segments.jsonl")), None) if (run_dir / "segments.jsonl").exists() else None
+    return first["precision"] if first else resolve_precision(requested, device)
+
+
+def _log_segment(r: Run) -> None:
+    """One line per training session of the run: where it ran (CPU model and flags) and at which precision."""
+    native = r.precision == "fp32" or r.device.type == "cuda" or cpu_has_bf16()
+    append_jsonl(r.run_dir / "segments.jsonl", {
+        "start_step": r.state.step, "started": datetime.now(UTC).isoformat(timespec="seconds"),
+        "precision": r.precision, "precision_requested": r.o.precision, "precision_native": native,
+        **({} if native else {"note": "bf16 autocast is emulated on this CPU (no AVX512-BF16 or AMX): slower"}),
+        "device": str(r.device), "cpu_model": cpu_model(), "cpu_flags": list(cpu_flags()),
+        "threads": torch.get_num_threads(), "git_commit": git_commit()})
 
 
 def _resume(r: Run) -> None:
@@ -301,6 +321,8 @@ def train(run_dir: str | Path, opts: TrainOptions, on_step: Callable[[Run], None
                disable=not opts.progress or not r.dist.main)
     reason, run_loss, run_n, samples_session, time_session, perm_epoch, perm = "finished", 0.0, 0, 0, 0.0, -1, None
     r.model.train()
+    if r.dist.main:
+        _log_segment(r)
     with StopFlag() as stop:
         while state.step < r.total_steps:
             t0 = time.perf_counter()
@@ -383,7 +405,8 @@ def _summary(r: Run, reason: str, samples: int, seconds: float) -> dict[str, Any
         "train_time_s_this_session": seconds, "train_time_s": s.train_time_s,
         "val_loss": s.last_val, "best_val_loss": s.best_val, "precision": r.precision,
         "malloc_keeps_freed": r.malloc_keeps_freed, "device": str(r.device), "threads": torch.get_num_threads(),
-        "train_windows": len(r.train_ds), "val_windows": len(r.val_ds), **provenance(str(r.device)),
+        "train_windows": len(r.train_ds), "val_windows": len(r.val_ds),
+        "segments": read_jsonl(r.run_dir / "segments.jsonl"), **provenance(str(r.device)),
     }
     write_json(r.run_dir / "train_summary.json", summary)
     return summary

@@ -7,13 +7,13 @@ import contextlib
 import copy
 import math
 import signal
-from pathlib import Path
 from typing import Any
 
 import torch
 
 from bcbench.errors import BCBenchError
 from bcbench.policies.config import OptimConfig
+from bcbench.utils.system import cpu_has_bf16
 
 PRECISIONS = ("auto", "fp32", "bf16")
 
@@ -49,15 +49,6 @@ def pick_device(name: str) -> torch.device:
     if name not in ("cpu", "cuda"):
         raise BCBenchError(f"--device must be auto, cpu or cuda, got '{name}'")
     return torch.device(name)
-
-
-def cpu_has_bf16() -> bool:
-    """Whether this CPU computes bf16 natively (AVX512-BF16 or AMX): otherwise bf16 autocast is emulated, slower."""
-    try:
-        flags = next((ln for ln in Path("/proc/cpuinfo").read_text().splitlines() if ln.startswith("flags")), "")
-    except OSError:
-        return False
-    return any(f in flags.split() for f in ("avx512_bf16", "amx_bf16"))
 
 
 def resolve_precision(precision: str, device: torch.device) -> str:

@@ -23,6 +23,28 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
+# The instruction-set features that decide which kernels (and precisions) run fast on a CPU.
+ISA_FLAGS = ("avx2", "fma", "avx512f", "avx512_vnni", "avx512_bf16", "amx_tile", "amx_bf16", "amx_int8", "asimd",
+             "sve")
+
+
+@functools.cache
+def cpu_flags() -> tuple[str, ...]:
+    """This CPU's ISA_FLAGS that are present (from /proc/cpuinfo; empty where it cannot be read)."""
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return ()
+    line = next((ln for ln in text.splitlines() if ln.startswith(("flags", "Features"))), "")
+    have = set(line.split(":", 1)[-1].split())
+    return tuple(f for f in ISA_FLAGS if f in have)
+
+
+def cpu_has_bf16() -> bool:
+    """Whether this CPU computes bf16 natively (AVX512-BF16 or AMX): otherwise bf16 autocast is emulated, slower."""
+    return bool({"avx512_bf16", "amx_bf16"} & set(cpu_flags()))
+
+
 @functools.cache
 def git_commit(repo: Path | None = None) -> str | None:
     """The commit of the working tree bcbench runs from, with '-dirty' if it has changes.
@@ -81,6 +103,7 @@ def hardware(device: str | None = None) -> dict[str, Any]:
     info: dict[str, Any] = {
         "device": device,
         "cpu_model": cpu_model(),
+        "cpu_flags": list(cpu_flags()),
         "cpu_count": os.cpu_count(),
         "torch_threads": torch.get_num_threads(),
         "platform": platform.platform(),

@@ -1,0 +1,37 @@
+"""The seed protocol (torch-free): which episode seeds a choice may read and which are kept for the final test.
+
+- Test episodes: seeds 100000-100099, Diffusion Policy's and the literature's. Only a `confirm` study reads
+  them, once per final preset; nothing is ever chosen because of a score on them.
+- Validation episodes: seeds 200000+. Learning curves and every `explore` study read these; every choice
+  (recipe, preset, step count, which variant to run next) is made on them, over at least 50 episodes.
+"""
+
+from __future__ import annotations
+
+TEST_SEED_START = 100_000
+TEST_EPISODES = 100
+VALIDATION_SEED_START = 200_000
+MIN_CHOICE_EPISODES = 50  # episodes behind any choice (a 20-episode curve point is too noisy: SE ~0.06)
+PURPOSES = ("explore", "confirm")
+
+
+def overlaps_test_seeds(seed_start: int, episodes: int) -> bool:
+    """Whether episode seeds seed_start .. seed_start + episodes - 1 touch the test seeds."""
+    return seed_start < TEST_SEED_START + TEST_EPISODES and seed_start + episodes > TEST_SEED_START
+
+
+def check_purpose(purpose: str | None, seed_start: int, episodes: int) -> str | None:
+    """None if the study's evaluation seeds fit its purpose, else the reason (one line)."""
+    if purpose is None:
+        return None  # written before the protocol: the report labels it
+    if purpose not in PURPOSES:
+        return f"purpose must be {' or '.join(PURPOSES)}, got {purpose!r}"
+    if purpose == "explore":
+        if overlaps_test_seeds(seed_start, episodes) or seed_start < VALIDATION_SEED_START:
+            return (f"an explore study evaluates on validation seeds ({VALIDATION_SEED_START}+), not "
+                    f"{seed_start}..{seed_start + episodes - 1}: the test seeds are kept for a confirm study")
+        if episodes < MIN_CHOICE_EPISODES:
+            return f"an explore study makes choices: it needs episodes >= {MIN_CHOICE_EPISODES}, got {episodes}"
+    elif seed_start != TEST_SEED_START:
+        return f"a confirm study evaluates on the test seeds from {TEST_SEED_START}, not from {seed_start}"
+    return None
