@@ -27,9 +27,9 @@ def main() -> None:
     from bcbench.data import load_replay_buffer, make_datasets, resolve_dataset
     from bcbench.policies import REGISTRY, make_config
     try:  # where the trainer kept them before the flat training loop, then where it keeps them now
-        from bcbench.train import EMA, make_optimizer, make_scheduler
+        from bcbench.training.loop import EMA, make_optimizer, make_scheduler
     except ImportError:
-        from bcbench.training import EMA, make_optimizer, make_scheduler
+        from bcbench.training.parts import EMA, make_optimizer, make_scheduler
 
     try:
         cfg = make_config(name, "quick", {**overrides, "optim.batch_size": batch})  # the network under test

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from bcbench.backends import set_mode
+from bcbench.evaluation.backends import set_mode
 from bcbench.policies import make_policy
 from bcbench.utils.io import write_json
 from bcbench.utils.system import provenance

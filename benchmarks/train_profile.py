@@ -24,7 +24,7 @@ from torch.profiler import ProfilerActivity, profile
 from train_throughput import load_train_windows, step_fn
 
 from bcbench.policies import make_config
-from bcbench.training import keep_freed_memory, resolve_precision
+from bcbench.training.parts import keep_freed_memory, resolve_precision
 from bcbench.utils.io import atomic_path, write_json
 from bcbench.utils.system import provenance
 

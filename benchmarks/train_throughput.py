@@ -15,7 +15,7 @@ the training code's own changes bought (vectorised crop, fused EMA and optimiser
 matrix products, one permutation per epoch).
 One optimiser step = a batch gathered from the real training windows (when the dataset is beside the repo;
 random tensors of the real shapes otherwise), forward, loss, backward, the config's optimiser, EMA if the
-config keeps one, the same code as `bcbench train` (bcbench.training). Old and new run interleaved in
+config keeps one, the same code as `bcbench train` (bcbench.training.parts). Old and new run interleaved in
 --rounds rounds of --steps timed steps each (after one warm-up step per round): this machine is a shared
 VM whose speed drifts by tens of percent within minutes, and interleaving exposes both settings to it
 alike. Median samples/s of each over all its timed steps. Like `bcbench train`, the process first makes
@@ -38,7 +38,14 @@ import torch
 
 from bcbench.policies import learned_policies, make_config
 from bcbench.policies.config import config_to_dict
-from bcbench.training import EMA, autocast, channels_last_convs, keep_freed_memory, make_optimizer, resolve_precision
+from bcbench.training.parts import (
+    EMA,
+    autocast,
+    channels_last_convs,
+    keep_freed_memory,
+    make_optimizer,
+    resolve_precision,
+)
 from bcbench.utils.io import atomic_path, write_json
 from bcbench.utils.system import provenance
 

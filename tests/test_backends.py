@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 import torch
 
-from bcbench.backends import EXACT_MODES, MODES, apply_mode, mode_name, record_graph_inputs, set_mode
-from bcbench.cli import main
+from bcbench.cli.main import main
 from bcbench.errors import BCBenchError
+from bcbench.evaluation.backends import apply_mode, record_graph_inputs, set_mode
+from bcbench.modes import EXACT_MODES, MODES, mode_name
 from bcbench.policies import learned_policies, make_policy
 from tests.tiny import tiny_overrides
 
@@ -90,7 +91,7 @@ def test_approximate_modes_are_close_and_labelled(name, modes, exports, tmp_path
 
 
 def test_mode_names_and_errors(monkeypatch):
-    from bcbench.cli_parser import MODES as PARSER_MODES
+    from bcbench.cli.parser import MODES as PARSER_MODES
 
     assert PARSER_MODES == MODES  # the parser lists them without importing torch
     assert mode_name("torch") == "fast" and mode_name("torch", reference=True) == "reference"
@@ -110,7 +111,7 @@ def _train_tiny(run, data) -> None:
 
 
 def test_export_cache_and_the_eval_cli(synthetic_zarr, tmp_path, monkeypatch, capsys):
-    from bcbench.checkpoint import latest_checkpoint, load_runner
+    from bcbench.policies.checkpoint import latest_checkpoint, load_runner
 
     run = tmp_path / "run"
     _train_tiny(run, synthetic_zarr)

@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from bcbench.cli import main
+from bcbench.cli.main import main
 
 SUBCOMMANDS = [["data"], ["data", "fetch"], ["data", "info"], ["data", "replay"], ["eval"]]
 
@@ -108,7 +108,7 @@ def test_data_replay_command(real_zarr, tmp_path, capsys):
 
 
 def test_pretrained_only_for_policies_that_can_use_it(tmp_path, capsys):
-    from bcbench.cli import main
+    from bcbench.cli.main import main
 
     weights = tmp_path / "r18.pth"
     weights.write_bytes(b"x")

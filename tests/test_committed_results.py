@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from bcbench.report import write_report
+from bcbench.analysis.report import write_report
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
 STUDIES = sorted(p.parent.parent for p in RESULTS.glob("*/report/report.md"))

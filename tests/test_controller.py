@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bcbench.env.controller import ChunkedController
 from bcbench.errors import BCBenchError
+from bcbench.evaluation.controller import ChunkedController
 
 
 class CountingPolicy:

@@ -12,7 +12,7 @@ import sys
 import pytest
 import torch
 
-from bcbench.checkpoint import latest_checkpoint
+from bcbench.policies.checkpoint import latest_checkpoint
 from tests.tiny import tiny_overrides
 
 BIN = os.path.dirname(sys.executable)
@@ -27,7 +27,7 @@ def _train(run, data, procs: int | None = None, resume: bool = False):
     cmd = [os.path.join(BIN, "bcbench"), "train", *args, "--data", str(data), "--quiet", "--threads", "1"]
     if procs:
         cmd = [os.path.join(BIN, "torchrun"), "--nproc-per-node", str(procs), "--master-port", "29517",
-               "-m", "bcbench.cli", *cmd[1:]]
+               "-m", "bcbench.cli.main", *cmd[1:]]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
 

@@ -8,9 +8,10 @@ import pytest
 import torch
 
 from bcbench.policies import make_policy
-from bcbench.policies.diffusion import STUDY_PARAMETERS, DiffusionConfig
+from bcbench.policies.diffusion import DiffusionConfig
 from bcbench.policies.samplers import make_diffusers_sampler, make_train_scheduler, plan, run_diffusers, run_plan
 from bcbench.policies.unet1d import ConditionalResidualBlock1D, ConditionalUnet1D, Conv1d
+from bcbench.reference import DIFFUSION_PARAMETERS as STUDY_PARAMETERS
 from tests.tiny import tiny_overrides
 
 
@@ -127,7 +128,7 @@ def test_linear_beta_config():
 
 
 def test_eval_with_sampler_from_a_checkpoint(synthetic_zarr, tmp_path):
-    from bcbench.cli import main  # in-process: a subprocess per command cost this test 40 s of start-up
+    from bcbench.cli.main import main  # in-process: a subprocess per command cost this test 40 s of start-up
 
     run = tmp_path / "dp"
     sets = [a for k, v in tiny_overrides("diffusion", max_steps=2).items() for a in ("--set", f"{k}={json.dumps(v)}")]

@@ -9,7 +9,7 @@ import pytest
 
 from bcbench.env.pusht import dp_initial_state
 from bcbench.errors import BCBenchError
-from bcbench.evaluate import EvalConfig, evaluate
+from bcbench.evaluation.evaluate import EvalConfig, evaluate
 from bcbench.policies import REGISTRY, is_learned, make_policy
 from bcbench.stats import bootstrap_ci, score_summary
 
@@ -94,7 +94,7 @@ def test_stochastic_policy_chunks_do_not_depend_on_the_batch(name):
     import torch
 
     from bcbench.data.normalizer import MinMaxNormalizer
-    from bcbench.env.controller import ChunkedController
+    from bcbench.evaluation.controller import ChunkedController
     from bcbench.policies.learned import PolicyRunner
     from tests.tiny import tiny_overrides
 

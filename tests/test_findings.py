@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bcbench.findings import (
+from bcbench.analysis.findings import (
     CONTRADICTED,
     INCONCLUSIVE,
     SUPPORTED,
@@ -114,7 +114,7 @@ def test_margin_moves_the_verdict():
 
 
 def test_plateau_rule_on_learning_curves():
-    from bcbench.curves import Curve, plateau
+    from bcbench.analysis.curves import Curve, plateau
 
     def curve(scores):
         steps = [100 * (i + 1) for i in range(len(scores))]
@@ -141,7 +141,7 @@ def fewstep_points(shift: float, flow_ms: float) -> list[Point]:
 @pytest.mark.parametrize("shift, flow_ms, goal", [(0.0, 15.0, "met at K = 1"), (0.0, 30.0, "not met"),
                                                   (-0.3, 15.0, "not met"), (0.2, 15.0, "met at K = 1")])
 def test_fewstep_goal_needs_both_the_score_and_the_speed(shift, flow_ms, goal):
-    from bcbench.fewstep import fewstep_lines
+    from bcbench.analysis.fewstep import fewstep_lines
 
     lines = fewstep_lines(fewstep_points(shift, flow_ms), 0.05)
     assert f"**{goal}**" in lines[-2]
@@ -151,7 +151,7 @@ def test_fewstep_goal_needs_both_the_score_and_the_speed(shift, flow_ms, goal):
 
 
 def test_fewstep_section_is_absent_without_flow_or_ddpm100():
-    from bcbench.fewstep import fewstep_lines
+    from bcbench.analysis.fewstep import fewstep_lines
 
     pts = fewstep_points(0.0, 15.0)
     assert fewstep_lines(pts[1:], 0.05) == [] and fewstep_lines(pts[:3], 0.05) == []
@@ -160,7 +160,7 @@ def test_fewstep_section_is_absent_without_flow_or_ddpm100():
 def test_interleaved_timings_replace_the_study_blocks_where_given():
     """A study times settings in separate blocks minutes apart; a paired (interleaved) file corrects both the
     few-step latency share and finding 3's DDIM/DDPM time ratio, in the mode it was timed in only."""
-    from bcbench.fewstep import fewstep_lines
+    from bcbench.analysis.fewstep import fewstep_lines
 
     pts = fewstep_points(0.0, 30.0)  # by the study's blocks: 0.30 of DDIM-10, goal not met
     paired = {"mode": "fast", "rounds": 5, "threads": 2, "median_ms": {"euler1": 15.0, "ddim10": 100.0}}

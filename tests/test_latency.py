@@ -7,9 +7,9 @@ import json
 import pytest
 import torch
 
-from bcbench.backends import apply_mode
-from bcbench.bench import _normalizer
-from bcbench.latency import TimingConfig, latency_record, time_calls, verdicts
+from bcbench.evaluation.backends import apply_mode
+from bcbench.evaluation.benchmark import _normalizer
+from bcbench.evaluation.timing import TimingConfig, latency_record, time_calls, verdicts
 from bcbench.policies import make_policy
 from bcbench.policies.learned import PolicyRunner
 from tests.tiny import tiny_overrides
@@ -50,7 +50,7 @@ def test_latency_record_for_a_trained_style_runner_and_a_baseline():
 
 
 def test_latency_cli_writes_json_table_and_plot(tmp_path, capsys):
-    from bcbench.cli import main
+    from bcbench.cli.main import main
 
     assert main(["latency", "--policy", "cnn_mlp", "--policy", "random", "--config", "quick", "--quick",
                  "--mode", "reference", "--mode", "openvino-bf16", "--out", str(tmp_path)]) == 0

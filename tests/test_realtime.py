@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bcbench.env.controller import ChunkedController
 from bcbench.errors import BCBenchError
-from bcbench.evaluate import EvalConfig, evaluate
+from bcbench.evaluation.controller import ChunkedController
+from bcbench.evaluation.evaluate import EvalConfig, evaluate
+from bcbench.evaluation.latency_sources import LatencySource, profile_ms, steps_for
 from bcbench.policies import make_policy
-from bcbench.realtime import LatencySource, profile_ms, steps_for
 
 
 class PlannedStep:
@@ -96,7 +96,7 @@ def test_latency_sources():
     (["--latency-ms", "1700", "--execution", "async"], "entirely in the past"),
 ])
 def test_bad_realtime_input_is_one_line_exit_2(args, message, capsys):
-    from bcbench.cli import main
+    from bcbench.cli.main import main
 
     assert main(["eval", "--policy", "scripted", "--episodes", "1", "--max-steps", "5", "--quiet", *args]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -104,7 +104,7 @@ def test_bad_realtime_input_is_one_line_exit_2(args, message, capsys):
 
 
 def test_realtime_sweep_cli(tmp_path, capsys):
-    from bcbench.cli import main
+    from bcbench.cli.main import main
 
     out = tmp_path / "rt"
     assert main(["realtime", "--policy", "scripted", "--episodes", "2", "--delays", "0", "2", "--profile", "a100",
@@ -118,7 +118,7 @@ def test_realtime_sweep_cli(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "realtime-async-d2" in printed and "Largest safe delay: async d = " in printed
     assert not (out / "fig5_realtime.png").exists()  # no measured setting: no real-time Figure 5
-    from bcbench.results import load_realtime
+    from bcbench.analysis.results import load_realtime
 
     found = load_realtime(tmp_path)  # the sweep's record: what a study's report reads when it lies inside one
     assert list(found) == ["scripted"] and sorted(found["scripted"]) == [n.removesuffix(".json") for n in names]
@@ -136,9 +136,9 @@ def test_realtime_report_states_the_largest_safe_delay_and_the_highest_safe_rate
     """A policy unhurt up to d = 2 at 50 ms a call is safe up to 2 / 0.05 s = 40 Hz (20 Hz at its slowest
     call, 100 ms); one that loses 0.3 at d = 1 has no safe real-time rate; one that keeps its score blocking
     but not async gets the blocking rate. Figure 5, real time, is drawn."""
-    from bcbench.figures import figure5_realtime
-    from bcbench.realtime import highest_safe_rate
-    from bcbench.report import realtime_lines
+    from bcbench.analysis.figures import figure5_realtime
+    from bcbench.analysis.realtime import highest_safe_rate
+    from bcbench.analysis.report import realtime_lines
 
     base = np.random.default_rng(0).uniform(0.3, 0.9, 100)
     steady = {"realtime-sync": _setting(base), "realtime-async-d1": _setting(base), "realtime-async-d2":
@@ -170,16 +170,16 @@ def test_realtime_report_states_the_largest_safe_delay_and_the_highest_safe_rate
 
 def test_an_interrupted_sweep_keeps_its_finished_settings(monkeypatch):
     """A study's sweep saves after every setting; rerun with what was saved, it evaluates only the rest."""
-    import bcbench.evaluate
-    from bcbench.realtime import sweep
+    import bcbench.evaluation.realtime
+    from bcbench.evaluation.realtime import sweep
 
-    real, ran, saved = bcbench.evaluate.evaluate, [], []
+    real, ran, saved = bcbench.evaluation.realtime.evaluate, [], []
 
     def counting(policy, cfg, *args, **kw):
         ran.append(kw["extra"]["realtime"]["setting"])
         return real(policy, cfg, *args, **kw)
 
-    monkeypatch.setattr(bcbench.evaluate, "evaluate", counting)
+    monkeypatch.setattr(bcbench.evaluation.realtime, "evaluate", counting)
     kw = {"delays": [2], "executions": ["async", "blocking"], "episodes": 1, "profiles": [], "measured": False,
           "progress": False, "max_steps": 20}
     full = sweep(make_policy("scripted"), **kw, on_setting=lambda r: saved.append(dict(r)))

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
+from bcbench.analysis.report import write_report
 from bcbench.errors import BCBenchError
-from bcbench.report import write_report
-from bcbench.spec import load_spec, parse_spec
+from bcbench.study.spec import load_spec, parse_spec
 from tests.tiny import TINY
 
 
@@ -80,7 +80,7 @@ def test_bad_toml_and_missing_file(tmp_path, capsys):
     bad.write_text("[[run]\npolicy=")
     with pytest.raises(BCBenchError, match="not valid TOML"):
         load_spec(bad)
-    from bcbench.cli import main
+    from bcbench.cli.main import main
 
     assert main(["study", str(tmp_path / "none.toml")]) == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
@@ -112,15 +112,18 @@ def test_config_hash_changes_with_the_config():
 
 KILL_AFTER_3_STAGES = """
 import os, signal, sys
-from bcbench.spec import load_spec
-from bcbench.study import run_study
-kill = lambda runner: os.kill(os.getpid(), signal.SIGKILL) if runner.executed == 3 else None
-run_study(load_spec(sys.argv[1]), sys.argv[2], sys.argv[3], progress=False, on_stage=kill)
+from bcbench.study import StudyRunner
+from bcbench.study.spec import load_spec
+class Killed(StudyRunner):
+    def after_stage(self):
+        if self.executed == 3:
+            os.kill(os.getpid(), signal.SIGKILL)
+Killed(load_spec(sys.argv[1]), sys.argv[2], sys.argv[3], progress=False).run()
 """
 
 
 def test_study_killed_then_rerun_resumes_without_redoing(synthetic_zarr, tmp_path, capsys):
-    from bcbench.cli import main  # the reruns in-process (a subprocess each cost 10 s of start-up)
+    from bcbench.cli.main import main  # the reruns in-process (a subprocess each cost 10 s of start-up)
 
     spec = tmp_path / "tiny.toml"
     spec.write_text(_spec_text(tmp_path))
@@ -203,7 +206,7 @@ def test_report_from_fixture_files(tmp_path):
 
 
 def test_export_copies_results_but_no_checkpoints(tmp_path):
-    from bcbench.report import export_results
+    from bcbench.analysis.report import export_results
     from bcbench.utils.io import write_json
 
     src = tmp_path / "study"
@@ -217,8 +220,8 @@ def test_export_copies_results_but_no_checkpoints(tmp_path):
 
 def test_study_time_sums_the_recorded_work(tmp_path):
     """Optimiser time over every session of a resumed run, its curve rollouts, and each other stage's seconds."""
-    from bcbench.report import time_lines
-    from bcbench.results import study_time
+    from bcbench.analysis.report import time_lines
+    from bcbench.analysis.results import study_time
     from bcbench.utils.io import append_jsonl, write_json
 
     run = tmp_path / "runs" / "dp"
@@ -240,14 +243,15 @@ def test_study_time_sums_the_recorded_work(tmp_path):
 
 
 def test_report_lists_what_a_run_changed_in_its_preset():
-    """A study's `set` (batch, lr) is a recipe change the report must name; bookkeeping and budget are not."""
-    from bcbench.report import preset_change_lines
-    from bcbench.results import Row
+    """A study's `set` (batch, lr) is a recipe change the report must name; bookkeeping and budget are not. The
+    preset's values come from the run's own file (run.json's preset_values, which new_run writes)."""
+    from bcbench.analysis.report import preset_change_lines
+    from bcbench.analysis.results import Row
 
     def row(label, variant, **overrides):
         return Row(key=f"{label}:{variant}", label=label, policy="diffusion", preset="cpu", variant=variant,
                    sampler="ddpm", steps=100, spacing="trailing", beta_schedule=None, params=1, summary={},
-                   overrides=overrides)
+                   overrides=overrides, preset_values={"optim.batch_size": 256, "optim.lr": 1e-3})
 
     rows = [row("DP as preset", "ddpm100", **{"optim.checkpoint_every": 7, "optim.max_steps": 99, "seed": 0}),
             row("DP batch 64", "ddpm100", **{"optim.batch_size": 64, "optim.lr": 5e-4}),

@@ -9,8 +9,8 @@ import sys
 import pytest
 
 from bcbench.errors import BCBenchError
-from bcbench.spec import load_spec, parse_spec
 from bcbench.study import run_study
+from bcbench.study.spec import load_spec, parse_spec
 from tests.tiny import TINY
 
 ray = pytest.importorskip("ray")
@@ -19,7 +19,7 @@ ray = pytest.importorskip("ray")
 @pytest.fixture(scope="module")
 def local_ray():
     """One local Ray instance (2 CPUs) for the module: the studies below join it and leave it running."""
-    from bcbench.study_ray import NODE_RESOURCE, NODE_UNITS
+    from bcbench.study.on_ray import NODE_RESOURCE, NODE_UNITS
 
     ray.init(num_cpus=2, resources={NODE_RESOURCE: NODE_UNITS}, include_dashboard=False, log_to_driver=False,
              logging_level="WARNING")
@@ -76,7 +76,7 @@ def test_ray_study_writes_what_the_in_process_runner_writes(synthetic_zarr, tmp_
     assert json.loads((tmp_path / "ray" / timing[0]["file"]).read_text())["node"]
     from pathlib import Path
 
-    from bcbench.report import write_report
+    from bcbench.analysis.report import write_report
 
     report = Path(write_report(tmp_path / "ray")["markdown"]).read_text()
     assert "Timed on " in report  # the report says which machine timed what
@@ -84,12 +84,13 @@ def test_ray_study_writes_what_the_in_process_runner_writes(synthetic_zarr, tmp_
 
 KILL_AFTER_2_STAGES = """
 import os, signal, sys
-from bcbench.spec import load_spec
-from bcbench.study import run_study
-def kill(runner):
-    if runner.executed == 2:
-        os.kill(os.getpid(), signal.SIGKILL)
-run_study(load_spec(sys.argv[1]), sys.argv[2], sys.argv[3], progress=False, on_stage=kill)
+from bcbench.study import StudyRunner
+from bcbench.study.spec import load_spec
+class Killed(StudyRunner):
+    def after_stage(self):
+        if self.executed == 2:
+            os.kill(os.getpid(), signal.SIGKILL)
+Killed(load_spec(sys.argv[1]), sys.argv[2], sys.argv[3], progress=False).run()
 """
 
 
@@ -110,7 +111,7 @@ def test_killed_in_process_study_resumes_on_ray_without_redoing(synthetic_zarr, 
 
 
 def test_cli_flag_and_resource_specs_are_checked():
-    from bcbench.cli_parser import build_parser
+    from bcbench.cli.parser import build_parser
 
     assert build_parser().parse_args(["study", "s.toml", "--ray"]).ray == "local"
     assert build_parser().parse_args(["study", "s.toml", "--ray", "auto"]).ray == "auto"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -10,10 +11,10 @@ import sys
 import pytest
 import torch
 
-from bcbench.checkpoint import latest_checkpoint, load_runner
 from bcbench.errors import BCBenchError
 from bcbench.policies import learned_policies
-from bcbench.train import TrainOptions, new_run, prepare, train
+from bcbench.policies.checkpoint import latest_checkpoint, load_runner
+from bcbench.training.loop import TrainOptions, new_run, prepare, train
 from bcbench.utils.io import read_jsonl
 from tests.tiny import tiny_overrides
 
@@ -40,9 +41,9 @@ def _weights(run_dir):
 
 KILL_AT_STEP = """
 import os, signal, sys
-from bcbench.train import TrainOptions, train
-opts = TrainOptions(data=sys.argv[2], threads=1, progress=False)
-train(sys.argv[1], opts, on_step=lambda r: os.kill(os.getpid(), signal.SIGKILL) if r.state.step == 7 else None)
+from bcbench.training.loop import TrainOptions, train
+kill = lambda r: os.kill(os.getpid(), signal.SIGKILL) if r.state.step == 7 else None
+train(sys.argv[1], TrainOptions(data=sys.argv[2], threads=1, progress=False, callbacks=(kill,)))
 """
 
 
@@ -95,7 +96,8 @@ def test_nan_loss_stops_with_clear_error_and_keeps_checkpoint(synthetic_zarr, tm
 def test_checkpoint_roundtrip_every_policy(name, synthetic_zarr, tmp_path, one_thread):
     run = new_run(name, "quick", tiny_overrides(name, max_steps=2, ema=True), tmp_path / name, _opts(synthetic_zarr))
     states = {}
-    train(run, _opts(synthetic_zarr), on_step=lambda r: states.update(model=r.model, ema=r.ema))
+    opts = dataclasses.replace(_opts(synthetic_zarr), callbacks=(lambda r: states.update(model=r.model, ema=r.ema),))
+    train(run, opts)
     runner = load_runner(run, use_ema=False)
     for k, v in states["model"].state_dict().items():
         assert torch.equal(v, runner.model.state_dict()[k]), k
@@ -158,7 +160,7 @@ def test_cli_train_then_eval_smoke(synthetic_zarr, tmp_path):
 
 
 def test_precise_batchnorm_sets_exact_population_statistics():
-    from bcbench.train import precise_batchnorm
+    from bcbench.training.loop import precise_batchnorm
 
     class Net(torch.nn.Module):
         def __init__(self):
@@ -198,7 +200,7 @@ def test_precision_is_fixed_at_the_first_segment_and_every_segment_names_its_cpu
                                                                                one_thread, monkeypatch):
     """`auto` resolves once: a run resumed on a CPU that would resolve differently keeps its precision and its
     segments.jsonl says the new machine computes it natively or not (no silent change of numerics)."""
-    import bcbench.train as train_mod
+    import bcbench.training.loop as train_mod
     from bcbench.utils.system import cpu_flags
 
     run = new_run("cnn_mlp", "quick", tiny_overrides("cnn_mlp", max_steps=2, epochs=10), tmp_path / "p",
@@ -215,6 +217,14 @@ def test_precision_is_fixed_at_the_first_segment_and_every_segment_names_its_cpu
     assert [x["start_step"] for x in seg] == [0, 2] and s["precision"] == "bf16"
     assert [x["precision"] for x in seg] == ["bf16", "bf16"] and seg[1]["precision_native"] is False
     assert "emulated" in seg[1]["note"] and seg[1]["cpu_flags"] == list(cpu_flags()) and s["segments"] == seg
+
+
+def test_a_run_records_its_presets_values_and_deviations(synthetic_zarr, tmp_path):
+    """What the report (which reads files only) needs of the preset is in run.json."""
+    run = new_run("diffusion", "cpu", {"optim.batch_size": 64, "optim.lr": 5e-4}, tmp_path / "r", _opts(synthetic_zarr))
+    meta = json.loads((run / "run.json").read_text())
+    assert meta["preset_values"] == {"optim.batch_size": 256, "optim.lr": 1e-3}
+    assert "U-Net" in meta["preset_deviations"]
 
 
 def test_periodic_rollouts_log_a_learning_curve(synthetic_zarr, tmp_path, one_thread):
@@ -273,7 +283,7 @@ def test_keep_freed_memory_reuses_big_blocks_instead_of_faulting_them_in():
     """With it, a freed 64 MB block is reused by the next allocation; without, glibc unmaps it and the next one
     page-faults all over again (a training step's activations are such blocks)."""
     code = ("import resource, sys, torch\n"
-            "from bcbench.training import keep_freed_memory\n"
+            "from bcbench.training.parts import keep_freed_memory\n"
             "assert sys.argv[1] == '0' or keep_freed_memory()\n"
             "torch.ones(16 << 20).sum()\n"
             "before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt\n"

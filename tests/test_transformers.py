@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 import torch
 
-from bcbench.checkpoint import load_runner
 from bcbench.data import load_replay_buffer
 from bcbench.policies import make_policy
-from bcbench.policies.bct import STUDY_PARAMETERS as BCT_STUDY
 from bcbench.policies.bet import kmeans
-from bcbench.train import TrainOptions, new_run, prepare, train
+from bcbench.policies.checkpoint import load_runner
+from bcbench.reference import STUDY_PARAMETERS
+from bcbench.training.loop import TrainOptions, new_run, prepare, train
 from tests.tiny import tiny_overrides
 
 
@@ -74,7 +74,7 @@ def test_bct_queries_see_every_observation():
 
 def test_bct_paper_size_within_one_percent():
     n = make_policy("bct", "paper").num_parameters()
-    assert abs(n - BCT_STUDY) / BCT_STUDY < 0.01
+    assert abs(n - STUDY_PARAMETERS["bct"]) / STUDY_PARAMETERS["bct"] < 0.01
 
 
 def test_bet_checkpoint_keeps_kmeans_centres(synthetic_zarr, tmp_path):
@@ -97,7 +97,7 @@ def test_quick_presets_are_small(name):
 
 def test_bet_weight_decay_skips_norms_biases_and_embeddings():
     from bcbench.policies.config import OptimConfig
-    from bcbench.training import make_optimizer
+    from bcbench.training.parts import make_optimizer
 
     model = make_policy("bet", "quick", **tiny_overrides("bet"))
     decay, no_decay = make_optimizer(model, OptimConfig(optimizer="adamw", weight_decay=0.1)).param_groups

@@ -35,3 +35,5 @@ def check_purpose(purpose: str | None, seed_start: int, episodes: int) -> str | 
     elif seed_start != TEST_SEED_START:
         return f"a confirm study evaluates on the test seeds from {TEST_SEED_START}, not from {seed_start}"
     return None
+
+CONTROL_DT_S = 0.1  # Push-T's control period (10 Hz): a delay d is counted in these steps

@@ -23,6 +23,28 @@ def bootstrap_ci(values: np.ndarray, level: float = 0.95, n_boot: int = N_BOOT, 
     return (float(lo), float(hi))
 
 
+def paired_bootstrap(a: dict[int, float], others: list[dict[int, float]], seed: int = 0, level: float = 0.95,
+                     n_boot: int = N_BOOT) -> tuple[float, float, float, int]:
+    """Mean of a - max(others) over the episode seeds all of them share, its paired percentile-bootstrap interval
+    (seeds resampled together), and the number of shared seeds: the one paired comparison of bcbench.
+
+    a and each of `others` map episode seed -> score. With several `others` the maximum is taken inside every
+    resample, so choosing the best of them is part of what the interval accounts for.
+    """
+    seeds = sorted(set(a).intersection(*others))
+    n = len(seeds)
+    if n == 0:
+        return float("nan"), float("nan"), float("nan"), 0
+    x = np.array([a[s] for s in seeds])  # (n,)
+    ys = np.array([[o[s] for s in seeds] for o in others])  # (k, n)
+    est = float(x.mean() - ys.mean(axis=1).max())
+    idx = np.random.default_rng(seed).integers(0, n, size=(n_boot, n))
+    boot = x[idx].mean(axis=1) - ys[:, idx].mean(axis=2).max(axis=0)  # (n_boot,)
+    alpha = (1.0 - level) / 2.0
+    lo, hi = np.quantile(boot, [alpha, 1.0 - alpha])
+    return est, float(lo), float(hi), n
+
+
 def estimate(values: np.ndarray, seed: int = 0) -> dict[str, Any]:
     """Mean with its 95% interval, as stored in result files."""
     x = np.asarray(values, dtype=np.float64)

@@ -8,7 +8,7 @@ environment units:
 
 `chunk_start` is the chunk index of the action for the current step (0 when the chunk starts now;
 obs_horizon - 1 for policies trained on Diffusion Policy's windows, whose chunk starts at the oldest
-observation). History and receding-horizon execution live in `bcbench.env.controller`, never here.
+observation). History and receding-horizon execution live in `bcbench.evaluation.controller`, never here.
 """
 
 from __future__ import annotations

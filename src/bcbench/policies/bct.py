@@ -19,8 +19,6 @@ from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile
 from bcbench.policies.encoders import RESNET18_LAYERS, FrameFeatures
 from bcbench.policies.learned import BCPolicy
 
-STUDY_PARAMETERS = 23_952_736
-
 
 @dataclass
 class BCTConfig(PolicyConfig):

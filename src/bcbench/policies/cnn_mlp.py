@@ -18,8 +18,6 @@ from bcbench.errors import BCBenchError
 from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile
 from bcbench.policies.regressor import ChunkRegressor, TimeMerge, conv_bn_relu
 
-STUDY_PARAMETERS = 1_365_494
-
 
 @dataclass
 class CNNMLPConfig(PolicyConfig):

@@ -146,6 +146,13 @@ def config_from_dict(cls: type, data: dict[str, Any]) -> Any:
         raise BCBenchError(f"invalid {cls.__name__}: {exc}") from None
 
 
+def dotted_value(data: dict[str, Any], key: str) -> Any:
+    """The value at a dotted key of a config dict ('optim.lr'), as a JSON file reads it back (tuples as lists)."""
+    for part in key.split("."):
+        data = data[part]
+    return list(data) if isinstance(data, tuple) else data
+
+
 def with_overrides(cfg: Any, overrides: dict[str, Any]) -> Any:
     """A copy of cfg with dotted-key overrides, e.g. {'optim.epochs': 2, 'hidden': 64}."""
     data = config_to_dict(cfg)

@@ -10,7 +10,7 @@ The one inference path, two exact forms behind `split_film`:
 - True (the default): FiLM split into its observation part (graph `obs_film`, once per call) and its step
   part (once per visited time, for the whole batch), so each step runs graph `denoise(x, film)`, which
   reads only the convolutions. Equal to the reference within float rounding (a test: 1e-4).
-Deployment backends (bcbench.backends) compile `obs_film` and `denoise`; the loop stays here.
+Deployment backends (bcbench.evaluation.backends) compile `obs_film` and `denoise`; the loop stays here.
 """
 
 from __future__ import annotations

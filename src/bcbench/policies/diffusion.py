@@ -20,8 +20,6 @@ from bcbench.policies.config import OptimConfig, cpu_profile
 from bcbench.policies.denoiser import DenoiserNetConfig, DenoiserPolicy
 from bcbench.policies.samplers import DEFAULT_SPACING, check_spacing, make_train_scheduler, plan, run_plan
 
-STUDY_PARAMETERS = {"encoder": 11_176_512, "unet": 79_947_266, "total": 91_123_778}
-
 
 @dataclass
 class DiffusionConfig(DenoiserNetConfig):

@@ -10,7 +10,7 @@ policy seed and the episode seed), row i's noise comes from its own stream only,
 do not depend on which other episodes share its batch; without them one policy-wide stream is used.
 Inference graphs: predict_action_chunk runs its networks through `call_graph(name, *tensors)`, where each
 name is a method of pure tensors in, tensors out (`graph_inputs` gives examples). That is the one place a
-deployment backend plugs in: `bcbench.backends` compiles those methods (OpenVINO) and sets `deployed`;
+deployment backend plugs in: `bcbench.evaluation.backends` compiles those methods (OpenVINO) and sets `deployed`;
 the Python around them (sampling loops, noise, bins) stays the policy's own, so every backend runs the
 same inference path.
 A `PolicyRunner` wraps one with its normalizer: raw observations in (uint8 frames, agent position in
@@ -42,7 +42,7 @@ class BCPolicy(nn.Module):
 
     graphs: tuple[str, ...] = ()  # the methods predict_action_chunk calls through call_graph
     loop_graphs: tuple[str, ...] = ()  # those it calls many times per call (a sampler's loop)
-    deployed: dict[str, Any] | None = None  # name -> compiled graph (set by bcbench.backends), None = torch
+    deployed: dict[str, Any] | None = None  # name -> compiled graph (set by bcbench.evaluation.backends), None = torch
     deployment: dict[str, Any] | None = None  # what runs the graphs (backend, precision), for the records
 
     def call_graph(self, name: str, *args: torch.Tensor) -> Any:

@@ -18,8 +18,6 @@ from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile
 from bcbench.policies.encoders import RESNET50_LAYERS, load_pretrained, resnet50
 from bcbench.policies.regressor import ChunkRegressor, TimeMerge, conv_bn_relu
 
-STUDY_PARAMETERS = 34_527_593
-
 
 @dataclass
 class ResNet50Config(PolicyConfig):

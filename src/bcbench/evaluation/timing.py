@@ -7,7 +7,7 @@ and torch version. Real-time verdicts use that tail statistic (a control loop mu
 the slow calls too) and name it: at control rate f, re-planning every 8 actions needs p99 <= 8/f,
 re-planning every step needs p99 <= 1/f.
 
-Modes (bcbench.backends): `reference` is fp32 eager PyTorch the way the public code runs it (Diffusion
+Modes (bcbench.evaluation.backends): `reference` is fp32 eager PyTorch the way the public code runs it (Diffusion
 Policy: the plain U-Net at every step); `fast` is the torch default (split FiLM); `openvino-fp32|bf16|int8`
 run the same graphs compiled by OpenVINO. Exact forms equal the reference within 1e-4 (tested).
 """
@@ -128,7 +128,7 @@ def latency_record(policy: Any, cfg: TimingConfig, rate_hz: float = 10.0,
     """Time a policy in each mode (baselines have one); a JSON-ready record with provenance."""
     from datetime import UTC, datetime
 
-    from bcbench.backends import apply_mode
+    from bcbench.evaluation.backends import apply_mode
     from bcbench.policies.learned import PolicyRunner
     from bcbench.utils.system import provenance
 

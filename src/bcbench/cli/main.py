@@ -8,7 +8,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from bcbench.cli_parser import EXIT_USAGE, build_parser
+from bcbench.cli.parser import EXIT_USAGE, build_parser
 from bcbench.errors import BCBenchError
 
 EXIT_INTERRUPTED = 130
@@ -79,8 +79,9 @@ def _load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
 
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     if args.checkpoint:
-        from bcbench.backends import apply_mode, mode_name
-        from bcbench.checkpoint import configure_runner, load_runner
+        from bcbench.evaluation.backends import apply_mode
+        from bcbench.modes import mode_name
+        from bcbench.policies.checkpoint import configure_runner, load_runner
 
         runner = load_runner(args.checkpoint, use_ema=not args.no_ema, device=args.device)
         tag = configure_runner(runner, args.sampler, args.steps, args.seed, args.spacing)
@@ -101,7 +102,7 @@ def _load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    from bcbench.evaluate import EvalConfig, evaluate
+    from bcbench.evaluation.evaluate import EvalConfig, evaluate
     from bcbench.stats import fmt_estimate
 
     cfg = EvalConfig(episodes=args.episodes, seed_start=args.seed_start, max_steps=args.max_steps,
@@ -141,8 +142,9 @@ def _parse_sets(items: list[str] | None) -> dict[str, Any]:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from bcbench.train import TrainOptions, new_run, train
-    from bcbench.training import Distributed, pick_device
+    from bcbench.training.loop import TrainOptions, new_run, train
+    from bcbench.training.parts import Distributed
+    from bcbench.utils.device import pick_device
 
     dist = Distributed(pick_device(args.device))  # under torchrun: join the process group (else world 1)
 
@@ -188,8 +190,9 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_params(args: argparse.Namespace) -> int:
-    from bcbench.policies import STUDY_PARAMETERS, learned_policies, make_policy
+    from bcbench.policies import learned_policies, make_policy
     from bcbench.policies.encoders import count_parameters, resnet18, resnet50
+    from bcbench.reference import STUDY_PARAMETERS
 
     print(f"{'policy':<18}{'paper':>14}{'study':>14}{'diff':>9}{'quick':>12}")
     for name in learned_policies():
@@ -207,8 +210,8 @@ def cmd_params(args: argparse.Namespace) -> int:
 
 
 def cmd_study(args: argparse.Namespace) -> int:
-    from bcbench.spec import load_spec
     from bcbench.study import run_study
+    from bcbench.study.spec import load_spec
 
     spec = load_spec(args.spec)
     if args.check:
@@ -218,7 +221,7 @@ def cmd_study(args: argparse.Namespace) -> int:
     print(f"study {spec.name}: {summary['executed']} stage(s) run, {summary['skipped']} already done, "
           f"{summary['seconds'] / 60:.1f} min; results in {summary['out']}")
     if not args.no_report:
-        from bcbench.report import write_report
+        from bcbench.analysis.report import write_report
 
         paths = write_report(summary["out"])
         print(f"report: {paths['markdown']}  and  {paths['html']}")
@@ -226,7 +229,7 @@ def cmd_study(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from bcbench.report import export_results, write_report
+    from bcbench.analysis.report import export_results, write_report
 
     if args.export:
         print(f"exported {export_results(args.results, args.export)} result files to {args.export}")
@@ -236,10 +239,10 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_realtime(args: argparse.Namespace) -> int:
-    from bcbench.figures import figure5_realtime, realtime_figure
-    from bcbench.findings import DEFAULT_MARGIN
-    from bcbench.realtime import realtime_record, sweep
-    from bcbench.report import safe_delay_sentence
+    from bcbench.analysis.figures import figure5_realtime, realtime_figure
+    from bcbench.analysis.findings import DEFAULT_MARGIN
+    from bcbench.analysis.report import safe_delay_sentence
+    from bcbench.evaluation.realtime import realtime_record, sweep
     from bcbench.stats import fmt_estimate
     from bcbench.utils.io import write_json
 
@@ -270,8 +273,8 @@ def cmd_realtime(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from bcbench.backends import apply_mode
-    from bcbench.checkpoint import load_runner
+    from bcbench.evaluation.backends import apply_mode
+    from bcbench.policies.checkpoint import load_runner
 
     runner = load_runner(args.run_dir, use_ema=not args.no_ema)
     apply_mode(runner, f"{args.format}-{args.precision}")  # exports (or finds the cached export), compiles once
@@ -281,7 +284,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_tiers(args: argparse.Namespace) -> int:
-    from bcbench.tiers import run_tiers, tiers_table
+    from bcbench.evaluation.tiers import run_tiers, tiers_table
 
     modes = args.mode or ["openvino-fp32", "openvino-bf16", "openvino-int8"]
     tag = f"{args.sampler}{args.steps}" if args.sampler else "default"
@@ -294,12 +297,17 @@ def cmd_tiers(args: argparse.Namespace) -> int:
 
 
 def cmd_latency(args: argparse.Namespace) -> int:
-    from bcbench.bench import run_latency_benchmark
+    from bcbench.analysis.figures import latency_bars
+    from bcbench.evaluation.benchmark import run_latency_benchmark
 
     out = run_latency_benchmark(policies=args.policy, presets=args.config, modes=args.mode, steps=args.steps,
                                 samplers=args.sampler, device=args.device, threads=args.threads,
                                 rate_hz=args.rate, out=args.out, quick_timing=args.quick)
-    print(f"latency results: {out['json']}  table: {out['table']}  plot: {out['plot']}")
+    rec, plot = out["record"], Path(out["json"]).with_name("latency.png")
+    hw = rec["hardware"]
+    latency_bars([{**r, "label": f"{r['policy']} {r['preset']} {r['variant']} {r['mode']}"} for r in rec["rows"]],
+                 plot, f"Latency per call, batch 1 ({hw.get('gpu') or hw['cpu_model']}, {hw['torch_threads']} threads)")
+    print(f"latency results: {out['json']}  table: {out['table']}  plot: {plot}")
     return 0
 
 

@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from bcbench.env.controller import ChunkedController
 from bcbench.errors import BCBenchError
-from bcbench.realtime import LatencySource
+from bcbench.evaluation.controller import ChunkedController
+from bcbench.evaluation.latency_sources import LatencySource
 from bcbench.stats import score_summary
 from bcbench.utils.io import write_json
 from bcbench.utils.system import provenance
@@ -49,7 +49,7 @@ class EvalConfig:
     video_size: int = 256
     """video frame size in pixels"""
     execution: str = "sync"
-    """sync (the world waits for the policy), blocking or async (it does not): see bcbench.env.controller"""
+    """sync (the world waits for the policy), blocking or async (it does not): see bcbench.evaluation.controller"""
     latency: str | None = None
     """where a call's latency comes from: 'measured' or 'profile:NAME' (or latency_ms)"""
     latency_ms: float | None = None
@@ -68,8 +68,8 @@ class EvalConfig:
             raise BCBenchError(f"--video must be in 0..episodes ({self.episodes}), got {self.video}")
         if self.action_horizon is not None and self.action_horizon < 1:
             raise BCBenchError(f"--action-horizon must be >= 1, got {self.action_horizon}")
-        from bcbench.env.controller import EXECUTIONS
-        from bcbench.realtime import LatencySource
+        from bcbench.evaluation.controller import EXECUTIONS
+        from bcbench.evaluation.latency_sources import LatencySource
 
         if self.execution not in EXECUTIONS:
             raise BCBenchError(f"--execution must be one of {', '.join(EXECUTIONS)}, got '{self.execution}'")

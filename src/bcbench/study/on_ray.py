@@ -23,7 +23,7 @@ import time
 from typing import Any
 
 from bcbench.errors import BCBenchError
-from bcbench.spec import RunSpec, StudySpec, Variant
+from bcbench.study.spec import RunSpec, StudySpec, Variant
 
 NODE_RESOURCE, NODE_UNITS = "bcbench_node", 1000
 EXCLUSIVE = ("latency", "realtime")  # stages that must have their node to themselves
@@ -42,7 +42,7 @@ def _execute(spec: StudySpec, out: str, data: str | None, stage: str, run_index:
     """One stage in a Ray worker: compute it and hand the record back (the driver writes it)."""
     import platform
 
-    from bcbench.study import StudyRunner
+    from bcbench.study.runner import StudyRunner
     from bcbench.utils.system import git_commit
 
     git_commit()  # the worker's code, read before the stage runs (as the CLI does)

@@ -29,25 +29,9 @@ import numpy as np
 import torch
 
 from bcbench.errors import BCBenchError
+from bcbench.modes import MODES
 
-MODES = ("reference", "fast", "openvino-fp32", "openvino-bf16", "openvino-int8")
-EXACT_MODES = ("reference", "fast", "openvino-fp32")
-PRECISIONS = ("fp32", "bf16", "int8")
 GRAPH_FORMAT = 1  # bump when a policy's graphs change meaning: cached exports are then rebuilt
-
-
-def mode_name(backend: str, precision: str = "fp32", reference: bool = False) -> str:
-    """The mode of --backend/--precision(/--reference) arguments, checked."""
-    if backend == "torch":
-        if precision != "fp32":
-            raise BCBenchError(f"--precision {precision} needs --backend openvino (torch runs fp32)")
-        return "reference" if reference else "fast"
-    if backend != "openvino" or precision not in PRECISIONS:
-        raise BCBenchError(f"unknown backend/precision '{backend}/{precision}' (torch, or openvino with "
-                           f"{', '.join(PRECISIONS)})")
-    if reference:
-        raise BCBenchError("--reference is the torch reference form; it does not combine with --backend openvino")
-    return f"openvino-{precision}"
 
 
 def _openvino() -> Any:
@@ -218,7 +202,7 @@ def dataset_observations(model: Any, split: str, n: int, seed: int = 0,
 
 
 def run_data_split(run_dir: str | Path) -> dict[str, Any]:
-    from bcbench.checkpoint import read_run
+    from bcbench.policies.checkpoint import read_run
 
     return read_run(Path(run_dir)).get("data_split", {})
 

@@ -11,7 +11,7 @@
     margin = 0.05           # equivalence margin of the findings' verdicts (mean score)
     backend = "torch"       # evaluation: torch (default, its fast exact form) or openvino
     precision = "fp32"      # with openvino: fp32 (exact), bf16 or int8 (approximate)
-    latency_modes = ["reference", "fast"]   # timed forms (bcbench.backends.MODES)
+    latency_modes = ["reference", "fast"]   # timed forms (bcbench.evaluation.backends.MODES)
     resources = { train = { cpus = 2, gpus = 1 }, eval = { cpus = 1 } }   # per stage kind, under --ray
     purpose = "explore"     # explore: validation seeds 200000+ only, >= 50 episodes (choices are made here);
                             # confirm: fixed presets on the test seeds 100000+ (bcbench.protocol)
@@ -111,7 +111,7 @@ class StudySpec:
     margin: float = 0.05  # equivalence margin (mean score) of the findings' verdicts
     curve_episodes: int = 20  # episodes per learning-curve rollout (validation seeds 200000+)
     realtime: dict[str, Any] | None = None  # the real-time sweep: delays, execution, profiles, measured
-    backend: str = "torch"  # evaluation backend (bcbench.backends)
+    backend: str = "torch"  # evaluation backend (bcbench.evaluation.backends)
     precision: str = "fp32"
     latency_modes: tuple[str, ...] = ("reference", "fast")  # forms the latency stage times
     resources: dict[str, dict[str, float]] = field(default_factory=dict)  # stage kind -> cpus, gpus (Ray)
@@ -223,7 +223,7 @@ def _realtime_table(rt: Any) -> dict[str, Any]:
         raise BCBenchError("study.realtime.delays must be whole numbers of control steps >= 0")
     if not set(out["executions"]) <= {"blocking", "async"} or not out["executions"]:
         raise BCBenchError("study.realtime.execution must list blocking and/or async")
-    from bcbench.realtime import PROFILES
+    from bcbench.evaluation.latency_sources import PROFILES
 
     if any(p not in PROFILES for p in out["profiles"]) or not isinstance(out["measured"], bool):
         raise BCBenchError(f"study.realtime.profiles must be among {', '.join(PROFILES)}; measured true or false")
@@ -268,7 +268,7 @@ def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
 
 
 def _backend_keys(study: dict[str, Any], spec: StudySpec) -> None:
-    from bcbench.backends import MODES, mode_name
+    from bcbench.modes import MODES, mode_name
 
     spec.backend, spec.precision = str(study.get("backend", "torch")), str(study.get("precision", "fp32"))
     try:

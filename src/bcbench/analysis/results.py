@@ -10,19 +10,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bcbench.curves import Curve, load_curve, plateau
+from bcbench.analysis.curves import Curve, load_curve, plateau
 from bcbench.errors import BCBenchError
+from bcbench.modes import EXACT_MODES
 from bcbench.utils.io import read_json, read_jsonl
-
-# The study's own numbers (measured on an A100 by the study), shown beside ours.
-STUDY_REFERENCE: dict[str, dict[str, Any]] = {
-    "cnn_mlp": {"params": 1_365_494, "score": 0.29, "gt05": 0.25, "gt09": 0.025, "latency_ms": 2.2},
-    "resnet50": {"params": 34_527_593, "score": 0.41, "gt05": 0.40, "gt09": 0.325, "latency_ms": 13.0},
-    "bct": {"params": 23_952_736, "score": 0.32, "gt05": 0.30, "gt09": 0.10, "latency_ms": 12.0},
-    "bet": {"params": None, "score": 0.0, "gt05": 0.0, "gt09": 0.0, "latency_ms": None},
-    "diffusion:ddpm10": {"params": 91_123_778, "score": None, "latency_ms": 116.5},
-    "diffusion:ddpm100": {"params": 91_123_778, "score": None, "latency_ms": 1109.4},
-}
 
 
 @dataclass
@@ -44,13 +35,15 @@ class Row:
     git_commit: str | None = None
     curve: Curve | None = None  # learned policies: rollout scores and validation loss while training
     converged: bool | None = None  # None: not trained here (baselines)
-    convergence: str = ""  # why (see bcbench.curves.plateau)
+    convergence: str = ""  # why (see bcbench.analysis.curves.plateau)
     latency: dict[str, Any] = field(default_factory=dict)  # mode -> stats
     train: dict[str, Any] = field(default_factory=dict)
     hardware: dict[str, Any] = field(default_factory=dict)
     timed_on: str | None = None  # the machine that timed it (recorded by studies; matters on a cluster)
     source: str = ""
     overrides: dict[str, Any] = field(default_factory=dict)  # dotted preset overrides (its run.json)
+    preset_values: dict[str, Any] = field(default_factory=dict)  # the preset's value of each overridden key
+    deviations: str = ""  # how its preset departs from the paper's recipe, as the run recorded it
 
     def est(self, name: str) -> dict[str, Any]:
         return self.summary[name]
@@ -65,8 +58,6 @@ class Row:
 
     def deployed_ms(self) -> tuple[str, float] | None:
         """The fastest exact non-reference mode in this row's latency record and its median, if timed."""
-        from bcbench.backends import EXACT_MODES
-
         timed = [(m, float(self.latency[m]["median_ms"])) for m in EXACT_MODES[1:] if m in self.latency]
         return min(timed, key=lambda t: t[1]) if timed else None
 
@@ -103,7 +94,9 @@ def _row_from_eval(path: Path, margin: float = 0.05) -> Row:
         row.latency = record["modes"]
         row.timed_on = record.get("node")
     if (run_dir / "run.json").exists():
-        row.overrides = read_json(run_dir / "run.json").get("overrides") or {}
+        meta = read_json(run_dir / "run.json")
+        row.overrides, row.preset_values = meta.get("overrides") or {}, meta.get("preset_values") or {}
+        row.deviations = meta.get("preset_deviations") or ""
     if (run_dir / "train_summary.json").exists():
         row.train = read_json(run_dir / "train_summary.json")
         row.curve = load_curve(run_dir)

@@ -1,6 +1,6 @@
 """What an approximate inference tier costs in accuracy: `bcbench tiers RUN_DIR`.
 
-For a trained run, each mode (bcbench.backends.MODES) is compared with the torch fast form (exact, the
+For a trained run, each mode (bcbench.evaluation.backends.MODES) is compared with the torch fast form (exact, the
 default) in two ways:
 - chunk deviation: the largest difference, in pixels of the 512 px world, between its chunk and the
   fast form's on the same recorded observations (validation-split windows, the same noise);
@@ -18,14 +18,14 @@ from typing import Any
 import numpy as np
 import torch
 
-from bcbench.stats import bootstrap_ci, fmt_estimate
+from bcbench.stats import fmt_estimate, paired_bootstrap
 
 BASE = "fast"
 
 
 def chunk_deviation(runner: Any, modes: list[str], observations: list[dict[str, torch.Tensor]]) -> dict[str, float]:
     """Largest |chunk - fast chunk| in pixels per mode over `observations` (normalised, batch 1 each)."""
-    from bcbench.backends import apply_mode
+    from bcbench.evaluation.backends import apply_mode
 
     chunks: dict[str, np.ndarray] = {}
     for mode in [BASE, *modes]:
@@ -40,19 +40,18 @@ def chunk_deviation(runner: Any, modes: list[str], observations: list[dict[str, 
 
 def paired(base: dict[str, Any], other: dict[str, Any]) -> dict[str, Any]:
     """Mean per-seed score difference (other - base) with its 95% paired-bootstrap interval."""
-    a = {e["seed"]: e["score"] for e in base["episodes"]}
-    b = {e["seed"]: e["score"] for e in other["episodes"]}
-    seeds = sorted(a.keys() & b.keys())
-    d = np.array([b[s] - a[s] for s in seeds])
-    lo, hi = bootstrap_ci(d)
-    return {"n": len(seeds), "value": float(d.mean()), "ci95": [lo, hi], "significantly_worse": hi < 0}
+    def by_seed(r: dict[str, Any]) -> dict[int, float]:
+        return {e["seed"]: e["score"] for e in r["episodes"]}
+
+    est, lo, hi, n = paired_bootstrap(by_seed(other), [by_seed(base)])
+    return {"n": n, "value": est, "ci95": [lo, hi], "significantly_worse": hi < 0}
 
 
 def run_tiers(run_dir: str | Path, modes: list[str], episodes: int, sampler: str | None, steps: int | None,
               out: Path, seed_start: int = 100_000, observations: int = 100, progress: bool = True) -> dict[str, Any]:
-    from bcbench.backends import apply_mode, dataset_observations, run_data_split
-    from bcbench.checkpoint import configure_runner, load_runner
-    from bcbench.evaluate import EvalConfig, evaluate
+    from bcbench.evaluation.backends import apply_mode, dataset_observations, run_data_split
+    from bcbench.evaluation.evaluate import EvalConfig, evaluate
+    from bcbench.policies.checkpoint import configure_runner, load_runner
     from bcbench.utils.io import atomic_path, write_json
     from bcbench.utils.system import provenance
 

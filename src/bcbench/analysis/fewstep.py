@@ -18,7 +18,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from bcbench.findings import Point, dp_point, paired_interval
+from bcbench.analysis.findings import Point, dp_point, paired_interval
 from bcbench.utils.io import read_json
 
 PAIRED_FILE = "latency-paired.json"
@@ -59,7 +59,7 @@ def _with_paired(p: Point | None, paired: dict[str, Any] | None) -> Point | None
 def fewstep_lines(points: list[Point], margin: float, mode: str = "fast",
                   paired: dict[str, Any] | None = None) -> list[str]:
     """Markdown lines: a table row per flow K and the goal's verdict; [] when there is no flow or no DP DDPM-100.
-    `points` carry their latency in `mode` (bcbench.findings.points_from_rows); `paired` (load_paired), when
+    `points` carry their latency in `mode` (bcbench.analysis.findings.points_from_rows); `paired` (load_paired), when
     given and timed in the same mode, replaces the flow and DDIM-10 latencies."""
     paired = paired if paired is not None and paired.get("mode") == mode else None
     flows = sorted((_with_paired(p, paired) for p in points if p.policy == "flow" and p.variant.startswith("euler")),

@@ -41,16 +41,6 @@ def make_scheduler(opt: torch.optim.Optimizer, o: OptimConfig, total_steps: int)
     return torch.optim.lr_scheduler.LambdaLR(opt, factor)
 
 
-def pick_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise BCBenchError("--device cuda asked for, but torch sees no CUDA device")
-    if name not in ("cpu", "cuda"):
-        raise BCBenchError(f"--device must be auto, cpu or cuda, got '{name}'")
-    return torch.device(name)
-
-
 def resolve_precision(precision: str, device: torch.device) -> str:
     """auto -> bf16 where the device computes it natively (CUDA with bf16, AVX512-BF16/AMX CPUs), else fp32."""
     if precision not in PRECISIONS:

@@ -24,13 +24,21 @@ from typing import Any
 import numpy as np
 import torch
 
-from bcbench.checkpoint import build_model, latest_checkpoint, load_state, load_weights, read_run, save_checkpoint
 from bcbench.data import MinMaxNormalizer, load_replay_buffer, make_datasets, resolve_dataset
 from bcbench.errors import BCBenchError
 from bcbench.policies import REGISTRY
-from bcbench.policies.config import OptimConfig, config_to_dict, with_overrides
+from bcbench.policies.checkpoint import (
+    build_model,
+    latest_checkpoint,
+    load_state,
+    load_weights,
+    read_run,
+    save_checkpoint,
+)
+from bcbench.policies.config import OptimConfig, config_to_dict, dotted_value, with_overrides
 from bcbench.protocol import VALIDATION_SEED_START
-from bcbench.training import (
+from bcbench.reference import CPU_DEVIATIONS
+from bcbench.training.parts import (
     EMA,
     Distributed,
     StopFlag,
@@ -40,11 +48,11 @@ from bcbench.training import (
     keep_freed_memory,
     make_optimizer,
     make_scheduler,
-    pick_device,
     precise_batchnorm,
     resolve_precision,
     step_noise,
 )
+from bcbench.utils.device import pick_device
 from bcbench.utils.io import append_jsonl, read_json, read_jsonl, write_json, write_jsonl
 from bcbench.utils.system import cpu_flags, cpu_has_bf16, cpu_model, git_commit, provenance
 
@@ -79,6 +87,9 @@ class TrainOptions:
     """episodes per periodic rollout, on validation seeds 200000+ (never the test seeds 100000+)"""
     progress: bool = True
     """show a progress bar"""
+    callbacks: tuple[Callable[[Run], None], ...] = ()
+    """called with the `Run` after every optimiser step, in order: the extension point for code that watches or
+    stops training from outside (a custom display, an experiment inspecting the model, the resume tests)"""
 
     def __post_init__(self) -> None:
         if self.max_minutes is not None and not self.max_minutes > 0:
@@ -144,6 +155,7 @@ def new_run(policy: str, preset: str, overrides: dict[str, Any], out: str | Path
     if not hasattr(config_cls(), "optim"):
         raise BCBenchError(f"policy '{policy}' has nothing to train")
     config = with_overrides(config_cls.preset(preset), overrides)
+    preset_dict = config_to_dict(config_cls.preset(preset))
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     run_dir = Path(out) if out else Path("runs") / f"train-{policy}-{preset}-{stamp}"
     if (run_dir / "run.json").exists():
@@ -151,6 +163,9 @@ def new_run(policy: str, preset: str, overrides: dict[str, Any], out: str | Path
     run_dir.mkdir(parents=True, exist_ok=True)
     write_json(run_dir / "run.json", {
         "policy": policy, "preset": preset, "config": config_to_dict(config), "overrides": overrides,
+        "preset_values": {k: dotted_value(preset_dict, k) for k in overrides},  # what the analysis compares with
+        **({"preset_deviations": CPU_DEVIATIONS[policy]} if preset.startswith("cpu") and policy in CPU_DEVIATIONS
+           else {}),
         "data_split": {"val_fraction": opts.val_fraction, "split_seed": opts.split_seed},
         "created": datetime.now(UTC).isoformat(timespec="seconds"), **provenance(),
     })
@@ -272,7 +287,7 @@ def validate(r: Run) -> float:
 
 def rollout_score(r: Run, episodes: int) -> dict[str, Any]:
     """Closed-loop score of the weights evaluated at test time (EMA if kept) on validation seeds 200000+."""
-    from bcbench.evaluate import EvalConfig, run_episodes
+    from bcbench.evaluation.evaluate import EvalConfig, run_episodes
     from bcbench.policies.learned import PolicyRunner
     from bcbench.stats import estimate
 
@@ -308,7 +323,7 @@ def _log(r: Run, record: dict[str, Any], t_start: float) -> None:
     append_jsonl(r.run_dir / "metrics.jsonl", {**base, **record})
 
 
-def train(run_dir: str | Path, opts: TrainOptions, on_step: Callable[[Run], None] | None = None) -> dict[str, Any]:
+def train(run_dir: str | Path, opts: TrainOptions) -> dict[str, Any]:
     """Train the run to its step budget (or the safety stop, or Ctrl-C); returns and writes the summary."""
     from tqdm import tqdm
 
@@ -368,8 +383,8 @@ def train(run_dir: str | Path, opts: TrainOptions, on_step: Callable[[Run], None
             bar.update()
             bar.set_postfix(loss=f"{last_loss:.4f}", lr=f"{lr:.2e}", sps=f"{samples_session / time_session:.0f}",
                             val=f"{state.last_val:.4f}")
-            if on_step is not None:
-                on_step(r)
+            for callback in opts.callbacks:
+                callback(r)
             if stop.requested or (deadline and time.monotonic() > deadline):
                 reason = "interrupted" if stop.requested else STOPPED_BY_TIME
                 break

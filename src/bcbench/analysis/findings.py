@@ -13,12 +13,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numpy as np
+from bcbench.stats import paired_bootstrap
 
 SUPPORTED, CONTRADICTED, INCONCLUSIVE, UNDERTRAINED = "supported", "contradicted", "inconclusive", "undertrained"
 DEFAULT_MARGIN = 0.05
 SLOWER = 10.0  # finding 1 compares the slowest setting with the settings at least this many times faster
-N_BOOT = 10_000
 
 
 @dataclass
@@ -46,27 +45,10 @@ class Finding:
     rule: str = ""
 
 
-def paired_diffs(a: Point, others: list[Point]) -> tuple[np.ndarray, np.ndarray]:
-    """Per-seed scores on the seeds every setting shares: a's (n,) and the others' (k, n)."""
-    seeds = sorted(set(a.scores).intersection(*(o.scores for o in others)))
-    return (np.array([a.scores[s] for s in seeds]), np.array([[o.scores[s] for s in seeds] for o in others]))
-
-
 def paired_interval(a: Point, others: list[Point], seed: int = 0) -> tuple[float, float, float, int]:
-    """Mean of a - max(others) over shared seeds and its 95% paired-bootstrap interval; also n seeds.
-
-    With several `others` the maximum is taken inside every resample, so choosing the best of them is part
-    of what the interval accounts for.
-    """
-    x, ys = paired_diffs(a, others)
-    n = x.size
-    if n == 0:
-        return float("nan"), float("nan"), float("nan"), 0
-    est = float(x.mean() - ys.mean(axis=1).max())
-    idx = np.random.default_rng(seed).integers(0, n, size=(N_BOOT, n))
-    boot = x[idx].mean(axis=1) - ys[:, idx].mean(axis=2).max(axis=0)  # (N_BOOT,)
-    lo, hi = np.quantile(boot, [0.025, 0.975])
-    return est, float(lo), float(hi), n
+    """Mean of a - max(others) over shared seeds with its 95% paired-bootstrap interval, and n seeds
+    (bcbench.stats.paired_bootstrap on the points' per-seed scores)."""
+    return paired_bootstrap(a.scores, [o.scores for o in others], seed)
 
 
 def _fmt(p: Point) -> str:

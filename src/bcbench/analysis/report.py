@@ -14,11 +14,11 @@ import html
 from pathlib import Path
 from typing import Any
 
-from bcbench.errors import BCBenchError
-from bcbench.fewstep import fewstep_lines, load_paired
-from bcbench.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
-from bcbench.findings import DEFAULT_MARGIN, judge, points_from_rows
-from bcbench.results import STUDY_REFERENCE, Row, load_realtime, load_rows, study_time
+from bcbench.analysis.fewstep import fewstep_lines, load_paired
+from bcbench.analysis.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
+from bcbench.analysis.findings import DEFAULT_MARGIN, judge, points_from_rows
+from bcbench.analysis.results import Row, load_realtime, load_rows, study_time
+from bcbench.reference import CPU_DEVIATIONS, STUDY_REFERENCE
 from bcbench.stats import fmt_estimate
 from bcbench.utils.io import atomic_path, read_json
 
@@ -103,7 +103,8 @@ def _spacing_note(rows: list[Row]) -> str:
 def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float) -> str:
     """One policy's largest safe delay per execution mode and, from the better mode's measured setting, its
     highest safe control rate; where no delay is shown safe, the d = 1 differences that say why."""
-    from bcbench.realtime import CONTROL_DT_S, delay_vs_sync, highest_safe_rate, largest_safe_delay
+    from bcbench.analysis.realtime import delay_vs_sync, highest_safe_rate, largest_safe_delay
+    from bcbench.protocol import CONTROL_DT_S
 
     if "realtime-sync" not in settings:
         return ""
@@ -185,14 +186,14 @@ def time_lines(results: Path) -> list[str]:
 
 
 def deviation_lines(rows: list[Row]) -> list[str]:
-    """How each cpu-preset policy departs from its paper's recipe."""
-    from bcbench.policies import CPU_DEVIATIONS
-
-    cpu = sorted({r.policy for r in rows if (r.preset or "").startswith("cpu") and r.policy in CPU_DEVIATIONS})
+    """How each cpu-preset policy departs from its paper's recipe (as its runs record it, else bcbench.reference)."""
+    recorded = {r.policy: r.deviations for r in rows if r.deviations}
+    table = {**CPU_DEVIATIONS, **recorded}
+    cpu = sorted({r.policy for r in rows if (r.preset or "").startswith("cpu") and r.policy in table})
     if not cpu:
         return []
     return ["## Deviations from the papers' recipes (cpu presets)", "",
-            *[f"- {p}: {CPU_DEVIATIONS[p]}" for p in cpu], *preset_change_lines(rows), ""]
+            *[f"- {p}: {table[p]}" for p in cpu], *preset_change_lines(rows), ""]
 
 
 # not recipe changes: how a run is kept, and its step budget (the table's training column shows the epochs)
@@ -200,27 +201,16 @@ _NOT_RECIPE = {"optim.checkpoint_every", "seed", "optim.max_steps"}
 
 
 def preset_change_lines(rows: list[Row]) -> list[str]:
-    """A line per trained run that overrode its preset (a study's `set`), from the overrides its run.json records."""
-    from bcbench.policies import make_config
-    from bcbench.policies.config import config_to_dict
-
-    def preset_value(preset: dict[str, Any], key: str) -> Any:
-        for part in key.split("."):
-            preset = preset[part]
-        return list(preset) if isinstance(preset, tuple) else preset  # as a file reads it back
-
+    """A line per trained run that overrode its preset (a study's `set`): the overrides and the preset's own
+    values, both as its run.json records them."""
     lines, seen = [], set()
     for r in rows:
         changed = sorted(k for k in r.overrides if k not in _NOT_RECIPE)
         if not changed or not r.preset or r.key.split(":")[0] in seen:  # one line per run, not per variant
             continue
         seen.add(r.key.split(":")[0])
-        try:
-            preset = config_to_dict(make_config(r.policy, r.preset))
-        except BCBenchError:  # a preset this version no longer has: nothing to compare with
-            continue
-        lines.append(f"- {r.label} changes its {r.preset} preset: "
-                     + ", ".join(f"{k} {r.overrides[k]} (preset {preset_value(preset, k)})" for k in changed))
+        lines.append(f"- {r.label} changes its {r.preset} preset: " + ", ".join(
+            f"{k} {r.overrides[k]} (preset {r.preset_values.get(k, 'not recorded')})" for k in changed))
     return lines
 
 

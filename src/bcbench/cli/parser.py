@@ -10,8 +10,7 @@ import argparse
 from typing import Any
 
 from bcbench import __version__
-
-MODES = ("reference", "fast", "openvino-fp32", "openvino-bf16", "openvino-int8")  # = bcbench.backends.MODES
+from bcbench.modes import MODES
 
 EXIT_USAGE = 2
 
@@ -132,7 +131,7 @@ def _add_study_commands(sub: Any) -> None:
     p.add_argument("--no-report", action="store_true", help="do not write the report at the end")
     p.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
                    help="run the stages as Ray tasks: alone = a local Ray instance; 'auto' or HOST:PORT = a "
-                        "cluster (its nodes need resources bcbench_node=1000; see bcbench.study_ray)")
+                        "cluster (its nodes need resources bcbench_node=1000; see bcbench.study.on_ray)")
     p.add_argument("--ray-cpus", type=_positive_int, metavar="N", help="CPUs of the local Ray instance (default all)")
     _add_data_flag(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")

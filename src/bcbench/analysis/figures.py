@@ -72,7 +72,7 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference") -> Path | None
             ax.annotate(r.variant.upper().replace("-LEADING", "-L"), (r.latency_ms(mode), r.score), fontsize=6,
                         xytext=(4, 4), textcoords="offset points")
     ax.legend(legend.values(), legend.keys(), fontsize=7, loc="upper left", markerscale=0.5)
-    from bcbench.results import STUDY_REFERENCE
+    from bcbench.reference import STUDY_REFERENCE
 
     shown = {r.reference_key for r in pts}
     for key, ref in STUDY_REFERENCE.items():  # the study's own points (A100), hollow, for comparison
@@ -237,7 +237,7 @@ def _score_axis(ax: Any, xlabel: str, ylabel: str = "mean score (95% CI)") -> bo
 
 def realtime_figure(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path) -> Path:
     """Score against delay d (control steps of 0.1 s), one colour per policy: async solid, blocking dashed."""
-    from bcbench.realtime import delay_curve
+    from bcbench.analysis.realtime import delay_curve
 
     fig, ax = plt.subplots(figsize=(8, 4.5))
     for i, (label, results) in enumerate(by_policy.items()):

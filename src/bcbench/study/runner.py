@@ -15,28 +15,23 @@ from __future__ import annotations
 
 import platform
 import time
-from collections.abc import Callable
 from dataclasses import asdict
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from bcbench.errors import BCBenchError
-from bcbench.protocol import check_purpose
-from bcbench.spec import RunSpec, StudySpec, Variant
+from bcbench.study.spec import RunSpec, StudySpec, Variant
 from bcbench.utils.io import append_jsonl, read_json, write_json
 
 DONE_TRAINING = ("finished", "stopped by time: schedule not finished")  # the latter is marked in the report
 
 
 class StudyRunner:
-    def __init__(self, spec: StudySpec, out: str | Path, data: str | None = None, progress: bool = True,
-                 on_stage: Callable[[StudyRunner], None] | None = None) -> None:
-        from bcbench.training import pick_device
+    def __init__(self, spec: StudySpec, out: str | Path, data: str | None = None, progress: bool = True) -> None:
+        from bcbench.utils.device import pick_device
 
         self.spec, self.out, self.data, self.progress = spec, Path(out), data, progress
         self.executed = 0  # stages executed (not skipped) in this process
-        self.on_stage = on_stage  # called after each executed stage (progress reporting, tests)
         self.device = str(pick_device(spec.device))  # training, evaluation and timing all run here
 
     # ------------------------------------------------------------------ layout
@@ -76,7 +71,7 @@ class StudyRunner:
 
     # ------------------------------------------------------------------ stages
     def _train(self, run: RunSpec) -> None:
-        from bcbench.train import TrainOptions, new_run, train
+        from bcbench.training.loop import TrainOptions, new_run, train
 
         opts = TrainOptions(max_minutes=run.max_minutes, threads=self.spec.threads, data=self.data,
                             val_fraction=self.spec.val_fraction, progress=self.progress, device=self.device,
@@ -89,9 +84,10 @@ class StudyRunner:
             raise KeyboardInterrupt  # Ctrl-C during training: the checkpoint is saved; stop the study here
 
     def _policy(self, run: RunSpec, variant: Variant) -> Any:
-        from bcbench.backends import apply_mode, mode_name
-        from bcbench.checkpoint import configure_runner, load_runner
+        from bcbench.evaluation.backends import apply_mode
+        from bcbench.modes import mode_name
         from bcbench.policies import make_policy
+        from bcbench.policies.checkpoint import configure_runner, load_runner
 
         if not run.learned:
             return make_policy(run.policy, run.config, seed=run.seed)
@@ -101,7 +97,7 @@ class StudyRunner:
         return runner
 
     def _eval(self, run: RunSpec, variant: Variant) -> dict[str, Any]:
-        from bcbench.evaluate import EvalConfig, evaluate
+        from bcbench.evaluation.evaluate import EvalConfig, evaluate
 
         cfg = EvalConfig(episodes=self.spec.episodes, seed_start=self.spec.seed_start, max_steps=self.spec.max_steps)
         extra = {"study": {"name": self.spec.name, "purpose": self.spec.purpose, "label": run.label,
@@ -109,7 +105,7 @@ class StudyRunner:
         return evaluate(self._policy(run, variant), cfg, None, progress=self.progress, extra=extra)
 
     def _latency(self, run: RunSpec, variant: Variant) -> dict[str, Any]:
-        from bcbench.latency import TimingConfig, latency_record
+        from bcbench.evaluation.timing import TimingConfig, latency_record
 
         if self.spec.threads:
             import torch
@@ -123,7 +119,7 @@ class StudyRunner:
         return rec
 
     def _realtime(self, run: RunSpec, variant: Variant) -> dict[str, Any]:
-        from bcbench.realtime import realtime_record, sweep
+        from bcbench.evaluation.realtime import realtime_record, sweep
 
         rt = self.spec.realtime or {}
         partial = self.partial_file(run, variant)
@@ -133,6 +129,10 @@ class StudyRunner:
                          done=read_json(partial) if partial.exists() else None,
                          on_setting=lambda results: write_json(partial, results))
         return realtime_record(settings, self.spec.name, run.label, asdict(variant), self.spec.margin, self.device)
+
+    def after_stage(self) -> None:
+        """Called after each executed stage (not after a skipped one); does nothing. The extension point for
+        watching a study from code: subclass the runner and override it (the resume tests kill it here)."""
 
     # ------------------------------------------------------------------ driver
     def compute(self, stage: str, run: RunSpec, variant: Variant | None) -> dict[str, Any] | None:
@@ -178,26 +178,7 @@ class StudyRunner:
             started = time.monotonic()
             self.finish(stage, run, variant, self.compute(stage, run, variant), time.monotonic() - started)
             bar.update()
-            if self.on_stage is not None:
-                self.on_stage(self)
+            self.after_stage()
         bar.close()
         return {"stages": len(stages), "skipped": skipped, "executed": self.executed,
                 "seconds": time.monotonic() - t0, "out": str(self.out)}
-
-
-def run_study(spec: StudySpec, out: str | Path | None = None, data: str | None = None,
-              progress: bool = True, on_stage: Callable[[StudyRunner], None] | None = None,
-              ray: str | None = None, ray_cpus: int | None = None) -> dict[str, Any]:
-    """Run a study in this process, or with ray = 'local' (a local Ray instance) / 'auto' / an address."""
-    out = (Path(out) if out else Path("runs") / "studies" / spec.name).resolve()  # Ray workers: any cwd
-    if not spec.runs:
-        raise BCBenchError("the study has no runs")
-    problem = check_purpose(spec.purpose, spec.seed_start, spec.episodes)  # a spec built in code, not parsed
-    if problem:
-        raise BCBenchError(f"study {spec.name}: {problem}")
-    runner = StudyRunner(spec, out, str(Path(data).resolve()) if data else None, progress, on_stage)
-    if ray is None:
-        return runner.run()
-    from bcbench.study_ray import run_on_ray
-
-    return run_on_ray(runner, None if ray == "local" else ray, ray_cpus)

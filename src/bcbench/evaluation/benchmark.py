@@ -14,10 +14,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from bcbench.backends import MODES
 from bcbench.data.normalizer import MinMaxNormalizer
 from bcbench.errors import BCBenchError
-from bcbench.latency import TimingConfig, measure_runner, verdicts
+from bcbench.evaluation.timing import TimingConfig, measure_runner, verdicts
+from bcbench.modes import MODES
 from bcbench.utils.io import atomic_path, write_json
 from bcbench.utils.system import provenance
 
@@ -31,7 +31,7 @@ def _normalizer() -> MinMaxNormalizer:
 
 def _rows_for(name: str, preset: str, modes: list[str], samplers: list[str], steps: list[int], device: torch.device,
               timing: TimingConfig, rate_hz: float) -> list[dict[str, Any]]:
-    from bcbench.backends import apply_mode
+    from bcbench.evaluation.backends import apply_mode
     from bcbench.policies import is_learned, make_policy
     from bcbench.policies.learned import PolicyRunner
 
@@ -87,9 +87,8 @@ def run_latency_benchmark(policies: list[str] | None = None, presets: list[str] 
                           rate_hz: float = 10.0, out: str | None = None, quick_timing: bool = False) -> dict[str, str]:
     from tqdm import tqdm
 
-    from bcbench.figures import latency_bars
     from bcbench.policies import REGISTRY
-    from bcbench.training import pick_device
+    from bcbench.utils.device import pick_device
 
     if threads:
         torch.set_num_threads(threads)
@@ -116,9 +115,4 @@ def run_latency_benchmark(policies: list[str] | None = None, presets: list[str] 
     with atomic_path(out_dir / "latency.md") as tmp:
         tmp.write_text(table + "\n")
     print(table)
-    plot_rows = [{**r, "label": f"{r['policy']} {r['preset']} {r['variant']} {r['mode']}"} for r in rows]
-    hw = record["hardware"]
-    latency_bars(plot_rows, out_dir / "latency.png",
-                 f"Latency per call, batch 1 ({hw.get('gpu') or hw['cpu_model']}, {hw['torch_threads']} threads)")
-    return {"json": str(out_dir / "latency.json"), "table": str(out_dir / "latency.md"),
-            "plot": str(out_dir / "latency.png")}
+    return {"json": str(out_dir / "latency.json"), "table": str(out_dir / "latency.md"), "record": record}

@@ -1,0 +1,47 @@
+"""One-off migration (issue 29): give committed run.json files written before runs recorded their preset's
+values a `preset_values` entry, so that the report (which reads files only) can name what each override
+changed without building the preset in torch.
+
+For each run.json under the given results folders that has recipe overrides and no `preset_values`, the
+preset is rebuilt at this commit and checked to be the one the run was made with: its config with the
+overrides applied must equal the run's recorded config. Only then is the entry written (atomically);
+a mismatch is reported and left alone.   Usage: python scripts/backfill_preset_values.py results/*/
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from bcbench.policies import make_config
+from bcbench.policies.config import config_to_dict, dotted_value
+from bcbench.utils.io import read_json, write_json
+
+
+def backfill(run_json: Path) -> str:
+    meta = read_json(run_json)
+    overrides = meta.get("overrides") or {}
+    if "preset_values" in meta or not overrides:
+        return "skip"
+    rebuilt = config_to_dict(make_config(meta["policy"], meta["preset"], overrides))
+    if read_json_like(rebuilt) != meta["config"]:
+        return "MISMATCH: the preset changed since this run; left alone"
+    preset = config_to_dict(make_config(meta["policy"], meta["preset"]))
+    meta["preset_values"] = {k: dotted_value(preset, k) for k in overrides}
+    write_json(run_json, meta)
+    return "filled"
+
+
+def read_json_like(d: object) -> object:
+    """Tuples as lists, as the JSON file holds them."""
+    if isinstance(d, dict):
+        return {k: read_json_like(v) for k, v in d.items()}
+    if isinstance(d, list | tuple):
+        return [read_json_like(v) for v in d]
+    return d
+
+
+if __name__ == "__main__":
+    for folder in sys.argv[1:]:
+        for f in sorted(Path(folder).glob("runs/*/run.json")):
+            print(f, backfill(f))

@@ -1,0 +1,108 @@
+"""Latency sources for real-time evaluation: how many control steps a policy call takes.
+
+The control loop runs at 10 Hz (0.1 s per environment step), so a call that takes L seconds takes
+d = ceil(L / 0.1) steps (`steps_for`). L comes from one of:
+- a fixed number of milliseconds (`--latency-ms 250`, d = 3);
+- `measured`: the policy's own call times on this machine, timed before the episodes with the backend in
+  use, one drawn per call (each episode draws from its own stream, seeded by its seed);
+- `profile:NAME`: a named hardware profile; `a100` holds the study's A100 inference times.
+How the world moves meanwhile (sync, blocking, async) is the controller's business
+(`bcbench.evaluation.controller`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from bcbench.errors import BCBenchError
+from bcbench.evaluation.timing import TimingConfig, random_observation, time_calls
+from bcbench.protocol import CONTROL_DT_S
+from bcbench.reference import A100_DP_MS, A100_MS
+
+# Diffusion Policy (and flow matching, the same network) at K steps on the A100: the encoder-and-overhead
+# share plus K U-Net calls, from the study's two measured points (K = 10, 100).
+_A100_DP_PER_STEP_MS = (A100_DP_MS[100] - A100_DP_MS[10]) / 90
+_A100_DP_BASE_MS = A100_DP_MS[10] - 10 * _A100_DP_PER_STEP_MS
+PROFILES: dict[str, dict[str, float]] = {"a100": dict(A100_MS)}
+
+
+def steps_for(latency_s: float) -> int:
+    """Control steps a call of `latency_s` seconds takes: ceil(L / 0.1), 0 for no latency."""
+    if latency_s < 0:
+        raise BCBenchError(f"latency must be >= 0, got {latency_s * 1e3:g} ms")
+    return max(0, math.ceil(latency_s / CONTROL_DT_S - 1e-9))
+
+
+def profile_ms(profile: str, policy: str, steps: int | None = None) -> float:
+    """A hardware profile's time for one call of `policy` (generative policies: at `steps` steps)."""
+    if profile not in PROFILES:
+        raise BCBenchError(f"unknown latency profile '{profile}' (known: {', '.join(sorted(PROFILES))})")
+    if profile == "a100" and policy in ("diffusion", "flow") and steps:
+        return _A100_DP_BASE_MS + steps * _A100_DP_PER_STEP_MS
+    if policy not in PROFILES[profile]:
+        raise BCBenchError(f"the '{profile}' profile has no inference time for '{policy}'")
+    return PROFILES[profile][policy]
+
+
+@dataclass
+class LatencySource:
+    """Where d comes from: `fixed` (ms), `measured` (call times in ms), or `profile` (a name)."""
+
+    kind: str = "none"
+    ms: float = 0.0
+    samples_ms: list[float] = field(default_factory=list)
+    name: str = ""
+
+    @classmethod
+    def parse(cls, latency: str | None, latency_ms: float | None) -> LatencySource:
+        if latency_ms is not None and latency is not None:
+            raise BCBenchError("give --latency-ms or --latency, not both")
+        if latency_ms is not None:
+            if latency_ms < 0:
+                raise BCBenchError(f"--latency-ms must be >= 0, got {latency_ms:g}")
+            return cls("fixed", ms=float(latency_ms))
+        if latency is None:
+            return cls()
+        if latency == "measured":
+            return cls("measured")
+        if latency.startswith("profile:"):
+            name = latency.split(":", 1)[1]
+            if name not in PROFILES:
+                raise BCBenchError(f"unknown latency profile '{name}' (known: {', '.join(sorted(PROFILES))})")
+            return cls("profile", name=name)
+        raise BCBenchError(f"--latency must be 'measured' or 'profile:NAME', got '{latency}'")
+
+    def describe(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"kind": self.kind}
+        if self.kind == "fixed":
+            out["ms"] = self.ms
+        if self.kind == "profile":
+            out.update(name=self.name, ms=self.ms)
+        if self.kind == "measured":
+            ms = np.array(self.samples_ms)
+            out.update(calls=int(ms.size), median_ms=float(np.median(ms)), max_ms=float(ms.max()))
+        return out
+
+    def resolve(self, runner: Any) -> None:
+        """Fill in what depends on the policy: its profile time, or its measured call times on this machine."""
+        if self.kind == "profile":
+            self.ms = profile_ms(self.name, runner.name, getattr(runner, "extra", {}).get("steps"))
+        elif self.kind == "measured" and not self.samples_ms:
+            obs = random_observation(1, runner.obs_horizon)
+            self.samples_ms = time_calls(lambda: runner.predict_action_chunk(obs), TimingConfig())["samples_ms"]
+
+    def delay_fn(self, seeds: dict[int, int]) -> Callable[[int], int]:
+        """env id -> d for its next call; measured draws come from each episode's own stream."""
+        if self.kind in ("fixed", "profile"):
+            d = steps_for(self.ms / 1e3)
+            return lambda env_id: d
+        if self.kind == "measured":
+            steps = np.array([steps_for(ms / 1e3) for ms in self.samples_ms])
+            rngs = {i: np.random.default_rng([7, s]) for i, s in seeds.items()}
+            return lambda env_id: int(rngs[env_id].choice(steps))
+        return lambda env_id: 0

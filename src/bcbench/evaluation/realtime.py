@@ -1,0 +1,66 @@
+"""The real-time sweep: score against delay d for each execution mode, plus the measured latency and the
+hardware profiles; its record is what the report reads (bcbench.analysis.realtime reads it)."""
+
+from __future__ import annotations
+
+import platform
+from collections.abc import Callable
+from typing import Any
+
+from bcbench.errors import BCBenchError
+from bcbench.evaluation.evaluate import EvalConfig, evaluate
+from bcbench.evaluation.latency_sources import profile_ms
+from bcbench.protocol import CONTROL_DT_S
+from bcbench.utils.system import provenance
+
+
+def sweep_settings(delays: list[int], executions: list[str], profiles: list[str], measured: bool
+                   ) -> list[tuple[str, str, dict[str, Any]]]:
+    """(name, execution, latency options) of every setting of a sweep; sync (d = 0) first."""
+    bad = [d for d in delays if d < 0]
+    if bad:
+        raise BCBenchError(f"delays must be >= 0, got {bad[0]}")
+    settings: list[tuple[str, str, dict[str, Any]]] = [("realtime-sync", "sync", {})]
+    settings += [(f"realtime-{e}-d{d}", e, {"latency_ms": d * CONTROL_DT_S * 1e3})
+                 for e in executions for d in sorted(set(delays)) if d > 0]
+    settings += [(f"realtime-{e}-{p}", e, {"latency": f"profile:{p}"}) for e in executions for p in profiles]
+    if measured:
+        settings += [(f"realtime-{e}-measured", e, {"latency": "measured"}) for e in executions]
+    return settings
+
+
+def sweep(policy: Any, delays: list[int], executions: list[str], episodes: int, profiles: list[str],
+          measured: bool, progress: bool = True, max_steps: int = 300, seed_start: int = 100_000,
+          skip_missing_profiles: bool = False, done: dict[str, dict[str, Any]] | None = None,
+          on_setting: Callable[[dict[str, dict[str, Any]]], None] | None = None) -> dict[str, dict[str, Any]]:
+    """Score against delay d for each execution mode (sync as the d = 0 reference), plus the policy's score at
+    its measured latency on this machine and under each hardware profile: evaluation results by setting.
+    `done`: settings finished by an interrupted sweep (kept, not rerun); `on_setting(results so far)` is called
+    after each setting, so a caller can save them (a sweep is 13 evaluations of 100 episodes in a study)."""
+    usable = []
+    for p in profiles:  # fail before hours of episodes, not after (or, in a study, leave that profile out)
+        try:
+            profile_ms(p, policy.name, getattr(policy, "extra", {}).get("steps"))
+            usable.append(p)
+        except BCBenchError:
+            if not skip_missing_profiles:
+                raise
+    settings = sweep_settings(delays, executions, usable, measured)
+    out = {name: r for name, r in (done or {}).items() if name in {s[0] for s in settings}}
+    for name, execution, latency in settings:
+        if name in out:
+            continue
+        cfg = EvalConfig(episodes=episodes, execution=execution, max_steps=max_steps, seed_start=seed_start,
+                         **latency)
+        out[name] = evaluate(policy, cfg, None, progress=progress, extra={"realtime": {"setting": name}})
+        if on_setting is not None:
+            on_setting(out)
+    return out
+
+
+def realtime_record(settings: dict[str, dict[str, Any]], study: str, label: str, variant: dict[str, Any],
+                    margin: float, device: str = "cpu") -> dict[str, Any]:
+    """One sweep's record, as a study's report reads it (`bcbench.analysis.results.load_realtime`): its settings'
+    evaluation results under a label, with where and at which commit it ran."""
+    return {"type": "realtime", "study": {"name": study, "label": label, "variant": variant}, "margin": margin,
+            "settings": settings, "node": platform.node(), **provenance(device)}

@@ -1,0 +1,51 @@
+"""The published study's numbers (torch-free): one place for everything bcbench compares itself with.
+
+The study timed one inference step of each policy on an A100 and scored each on 40 test seeds; its parameter
+counts come from its networks. The report, the figures, `bcbench params`, the A100 latency profile of
+real-time evaluation and the presets' documented departures all read them from here.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+# Parameters of the study's networks.
+STUDY_PARAMETERS: dict[str, int] = {"cnn_mlp": 1_365_494, "resnet50": 34_527_593, "bct": 23_952_736,
+                                    "diffusion": 91_123_778}
+DIFFUSION_PARAMETERS = {"encoder": 11_176_512, "unet": 79_947_266, "total": 91_123_778}
+
+# The study's A100 inference times (ms per call): Diffusion Policy at 10 and 100 DDPM steps, the others.
+A100_DP_MS = {10: 116.5, 100: 1109.4}
+A100_MS = {"cnn_mlp": 2.2, "resnet50": 13.0, "bct": 12.0}
+
+# The study's own results (A100), shown beside ours.
+STUDY_REFERENCE: dict[str, dict[str, Any]] = {
+    "cnn_mlp": {"params": STUDY_PARAMETERS["cnn_mlp"], "score": 0.29, "gt05": 0.25, "gt09": 0.025,
+                "latency_ms": A100_MS["cnn_mlp"]},
+    "resnet50": {"params": STUDY_PARAMETERS["resnet50"], "score": 0.41, "gt05": 0.40, "gt09": 0.325,
+                 "latency_ms": A100_MS["resnet50"]},
+    "bct": {"params": STUDY_PARAMETERS["bct"], "score": 0.32, "gt05": 0.30, "gt09": 0.10,
+            "latency_ms": A100_MS["bct"]},
+    "bet": {"params": None, "score": 0.0, "gt05": 0.0, "gt09": 0.0, "latency_ms": None},
+    "diffusion:ddpm10": {"params": STUDY_PARAMETERS["diffusion"], "score": None, "latency_ms": A100_DP_MS[10]},
+    "diffusion:ddpm100": {"params": STUDY_PARAMETERS["diffusion"], "score": None, "latency_ms": A100_DP_MS[100]},
+}
+
+# How each `cpu` preset departs from its paper's recipe (a run records its own copy in run.json; this table
+# serves runs written before runs recorded it).
+CPU_DEVIATIONS: dict[str, str] = {
+    "cnn_mlp": "the study's network; Adam 1e-3 (study 1e-2) at batch 256 (study 64), 20 epochs (study 50) with "
+               "reduce-on-plateau; bf16 autocast",
+    "resnet50": "the study's topology at 1/8 width with one bottleneck per stage (0.49 M instead of 34.5 M "
+                "parameters), random init (study: ImageNet); Adam 1e-3 (study 1e-4), batch 256, 20 epochs "
+                "(study 30); bf16 autocast",
+    "bet": "a chunked BeT (16-step chunk from the newest token; BeT predicts per step); 1/4-width ResNet-18 with "
+           "one block per stage, 3 layers of width 96 (BeT: 4-6 of 72-120), 32 bins; AdamW 1e-3 at batch 256, "
+           "30 epochs, cosine; bf16 autocast",
+    "bct": "1/4-width ResNet-18 with one block per stage, a 2-layer width-128 transformer (study: 4 of 512); "
+           "AdamW 1e-3 at batch 256, 30 epochs, cosine; bf16 autocast",
+    "diffusion": "1/4-width ResNet-18/GroupNorm with one block per stage and a 64/128/256 U-Net (5.3 M instead "
+                 "of 91.1 M parameters); AdamW 1e-3 (paper 1e-4) at batch 256 (paper 64), 100 warm-up steps "
+                 "(paper 500), 60 epochs (paper 100); EMA, crop, cosine schedule as the paper; bf16 autocast",
+    "flow": "diffusion's cpu network and recipe exactly (same parameters), flow-matching objective",
+}

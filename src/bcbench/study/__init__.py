@@ -1,0 +1,30 @@
+"""Studies: a spec (spec.py) names runs and how to evaluate them; the runner (runner.py) trains, evaluates and
+times them stage by stage, resumably, in this process or on Ray (on_ray.py)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from bcbench.errors import BCBenchError
+from bcbench.protocol import check_purpose
+from bcbench.study.on_ray import run_on_ray
+from bcbench.study.runner import StudyRunner
+from bcbench.study.spec import StudySpec
+
+__all__ = ["StudyRunner", "StudySpec", "run_study"]
+
+
+def run_study(spec: StudySpec, out: str | Path | None = None, data: str | None = None,
+              progress: bool = True, ray: str | None = None, ray_cpus: int | None = None) -> dict[str, Any]:
+    """Run a study in this process, or with ray = 'local' (a local Ray instance) / 'auto' / an address."""
+    out = (Path(out) if out else Path("runs") / "studies" / spec.name).resolve()  # Ray workers: any cwd
+    if not spec.runs:
+        raise BCBenchError("the study has no runs")
+    problem = check_purpose(spec.purpose, spec.seed_start, spec.episodes)  # a spec built in code, not parsed
+    if problem:
+        raise BCBenchError(f"study {spec.name}: {problem}")
+    runner = StudyRunner(spec, out, str(Path(data).resolve()) if data else None, progress)
+    if ray is None:
+        return runner.run()
+    return run_on_ray(runner, None if ray == "local" else ray, ray_cpus)

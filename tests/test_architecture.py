@@ -1,0 +1,138 @@
+"""The layers the code shows: stage packages whose imports point one way, and an analysis that reads files only.
+
+    core (errors, protocol, modes, reference, stats, utils)  <  data  <  env  <  policies  <  evaluation
+        <  training  <  study  <  cli;            analysis: core only (result files in, reports out)
+
+A module may import its own stage and the stages below it; nothing imports cli; the analysis imports no torch,
+no policies, no training, no evaluation (so no backends) and no study. Every `import` statement counts, at
+module level or inside a function.
+"""
+
+from __future__ import annotations
+
+import ast
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src" / "bcbench"
+CORE = {"errors", "protocol", "modes", "reference", "stats", "utils", "__init__"}
+ORDER = ["core", "data", "env", "policies", "evaluation", "training", "study", "cli"]
+HEAVY = {"torch", "openvino", "nncf", "ray", "gymnasium", "gym_pusht", "pymunk"}  # analysis reads files only
+
+
+def stage(module: str) -> str:
+    """bcbench.evaluation.tiers -> evaluation; bcbench.stats -> core."""
+    part = module.split(".")[1] if "." in module else "__init__"
+    return "core" if part in CORE else part.removesuffix(".py")
+
+
+def imports() -> dict[str, set[str]]:
+    """module -> the bcbench modules and third-party top-level packages it imports."""
+    out: dict[str, set[str]] = {}
+    for f in SRC.rglob("*.py"):
+        rel = f.relative_to(SRC.parent).with_suffix("")
+        name = ".".join(p for p in rel.parts if p != "__init__")
+        found = set()
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, ast.Import):
+                found |= {a.name for a in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                found.add(node.module)
+                found |= {f"{node.module}.{a.name}" for a in node.names
+                          if (SRC.parent / node.module.replace(".", "/") / f"{a.name}.py").exists()}
+        out[name] = found
+    return out
+
+
+def internal(found: set[str], graph: dict[str, set[str]]) -> set[str]:
+    return {m for m in found if m in graph}
+
+
+def test_the_tree_is_grouped_by_stage():
+    assert {p.name for p in SRC.iterdir() if p.is_dir() and not p.name.startswith("__")} == {
+        "data", "env", "policies", "evaluation", "training", "study", "analysis", "cli", "utils"}
+    assert len([p for p in SRC.glob("*.py") if p.name != "__init__.py"]) <= 6  # core modules only
+
+
+def test_imports_point_one_way():
+    graph = imports()
+    wrong = []
+    for mod, found in graph.items():
+        s = stage(mod)
+        for dep in internal(found, graph):
+            t = stage(dep)
+            if s == "analysis":
+                ok = t in ("core", "analysis")
+            elif t == "analysis":
+                ok = s == "cli"
+            else:
+                ok = ORDER.index(t) <= ORDER.index(s)
+            if not ok:
+                wrong.append(f"{mod} ({s}) imports {dep} ({t})")
+    assert not wrong, "\n".join(wrong)
+
+
+def test_the_analysis_imports_no_torch_and_no_machinery():
+    graph = imports()
+    heavy = [f"{m} imports {d}" for m, found in graph.items() if stage(m) == "analysis"
+             for d in found if d.split(".")[0] in HEAVY]
+    assert not heavy, "\n".join(heavy)
+
+
+def test_no_import_cycles():
+    graph = {m: internal(found, imports()) for m, found in imports().items()}
+    state: dict[str, int] = {}
+    cycles: list[str] = []
+
+    def visit(m: str, path: list[str]) -> None:
+        state[m] = 1
+        for d in sorted(graph[m]):
+            if d == m or m.startswith(d + "."):  # a package's own __init__ re-exports: not a cycle
+                continue
+            if state.get(d) == 1:
+                cycles.append(" -> ".join([*path[path.index(d):], d]) if d in path else f"{m} -> {d}")
+            elif d not in state:
+                visit(d, [*path, d])
+        state[m] = 2
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m, [m])
+    assert not cycles, "\n".join(cycles)
+
+
+def test_the_checker_catches_an_upward_import(tmp_path, monkeypatch):
+    """The rules can fail: an analysis module importing torch and a policy is reported."""
+    fake = tmp_path / "bcbench"
+    shutil.copytree(SRC, fake)
+    (fake / "analysis" / "bad.py").write_text("import torch\nfrom bcbench.policies import REGISTRY\n")
+    monkeypatch.setattr(sys.modules[__name__], "SRC", fake)
+    with pytest.raises(AssertionError, match=r"analysis\.bad imports torch"):
+        test_the_analysis_imports_no_torch_and_no_machinery()
+    with pytest.raises(AssertionError, match=r"bcbench\.analysis\.bad \(analysis\) imports bcbench\.policies"):
+        test_imports_point_one_way()
+
+
+REGENERATE = """
+import sys
+sys.modules["torch"] = None  # any import of torch now fails
+from pathlib import Path
+from bcbench.analysis.report import write_report
+paths = write_report(Path(sys.argv[1]))
+assert "torch" not in sys.modules or sys.modules["torch"] is None
+print(paths["markdown"])
+"""
+
+
+def test_the_report_regenerates_without_torch(tmp_path):
+    """`bcbench report` over a committed study needs neither torch nor the policies, and gives the same file."""
+    study = SRC.parents[1] / "results" / "cpu"
+    copy = tmp_path / "cpu"
+    shutil.copytree(study, copy, ignore=shutil.ignore_patterns("report"))
+    out = subprocess.run([sys.executable, "-c", REGENERATE, str(copy)], capture_output=True, text=True, check=True)
+    md = Path(out.stdout.strip())
+    assert md.read_text() == (study / "report" / "report.md").read_text()
