@@ -11,6 +11,7 @@ module level or inside a function.
 from __future__ import annotations
 
 import ast
+import json
 import shutil
 import subprocess
 import sys
@@ -120,19 +121,27 @@ def test_the_checker_catches_an_upward_import(tmp_path, monkeypatch):
 REGENERATE = """
 import sys
 sys.modules["torch"] = None  # any import of torch now fails
-from pathlib import Path
-from bcbench.analysis.report import write_report
-paths = write_report(Path(sys.argv[1]))
-assert "torch" not in sys.modules or sys.modules["torch"] is None
-print(paths["markdown"])
+from bcbench.cli.main import main
+code = main(["report", sys.argv[1]])
+assert sys.modules["torch"] is None and "bcbench.policies" not in sys.modules
+raise SystemExit(code)
 """
 
 
 def test_the_report_regenerates_without_torch(tmp_path):
-    """`bcbench report` over a committed study needs neither torch nor the policies, and gives the same file."""
+    """`bcbench report results/cpu` needs neither torch nor the policies, and gives the same file."""
     study = SRC.parents[1] / "results" / "cpu"
     copy = tmp_path / "cpu"
     shutil.copytree(study, copy, ignore=shutil.ignore_patterns("report"))
-    out = subprocess.run([sys.executable, "-c", REGENERATE, str(copy)], capture_output=True, text=True, check=True)
-    md = Path(out.stdout.strip())
-    assert md.read_text() == (study / "report" / "report.md").read_text()
+    subprocess.run([sys.executable, "-c", REGENERATE, str(copy)], capture_output=True, text=True, check=True)
+    assert (copy / "report" / "report.md").read_text() == (study / "report" / "report.md").read_text()
+
+
+def test_behaviour_is_unchanged_since_before_the_restructuring():
+    """The same per-episode results (scores, final states) as the code before the stage packages (0fe1623) gave
+    for a fixed pipeline: tiny CNN-MLP, Diffusion Policy and BeT trained on synthetic data, and the scripted
+    baseline, evaluated on the test seeds (tests/golden/make_golden.py wrote the file at that commit)."""
+    from tests.golden.make_golden import pipeline
+
+    golden = json.loads((Path(__file__).parent / "golden" / "pipeline-0fe1623.json").read_text())
+    assert json.loads(json.dumps(pipeline())) == golden

@@ -136,7 +136,7 @@ def test_export_cache_and_the_eval_cli(synthetic_zarr, tmp_path, monkeypatch, ca
     apply_mode(runner, "openvino-fp32")
     assert runner.model.deployment["export"] == first
     assert (run / "export" / first.split("/")[-1] / "forward.bin").stat().st_mtime_ns == stamp
-    weights = latest_checkpoint(run) / ("ema.safetensors" if runner.extra["weights"] == "ema" else "model.safetensors")
+    weights = latest_checkpoint(run) / ("ema.safetensors" if runner.info.weights == "ema" else "model.safetensors")
     os.utime(weights, ns=(stamp + 10**9, stamp + 10**9))  # the checkpoint changed: a new export
     runner = load_runner(run)
     apply_mode(runner, "openvino-fp32")

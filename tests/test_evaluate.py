@@ -56,7 +56,7 @@ def test_bad_eval_config_and_unknown_policy():
         EvalConfig(episodes=2, video=3)
     with pytest.raises(BCBenchError, match="unknown policy"):
         make_policy("nope")
-    with pytest.raises(BCBenchError, match="unknown config"):
+    with pytest.raises(BCBenchError, match="unknown preset"):
         make_policy("random", "huge")
 
 

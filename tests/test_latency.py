@@ -43,7 +43,7 @@ def test_latency_record_for_a_trained_style_runner_and_a_baseline():
     rec = latency_record(runner, timing, modes=("reference", "fast", "openvino-fp32"))
     assert set(rec["modes"]) == {"reference", "fast", "openvino-fp32"} and rec["hardware"]["torch_threads"] >= 1
     assert rec["modes"]["openvino-fp32"]["deployment"]["backend"] == "openvino"
-    assert runner.extra["mode"] == "reference" and runner.model.deployed is None  # put back as it was
+    assert runner.info.mode == "reference" and runner.model.deployed is None  # put back as it was
     base = latency_record(make_policy("random"), timing)
     assert set(base["modes"]) == {"reference"}
     json.dumps(rec)  # JSON-ready

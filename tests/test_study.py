@@ -46,7 +46,7 @@ eval = [{{ sampler = "ddpm", steps = [2] }}, {{ sampler = "ddim", steps = [2] }}
 @pytest.mark.parametrize("text, message", [
     ("", "no runs"),
     ("[[run]]\npolicy = 'nope'", "unknown policy 'nope'"),
-    ("[[run]]\npolicy = 'cnn_mlp'\nconfig = 'huge'", "unknown config 'huge'"),
+    ("[[run]]\npolicy = 'cnn_mlp'\nconfig = 'huge'", "unknown preset 'huge'"),
     ("[[run]]\npolicy = 'cnn_mlp'\neval = [{sampler='ddim', steps=[10]}]", "apply to generative policies only"),
     ("[[run]]\npolicy = 'diffusion'\neval = [{sampler='dpm', steps=[10]}]", "sampler must be ddpm or ddim"),
     ("[[run]]\npolicy = 'diffusion'\neval = [{sampler='ddim', steps=[0]}]", "steps must be whole numbers"),

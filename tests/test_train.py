@@ -293,3 +293,25 @@ def test_keep_freed_memory_reuses_big_blocks_instead_of_faulting_them_in():
     faults = {k: int(subprocess.run([sys.executable, "-c", code, k], capture_output=True, text=True,
                                     check=True).stdout) for k in "01"}
     assert faults["1"] * 4 < faults["0"], faults
+
+
+class _Boom:
+    """What a malicious state.pt could hold: unpickling it would call os.system."""
+
+    def __reduce__(self):
+        return (os.system, ("echo pwned > /tmp/bcbench-pwned",))
+
+
+def test_a_crafted_pickle_in_a_checkpoint_is_refused_with_one_line(synthetic_zarr, tmp_path, one_thread, capsys):
+    from bcbench.cli.main import main
+
+    run = new_run("cnn_mlp", "quick", tiny_overrides("cnn_mlp", max_steps=2, epochs=10), tmp_path / "p",
+                  _opts(synthetic_zarr))
+    train(run, _opts(synthetic_zarr))
+    torch.save({"optimizer": _Boom()}, latest_checkpoint(run) / "state.pt")
+    if os.path.exists("/tmp/bcbench-pwned"):
+        os.remove("/tmp/bcbench-pwned")
+    code = main(["train", "--resume", str(run), "--data", str(synthetic_zarr), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "refused" in err and "state.pt" in err
+    assert not os.path.exists("/tmp/bcbench-pwned")  # nothing ran

@@ -11,6 +11,10 @@ import matplotlib
 matplotlib.use("Agg")  # files only, no display
 import matplotlib.pyplot as plt
 
+from bcbench.analysis.realtime import delay_curve
+from bcbench.reference import STUDY_REFERENCE
+from bcbench.utils.io import atomic_path
+
 BUDGETS_MS = ((100.0, "10 Hz, re-plan every step (100 ms)"), (800.0, "10 Hz, re-plan every 8 steps (800 ms)"))
 COLOURS = {"cnn_mlp": "tab:blue", "resnet50": "tab:orange", "bet": "tab:purple", "bct": "tab:green",
            "diffusion": "tab:red", "flow": "tab:pink", "random": "tab:gray", "scripted": "tab:brown"}
@@ -31,8 +35,6 @@ def _nth_of_policy(rows: list[Any]) -> dict[str, int]:
 
 
 def _save(fig: Any, path: Path) -> Path:
-    from bcbench.utils.io import atomic_path
-
     fig.tight_layout()  # keeps a right-hand panel's axis label off its neighbour
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=120, bbox_inches="tight")
@@ -72,7 +74,6 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference") -> Path | None
             ax.annotate(r.variant.upper().replace("-LEADING", "-L"), (r.latency_ms(mode), r.score), fontsize=6,
                         xytext=(4, 4), textcoords="offset points")
     ax.legend(legend.values(), legend.keys(), fontsize=7, loc="upper left", markerscale=0.5)
-    from bcbench.reference import STUDY_REFERENCE
 
     shown = {r.reference_key for r in pts}
     for key, ref in STUDY_REFERENCE.items():  # the study's own points (A100), hollow, for comparison
@@ -237,8 +238,6 @@ def _score_axis(ax: Any, xlabel: str, ylabel: str = "mean score (95% CI)") -> bo
 
 def realtime_figure(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path) -> Path:
     """Score against delay d (control steps of 0.1 s), one colour per policy: async solid, blocking dashed."""
-    from bcbench.analysis.realtime import delay_curve
-
     fig, ax = plt.subplots(figsize=(8, 4.5))
     for i, (label, results) in enumerate(by_policy.items()):
         for execution, style in (("async", "-"), ("blocking", "--")):

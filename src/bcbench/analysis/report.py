@@ -11,13 +11,16 @@ from __future__ import annotations
 
 import base64
 import html
+import shutil
 from pathlib import Path
 from typing import Any
 
 from bcbench.analysis.fewstep import fewstep_lines, load_paired
 from bcbench.analysis.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
 from bcbench.analysis.findings import DEFAULT_MARGIN, judge, points_from_rows
+from bcbench.analysis.realtime import delay_vs_sync, highest_safe_rate, largest_safe_delay
 from bcbench.analysis.results import Row, load_realtime, load_rows, study_time
+from bcbench.protocol import CONTROL_DT_S
 from bcbench.reference import CPU_DEVIATIONS, STUDY_REFERENCE
 from bcbench.stats import fmt_estimate
 from bcbench.utils.io import atomic_path, read_json
@@ -103,9 +106,6 @@ def _spacing_note(rows: list[Row]) -> str:
 def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float) -> str:
     """One policy's largest safe delay per execution mode and, from the better mode's measured setting, its
     highest safe control rate; where no delay is shown safe, the d = 1 differences that say why."""
-    from bcbench.analysis.realtime import delay_vs_sync, highest_safe_rate, largest_safe_delay
-    from bcbench.protocol import CONTROL_DT_S
-
     if "realtime-sync" not in settings:
         return ""
     safe = {e: largest_safe_delay(settings, e, margin) for e in ("async", "blocking")
@@ -332,8 +332,6 @@ EXPORTED = ("spec.json", "index.jsonl", "run.json", "train_summary.json", "norma
 
 def export_results(results: str | Path, dest: str | Path) -> int:
     """Copy a study's result files (no checkpoints, no videos) to `dest`; returns the number of files."""
-    import shutil
-
     results, dest = Path(results), Path(dest)
     n = 0
     for f in sorted(results.rglob("*")):

@@ -83,7 +83,10 @@ def _row_from_eval(path: Path, margin: float = 0.05) -> Row:
         f"{sampler}{steps}" + ("" if spacing == "trailing" else f"-{spacing}") if sampler else "default")
     cfg = pol.get("config", {})
     run_dir = path.parent
-    row = Row(key=f"{run_dir.name}:{vkey}", label=study.get("label") or pol["name"], policy=pol["name"],
+    label = study.get("label") or pol["name"]
+    if study.get("outside_policy"):  # a user's policy (module:factory or a plug-in): labelled as such everywhere
+        label += f" (outside bcbench: {study['outside_policy']})"
+    row = Row(key=f"{run_dir.name}:{vkey}", label=label, policy=pol["name"],
               preset=pol.get("preset"), variant=vkey, sampler=sampler, steps=steps, spacing=spacing,
               beta_schedule=cfg.get("beta_schedule"), params=int(pol.get("parameters", 0)), summary=ev["summary"],
               scores={int(e["seed"]): float(e["score"]) for e in ev.get("episodes", [])},
@@ -146,6 +149,8 @@ def load_realtime(results: str | Path) -> dict[str, dict[str, Any]]:
         study = data.get("study", {})
         v = study.get("variant") or {}
         label = study.get("label", f.parent.name) + (f" {v['sampler'].upper()}{v['steps']}" if v.get("sampler") else "")
+        if study.get("outside_policy"):
+            label += f" (outside bcbench: {study['outside_policy']})"
         out[label] = data["settings"]
     return out
 

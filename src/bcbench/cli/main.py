@@ -1,4 +1,9 @@
-"""The `bcbench` command line. Every failure the user can cause ends in one line on stderr, exit 2."""
+"""The `bcbench` command line. Every failure the user can cause ends in one line on stderr, exit 2.
+
+Each command imports the stages it runs inside its handler, the one place in bcbench where imports are local:
+it buys start-up time (`bcbench --help`, `bcbench data info` and `bcbench report` never load torch, OpenVINO or
+matplotlib). Module level holds only the torch-free core.
+"""
 
 from __future__ import annotations
 
@@ -10,6 +15,9 @@ from typing import Any
 
 from bcbench.cli.parser import EXIT_USAGE, build_parser
 from bcbench.errors import BCBenchError
+from bcbench.stats import fmt_estimate
+from bcbench.utils.io import safe_name, write_json
+from bcbench.utils.system import git_commit, provenance
 
 EXIT_INTERRUPTED = 130
 
@@ -44,15 +52,12 @@ def cmd_data_info(args: argparse.Namespace) -> int:
 def cmd_data_replay(args: argparse.Namespace) -> int:
     from bcbench.data import load_replay_buffer, resolve_dataset
     from bcbench.env.replay import replay_buffer_episodes, replay_report
-    from bcbench.stats import fmt_estimate
-    from bcbench.utils.io import write_json
 
     buf = load_replay_buffer(resolve_dataset(args.data), images=False)
     episodes = list(range(buf.n_episodes))[: args.episodes] if args.episodes else None
     results = replay_buffer_episodes(buf, episodes, workers=args.workers, progress=not args.quiet)
     report = replay_report(results)
     report["dataset"] = buf.source
-    from bcbench.utils.system import provenance
 
     report.update(provenance())  # commit, machine, versions: the claim in the README points here
     d, e = report["demonstrators"], report["block_error_px"]
@@ -75,7 +80,8 @@ def cmd_data_replay(args: argparse.Namespace) -> int:
 
 def _load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
     """The policy to evaluate and the default output folder."""
-    from bcbench.policies import is_learned, make_policy
+    from bcbench.policies import REGISTRY, is_learned, make_policy
+    from bcbench.policies.outside import outside_policy, parse_kwargs
 
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     if args.checkpoint:
@@ -98,12 +104,16 @@ def _load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
     if is_learned(args.policy):
         raise BCBenchError(f"'{args.policy}' is a learned policy: train it (`bcbench train --policy {args.policy}`) "
                            "and evaluate with --checkpoint RUN_DIR")
-    return make_policy(args.policy, args.config, seed=args.seed), Path("runs") / f"eval-{args.policy}-{stamp}"
+    if args.policy in REGISTRY:
+        if args.policy_arg:
+            raise BCBenchError("--policy-arg goes with an outside policy (module:factory or a plug-in)")
+        return make_policy(args.policy, args.preset, seed=args.seed), Path("runs") / f"eval-{args.policy}-{stamp}"
+    policy = outside_policy(args.policy, parse_kwargs(args.policy_arg))  # checked before anything runs
+    return policy, Path("runs") / f"eval-{safe_name(policy.name)}-{stamp}"
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
     from bcbench.evaluation.evaluate import EvalConfig, evaluate
-    from bcbench.stats import fmt_estimate
 
     cfg = EvalConfig(episodes=args.episodes, seed_start=args.seed_start, max_steps=args.max_steps,
                      action_horizon=args.action_horizon, workers=args.workers, video=args.video,
@@ -127,17 +137,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 def _parse_sets(items: list[str] | None) -> dict[str, Any]:
     """--set key=value pairs; values are JSON when they parse as JSON (numbers, lists, true), else strings."""
-    import json
+    from bcbench.policies.outside import parse_kwargs
 
-    out: dict[str, Any] = {}
-    for item in items or []:
-        if "=" not in item:
-            raise BCBenchError(f"--set expects KEY=VALUE, got '{item}'")
-        key, raw = item.split("=", 1)
-        try:
-            out[key.strip()] = json.loads(raw)
-        except json.JSONDecodeError:
-            out[key.strip()] = raw
+    out = parse_kwargs(items, "--set")
     return out
 
 
@@ -161,7 +163,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         if args.pretrained:
             from bcbench.policies import make_config
 
-            if not hasattr(make_config(args.policy, args.config), "pretrained"):
+            if not hasattr(make_config(args.policy, args.preset), "pretrained"):
                 raise BCBenchError(f"--pretrained applies to policies with an ImageNet-style ResNet to initialise "
                                    f"(resnet50), not to '{args.policy}'")
             overrides["pretrained"] = args.pretrained
@@ -171,7 +173,7 @@ def cmd_train(args: argparse.Namespace) -> int:
             overrides["optim.precision"] = args.precision
         if dist.world > 1 and not args.out:
             raise BCBenchError("under torchrun, name the run folder with --out (every process trains into it)")
-        run_dir = new_run(args.policy, args.config, overrides, args.out, opts) if dist.main else Path(args.out)
+        run_dir = new_run(args.policy, args.preset, overrides, args.out, opts) if dist.main else Path(args.out)
     if dist.world > 1:
         import torch
 
@@ -243,8 +245,7 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     from bcbench.analysis.findings import DEFAULT_MARGIN
     from bcbench.analysis.report import safe_delay_sentence
     from bcbench.evaluation.realtime import realtime_record, sweep
-    from bcbench.stats import fmt_estimate
-    from bcbench.utils.io import write_json
+    from bcbench.policies.learned import PolicyRunner
 
     args.no_ema = False
     policy, default_out = _load_eval_policy(args)
@@ -263,7 +264,7 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     print(f"  {safe_delay_sentence(results, DEFAULT_MARGIN)}")
     # One record of the whole sweep, the form a study's report reads: inside a study's folder (e.g. beside a
     # run's own sweep, with another --backend), `bcbench report` shows it under its label.
-    mode = getattr(policy, "extra", {}).get("mode")  # what apply_mode put a trained run in; baselines: none
+    mode = policy.info.mode if isinstance(policy, PolicyRunner) else None  # what apply_mode set; baselines: none
     label = args.label or (f"{policy.name} ({mode})" if mode else policy.name)
     variant = {"sampler": args.sampler, "steps": args.steps, "spacing": args.spacing}
     write_json(out / "realtime-sweep.json", realtime_record(results, "bcbench realtime", label, variant,
@@ -296,13 +297,31 @@ def cmd_tiers(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_policies(args: argparse.Namespace) -> int:
+    from bcbench.policies import REGISTRY, is_learned
+    from bcbench.policies.outside import plugins
+
+    print("built in (learned: train, then --checkpoint RUN_DIR; baselines: --policy NAME):")
+    for name in REGISTRY:
+        print(f"  {name:<12} {'learned' if is_learned(name) else 'baseline'}")
+    found = plugins()
+    print(f"plug-ins (entry-point group bcbench.policies): {'' if found else 'none installed'}")
+    for name, ep in sorted(found.items()):
+        dist = ep.dist.name if ep.dist else "?"
+        print(f"  {name:<12} {ep.value}  (package {dist})")
+    print("any other: --policy my_pkg.my_module:make_policy [--policy-arg KEY=VALUE ...]")
+    return 0
+
+
 def cmd_latency(args: argparse.Namespace) -> int:
     from bcbench.analysis.figures import latency_bars
     from bcbench.evaluation.benchmark import run_latency_benchmark
+    from bcbench.policies.outside import parse_kwargs
 
-    out = run_latency_benchmark(policies=args.policy, presets=args.config, modes=args.mode, steps=args.steps,
+    out = run_latency_benchmark(policies=args.policy, presets=args.preset, modes=args.mode, steps=args.steps,
                                 samplers=args.sampler, device=args.device, threads=args.threads,
-                                rate_hz=args.rate, out=args.out, quick_timing=args.quick)
+                                rate_hz=args.rate, out=args.out, quick_timing=args.quick,
+                                policy_args=parse_kwargs(args.policy_arg))
     rec, plot = out["record"], Path(out["json"]).with_name("latency.png")
     hw = rec["hardware"]
     latency_bars([{**r, "label": f"{r['policy']} {r['preset']} {r['variant']} {r['mode']}"} for r in rec["rows"]],
@@ -312,7 +331,6 @@ def cmd_latency(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from bcbench.utils.system import git_commit
 
     parser = build_parser()
     args = parser.parse_args(argv)

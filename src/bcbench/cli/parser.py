@@ -1,7 +1,8 @@
 """The `bcbench` command line's arguments: one parser per command group, validated types, one-line errors.
 
-Each subcommand names its handler (`func`, a `bcbench.cli.cmd_*` function) by name, so this module does not
-import the commands (nor torch) to build the parser.
+Each subcommand names its handler (`func`, a `bcbench.cli.main.cmd_*` function) by name, so this module does not
+import the commands (nor torch, nor the policies) to build the parser. Options that fill a config take their
+default and help from that config's field (`_field`): written once, in the dataclass.
 """
 
 from __future__ import annotations
@@ -10,7 +11,10 @@ import argparse
 from typing import Any
 
 from bcbench import __version__
+from bcbench.evaluation.config import EXECUTIONS, EvalConfig
 from bcbench.modes import MODES
+from bcbench.training.options import TrainOptions
+from bcbench.utils.fields import field_default, field_docs
 
 EXIT_USAGE = 2
 
@@ -44,14 +48,20 @@ _nonneg_int = _number(int, 0)
 _positive_float = _number(float, 0, strict=True)
 
 
+def _field(p: argparse.ArgumentParser, flag: str, cls: type, name: str | None = None, **kw: Any) -> None:
+    """An option whose default and help are a config dataclass field's own (written once, under the field)."""
+    name = name or flag.lstrip("-").replace("-", "_")
+    default = kw.pop("default", field_default(cls, name))
+    shown = f" (default {default})" if default not in (None, False) else ""
+    p.add_argument(flag, default=default, help=field_docs(cls)[name] + shown, **kw)
+
+
 def _add_data_flag(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data", metavar="ZARR", help="dataset folder (default: $BCBENCH_DATA, then ../shared beside "
                    "the repo, then the `bcbench data fetch` location)")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from bcbench.policies import REGISTRY
-
     parser = _Parser(prog="bcbench", description=__doc__.split("\n")[0] if __doc__ else None)
     parser.description = ("Train, evaluate and benchmark visuomotor behavior-cloning policies on Push-T: "
                           "task accuracy against real-time inference latency.")
@@ -60,7 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
 
     _add_data_commands(sub)
-    _add_train_eval_commands(sub, sorted(REGISTRY))
+    _add_train_eval_commands(sub)
     _add_study_commands(sub)
     _add_deploy_commands(sub)
     return parser
@@ -93,17 +103,16 @@ def _add_data_commands(sub: Any) -> None:
     p.set_defaults(func="cmd_data_replay")
 
 
-def _add_train_eval_commands(sub: Any, policies: list[str]) -> None:
+def _add_train_eval_commands(sub: Any) -> None:
     p = sub.add_parser("train", help="train a policy (resumable; checkpoints, metrics.jsonl)")
-    p.add_argument("--policy", choices=policies, help="registered policy to train")
-    p.add_argument("--config", default="quick",
-                   help="preset: quick (minutes on a 2-core CPU), cpu (trained to its plateau on 2 cores) or paper "
-                        "(the study's sizes); diffusion also has quick_linear, cpu_linear, paper_linear (linear betas)")
+    p.add_argument("--policy", metavar="NAME", help="learned policy to train (`bcbench policies` lists them)")
+    p.add_argument("--preset", "--config", dest="preset", default="quick",
+                   help="quick (minutes on a 2-core CPU), cpu (trained to its plateau on 2 cores) or paper (the "
+                        "study's sizes); diffusion also has quick_linear, cpu_linear, paper_linear (linear betas). "
+                        "--config is the old name of this option")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a config field, e.g. --set optim.epochs=2 --set hidden=64 (repeatable)")
-    p.add_argument("--max-minutes", type=_positive_float, metavar="M",
-                   help="safety stop only (the budget is the config's epochs / optim.max_steps): stops at the next "
-                        "step, saves, and marks the run 'stopped by time: schedule not finished'")
+    _field(p, "--max-minutes", TrainOptions, type=_positive_float, metavar="M")
     p.add_argument("--out", metavar="DIR", help="run directory (default runs/train-POLICY-CONFIG-TIME)")
     p.add_argument("--resume", metavar="RUN_DIR", help="continue a run from its newest checkpoint")
     p.add_argument("--pretrained", metavar="PATH", help="torchvision-format ImageNet weights (local file)")
@@ -111,16 +120,14 @@ def _add_train_eval_commands(sub: Any, policies: list[str]) -> None:
     p.add_argument("--precision", choices=["auto", "fp32", "bf16"],
                    help="forward-pass precision (default: the config's, auto = bf16 autocast where the hardware "
                         "computes bf16 natively, else fp32)")
-    p.add_argument("--eval-every", type=_positive_int, metavar="STEPS",
-                   help="closed-loop rollouts every STEPS steps and at the end (the learning curve in metrics.jsonl)")
-    p.add_argument("--eval-episodes", type=_positive_int, default=20, metavar="N",
-                   help="episodes per periodic rollout, on validation seeds 200000+ (default 20)")
-    p.add_argument("--threads", type=_positive_int, help="torch threads (default: torch's choice)")
-    p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"], help="default auto")
+    _field(p, "--eval-every", TrainOptions, type=_positive_int, metavar="STEPS")
+    _field(p, "--eval-episodes", TrainOptions, type=_positive_int, metavar="N")
+    _field(p, "--threads", TrainOptions, type=_positive_int)
+    _field(p, "--device", TrainOptions, choices=["auto", "cpu", "cuda"])
     _add_data_flag(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func="cmd_train")
-    _add_eval_command(sub, policies)
+    _add_eval_command(sub)
 
 
 def _add_study_commands(sub: Any) -> None:
@@ -145,8 +152,11 @@ def _add_study_commands(sub: Any) -> None:
     p.set_defaults(func="cmd_report")
 
     p = sub.add_parser("latency", help="time one policy call at batch 1 for every policy, in every inference mode")
-    p.add_argument("--policy", action="append", help="only these policies (repeatable; default all learned)")
-    p.add_argument("--config", action="append", choices=["quick", "cpu", "paper"], help="presets (default both)")
+    p.add_argument("--policy", action="append", metavar="NAME", help="only these policies (repeatable; default all "
+                   "built-in): registered names, plug-ins or module:factory (`bcbench policies`)")
+    _add_policy_arg(p)
+    p.add_argument("--preset", "--config", dest="preset", action="append", choices=["quick", "cpu", "paper"],
+                   help="presets (default paper and quick; --config is the old name of this option)")
     p.add_argument("--mode", action="append", choices=list(MODES),
                    help="inference modes (default all: torch reference and fast, OpenVINO fp32, bf16 and int8)")
     p.add_argument("--sampler", action="append", choices=["ddpm", "ddim", "euler", "midpoint"],
@@ -162,8 +172,9 @@ def _add_study_commands(sub: Any) -> None:
 
     p = sub.add_parser("realtime", help="score under real-time execution: against delay, at measured latency, "
                        "under a hardware profile")
-    p.add_argument("--policy", choices=["random", "scripted"], help="a baseline (or --checkpoint)")
-    p.add_argument("--config", default="quick", help=argparse.SUPPRESS)
+    p.add_argument("--policy", metavar="NAME", help="a baseline, a plug-in or module:factory (or --checkpoint)")
+    _add_policy_arg(p)
+    p.add_argument("--preset", "--config", dest="preset", default="quick", help=argparse.SUPPRESS)
     p.add_argument("--checkpoint", metavar="RUN_DIR", help="a trained run")
     p.add_argument("--sampler", choices=["ddpm", "ddim", "euler", "midpoint"], help="generative policies: sampler")
     p.add_argument("--steps", type=_positive_int, help="generative policies: steps")
@@ -178,8 +189,8 @@ def _add_study_commands(sub: Any) -> None:
     p.add_argument("--measured", action="store_true",
                    help="also at this policy's measured latency on this machine (in the --backend it runs on)")
     _add_backend_args(p)
-    p.add_argument("--episodes", type=_positive_int, default=100, help="episodes per setting (default 100)")
-    p.add_argument("--max-steps", type=_positive_int, default=300, help="steps per episode at most (default 300)")
+    _field(p, "--episodes", EvalConfig, type=_positive_int, default=100)  # a sweep's settings: 100 test seeds
+    _field(p, "--max-steps", EvalConfig, type=_positive_int)
     p.add_argument("--out", metavar="DIR", help="output folder (its realtime-sweep.json is what a report reads: "
                    "put it inside a study's folder to add this sweep to the study's report)")
     p.add_argument("--label", help="the sweep's name in reports (default: the policy and its inference mode)")
@@ -188,6 +199,9 @@ def _add_study_commands(sub: Any) -> None:
 
     p = sub.add_parser("params", help="parameter counts of every learned policy (paper and quick sizes)")
     p.set_defaults(func="cmd_params")
+
+    p = sub.add_parser("policies", help="the policies bcbench can run: built in, installed plug-ins, module:factory")
+    p.set_defaults(func="cmd_policies")
 
 
 
@@ -215,6 +229,11 @@ def _add_deploy_commands(sub: Any) -> None:
     p.set_defaults(func="cmd_tiers")
 
 
+def _add_policy_arg(p: Any) -> None:
+    p.add_argument("--policy-arg", action="append", metavar="KEY=VALUE",
+                   help="keyword argument for an outside policy's factory (repeatable; JSON values, else strings)")
+
+
 def _add_backend_args(p: Any) -> None:
     p.add_argument("--backend", default="torch", choices=["torch", "openvino"],
                    help="what runs a trained policy's networks (default torch; openvino exports and compiles "
@@ -225,10 +244,13 @@ def _add_backend_args(p: Any) -> None:
                    help="torch's reference form (Diffusion Policy: the plain U-Net every step; same chunks)")
 
 
-def _add_eval_command(sub: Any, policies: list[str]) -> None:
+def _add_eval_command(sub: Any) -> None:
     p = sub.add_parser("eval", help="evaluate a policy over seeded Push-T episodes (JSON result, videos)")
-    p.add_argument("--policy", choices=policies, help="registered policy to evaluate")
-    p.add_argument("--config", default="quick", choices=["quick", "cpu", "paper"], help="policy preset (default quick)")
+    p.add_argument("--policy", metavar="NAME", help="policy to evaluate: a baseline (random, scripted), a plug-in, "
+                   "or my_pkg.my_module:factory (`bcbench policies` lists them; a trained run: --checkpoint)")
+    _add_policy_arg(p)
+    p.add_argument("--preset", "--config", dest="preset", default="quick", choices=["quick", "cpu", "paper"],
+                   help="a baseline's preset (default quick; --config is the old name of this option)")
     p.add_argument("--checkpoint", metavar="RUN_DIR", help="evaluate a trained run instead of --policy")
     p.add_argument("--no-ema", action="store_true", help="use the raw weights even if the run kept an EMA")
     _add_backend_args(p)
@@ -240,20 +262,16 @@ def _add_eval_command(sub: Any, policies: list[str]) -> None:
                    help="diffusion only: timestep spacing (default trailing: every step count starts from pure "
                         "noise; leading is diffusers' and the study's default)")
     p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="where the policy runs (default cpu)")
-    p.add_argument("--episodes", type=_positive_int, default=40, help="episodes (default 40, as the study)")
-    p.add_argument("--seed-start", type=_nonneg_int, default=100_000,
-                   help="episode i uses seed SEED_START + i (default 100000, Diffusion Policy's test seeds)")
+    _field(p, "--episodes", EvalConfig, type=_positive_int)
+    _field(p, "--seed-start", EvalConfig, type=_nonneg_int)
     p.add_argument("--seed", type=_nonneg_int, default=0, help="the policy's own random seed (default 0)")
-    p.add_argument("--max-steps", type=_positive_int, default=300, help="steps per episode at most (default 300)")
-    p.add_argument("--action-horizon", type=_positive_int, help="actions executed per chunk (default: policy's, 8)")
-    p.add_argument("--workers", type=_positive_int, help="simulator processes (default: one per core)")
-    p.add_argument("--video", type=_nonneg_int, default=0, metavar="N", help="write videos of the first N episodes")
-    p.add_argument("--execution", default="sync", choices=["sync", "blocking", "async"],
-                   help="sync: the world waits for the policy (default); blocking: the agent holds its last target "
-                        "while the policy computes; async: it keeps executing the current chunk")
-    p.add_argument("--latency-ms", type=float, metavar="MS", help="a fixed latency per call (10 Hz: d = ceil(MS/100))")
-    p.add_argument("--latency", metavar="SOURCE",
-                   help="'measured' (this policy's call times on this machine) or 'profile:a100' (the study's A100)")
+    _field(p, "--max-steps", EvalConfig, type=_positive_int)
+    _field(p, "--action-horizon", EvalConfig, type=_positive_int)
+    _field(p, "--workers", EvalConfig, type=_positive_int)
+    _field(p, "--video", EvalConfig, type=_nonneg_int, metavar="N")
+    _field(p, "--execution", EvalConfig, choices=EXECUTIONS)
+    _field(p, "--latency-ms", EvalConfig, type=float, metavar="MS")
+    _field(p, "--latency", EvalConfig, metavar="SOURCE")
     p.add_argument("--out", metavar="DIR", help="output folder (default runs/eval-POLICY-TIME)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func="cmd_eval")

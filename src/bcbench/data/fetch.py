@@ -13,6 +13,8 @@ import zipfile
 from pathlib import Path
 from typing import Any
 
+from tqdm import tqdm
+
 from bcbench.data.paths import OFFICIAL_URL, ZARR_NAME, default_fetch_dest
 from bcbench.data.replay_buffer import load_replay_buffer
 from bcbench.errors import DatasetError
@@ -30,8 +32,6 @@ def _find_zarr(root: Path) -> Path:
 
 
 def _download(url: str, dest: Path, progress: bool) -> None:
-    from tqdm import tqdm
-
     try:
         with urllib.request.urlopen(url, timeout=60) as resp, open(dest, "wb") as f:
             total = int(resp.headers.get("Content-Length") or 0) or None

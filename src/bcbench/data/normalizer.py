@@ -63,7 +63,7 @@ def _like(a: np.ndarray, ref: Any) -> Any:
     """`a` as the same array type (and device) as `ref`."""
     if isinstance(ref, np.ndarray | np.generic | float | int):
         return a
-    import torch
+    import torch  # the data stage serves numpy callers too: torch only when a tensor is passed
 
     if isinstance(ref, torch.Tensor):
         return torch.as_tensor(a, dtype=ref.dtype, device=ref.device)

@@ -72,7 +72,7 @@ class ReplayBuffer:
 
 
 def _open_group(path: Path):
-    import zarr
+    import zarr  # only where the store is opened: `bcbench report` and the analysis never load it
 
     if not path.is_dir():
         raise DatasetError(f"dataset not found: {path} is not a folder")
@@ -158,7 +158,7 @@ def load_replay_buffer(path: str | Path, *, images: bool = True) -> ReplayBuffer
 
 def write_replay_buffer(path: str | Path, buf: ReplayBuffer, chunk: int = 161) -> Path:
     """Write a buffer in Diffusion Policy's zarr v2 layout (float32 images), e.g. for test fixtures."""
-    import numcodecs
+    import numcodecs  # as zarr above
     import zarr
 
     assert buf.images is not None and buf.keypoint is not None and buf.n_contacts is not None

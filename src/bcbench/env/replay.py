@@ -13,8 +13,10 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
 from bcbench.data.replay_buffer import ReplayBuffer
+from bcbench.env.pusht import SUCCESS_COVERAGE, make_env
 from bcbench.stats import score_summary
 
 EXACT_PX = 1.0  # an episode is "exact" when the block never strays more than this from the record
@@ -41,8 +43,6 @@ def _angle_diff(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def replay_episode(args: tuple[int, np.ndarray, np.ndarray]) -> EpisodeReplay:
     """Replay one episode given (index, states (L,5), actions (L,2))."""
-    from bcbench.env.pusht import SUCCESS_COVERAGE, make_env
-
     episode, states, actions = args
     env = make_env(obs_type="state")
     obs, _ = env.reset(options={"reset_to_state": states[0]})
@@ -72,8 +72,6 @@ def replay_buffer_episodes(
     buf: ReplayBuffer, episodes: list[int] | None = None, workers: int | None = None, progress: bool = True
 ) -> list[EpisodeReplay]:
     """Replay the given episodes (default: all) in parallel worker processes."""
-    from tqdm import tqdm
-
     episodes = list(range(buf.n_episodes)) if episodes is None else list(episodes)
     jobs = [(e, buf.state[buf.episode_slice(e)], buf.action[buf.episode_slice(e)]) for e in episodes]
     workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bcbench.utils.io import atomic_path
+
 
 class VideoWriter:
     """Collects frames with a caption (step, reward, running score) and writes them at close()."""
@@ -18,7 +20,7 @@ class VideoWriter:
         self._step = 0
 
     def add(self, frame: np.ndarray, step: int | None, reward: float, score: float) -> None:
-        import cv2
+        import cv2  # optional: only to draw videos (slow to import)
 
         self._step = self._step + 1 if step is None else step
         frame = np.ascontiguousarray(frame[..., :3], dtype=np.uint8).copy()
@@ -31,9 +33,7 @@ class VideoWriter:
 
     def close(self) -> str | None:
         """Write the file atomically (temp + rename); returns its path, or None without frames."""
-        import imageio.v2 as imageio
-
-        from bcbench.utils.io import atomic_path
+        import imageio.v2 as imageio  # optional: only to write videos
 
         if not self.frames:
             return None

@@ -20,6 +20,7 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
+import tempfile
 import warnings
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -28,15 +29,21 @@ from typing import Any
 import numpy as np
 import torch
 
+from bcbench.data.paths import resolve_dataset
+from bcbench.data.replay_buffer import load_replay_buffer
+from bcbench.data.sequence import make_datasets
 from bcbench.errors import BCBenchError
 from bcbench.modes import MODES
+from bcbench.policies.base import FilmSplittable
+from bcbench.policies.checkpoint import read_run
+from bcbench.policies.learned import BCPolicy, PolicyRunner
 
 GRAPH_FORMAT = 1  # bump when a policy's graphs change meaning: cached exports are then rebuilt
 
 
 def _openvino() -> Any:
     try:
-        import openvino
+        import openvino  # optional at run time: the torch modes work without it
     except Exception as e:
         raise BCBenchError(f"the OpenVINO backend needs the openvino package (make install): {e}") from e
     return openvino
@@ -87,7 +94,7 @@ class _Compiled:
         return outs[0] if self.n_out == 1 else tuple(outs)
 
 
-def record_graph_inputs(model: Any, observations: Iterable[dict[str, torch.Tensor]]) -> dict[str, list[tuple]]:
+def record_graph_inputs(model: BCPolicy, observations: Iterable[dict[str, torch.Tensor]]) -> dict[str, list[tuple]]:
     """Run the torch policy on `observations`, keeping every graph call's inputs (int8 calibration data)."""
     calls: dict[str, list[tuple]] = {name: [] for name in model.graphs}
 
@@ -107,7 +114,7 @@ def record_graph_inputs(model: Any, observations: Iterable[dict[str, torch.Tenso
     return calls
 
 
-def export_openvino(model: Any, precision: str, out_dir: Path,
+def export_openvino(model: BCPolicy, precision: str, out_dir: Path,
                     calibration: list[dict[str, torch.Tensor]] | None = None) -> Path:
     """Write the policy's graphs as OpenVINO IR (`NAME.xml` + `.bin` each) into `out_dir`, atomically."""
     ov = _openvino()
@@ -124,7 +131,7 @@ def export_openvino(model: Any, precision: str, out_dir: Path,
             warnings.simplefilter("ignore")  # tracer notes on shape checks that are constant for a policy
             ov_model = ov.convert_model(_Graph(model, name).eval(), example_input=example, input=shapes)
         if precision == "int8":
-            import nncf
+            import nncf  # heavy (seconds to import): only for int8
 
             data = recorded[name][:300]
             kind = nncf.ModelType.TRANSFORMER if model.name in ("bet", "bct") else None
@@ -135,7 +142,7 @@ def export_openvino(model: Any, precision: str, out_dir: Path,
     return out_dir
 
 
-def export_key(model: Any, precision: str, checkpoint: Path | None, weights: str) -> str:
+def export_key(model: BCPolicy, precision: str, checkpoint: Path | None, weights: str) -> str:
     """What an export depends on: the checkpoint file, the weights used, the precision, OpenVINO's version."""
     stat = ""
     if checkpoint is not None:
@@ -147,11 +154,9 @@ def export_key(model: Any, precision: str, checkpoint: Path | None, weights: str
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
 
-def deploy_openvino(model: Any, precision: str, export_dir: Path | None = None,
+def deploy_openvino(model: BCPolicy, precision: str, export_dir: Path | None = None,
                     calibration: list[dict[str, torch.Tensor]] | None = None, threads: int | None = None) -> None:
     """Compile the policy's graphs with OpenVINO and plug them in (`model.deployed`); exports cached in export_dir."""
-    import tempfile
-
     if export_dir is None:  # nothing to cache it in (an untrained policy): export, compile, delete
         with tempfile.TemporaryDirectory(prefix="bcbench-ov-") as tmp:
             deploy_openvino(model, precision, Path(tmp) / "graphs", calibration, threads)
@@ -171,26 +176,22 @@ def deploy_openvino(model: Any, precision: str, export_dir: Path | None = None,
                         "openvino": ov.__version__, "export": str(export_dir)}
 
 
-def set_mode(model: Any, mode: str, export_dir: Path | None = None,
+def set_mode(model: BCPolicy, mode: str, export_dir: Path | None = None,
              calibration: list[dict[str, torch.Tensor]] | None = None) -> None:
     """Put a policy in one of MODES (flips its switches; OpenVINO modes compile its graphs)."""
     if mode not in MODES:
         raise BCBenchError(f"unknown inference mode '{mode}' ({', '.join(MODES)})")
-    if hasattr(model, "split_film"):
+    if isinstance(model, FilmSplittable):
         model.split_film = mode != "reference"
     model.deployed, model.deployment = None, {"backend": "torch", "precision": "fp32"}
     if mode.startswith("openvino-"):
         deploy_openvino(model, mode.removeprefix("openvino-"), export_dir, calibration)
 
 
-def dataset_observations(model: Any, split: str, n: int, seed: int = 0,
+def dataset_observations(model: BCPolicy, split: str, n: int, seed: int = 0,
                          data_split: dict[str, Any] | None = None) -> list[dict[str, torch.Tensor]]:
     """`n` single observation windows (normalised, batch 1) of the training or validation split; `data_split`
     is a run's (run.json: val_fraction, split_seed), so its training episodes are the ones it trained on."""
-    from bcbench.data.paths import resolve_dataset
-    from bcbench.data.replay_buffer import load_replay_buffer
-    from bcbench.data.sequence import make_datasets
-
     c = model.config
     d = data_split or {}
     train, val, _ = make_datasets(load_replay_buffer(resolve_dataset(None)), d.get("val_fraction", 0.1),
@@ -202,25 +203,23 @@ def dataset_observations(model: Any, split: str, n: int, seed: int = 0,
 
 
 def run_data_split(run_dir: str | Path) -> dict[str, Any]:
-    from bcbench.policies.checkpoint import read_run
-
     return read_run(Path(run_dir)).get("data_split", {})
 
 
-def apply_mode(runner: Any, mode: str) -> None:
+def apply_mode(runner: PolicyRunner, mode: str) -> None:
     """Put a PolicyRunner's policy in `mode`; a trained run's exports are cached under RUN_DIR/export/."""
     model = runner.model
     export_dir, calibration = None, None
     if mode.startswith("openvino-"):
         precision = mode.removeprefix("openvino-")
-        run_dir, ckpt = runner.extra.get("run_dir"), runner.extra.get("checkpoint")
+        run_dir, ckpt = runner.info.run_dir, runner.info.checkpoint
         if run_dir and ckpt:
             ckpt_dir = Path(run_dir) / "checkpoints" / ckpt
-            key = export_key(model, precision, ckpt_dir, runner.extra.get("weights", "ema"))
+            key = export_key(model, precision, ckpt_dir, runner.info.weights or "ema")
             export_dir = Path(run_dir) / "export" / f"openvino-{'int8' if precision == 'int8' else 'float'}-{key}"
         if precision == "int8" and not (export_dir and export_dir.exists()):
             # calibration on training-split observations; an untrained model (timing only) gets random ones
             calibration = (dataset_observations(model, "train", 64, data_split=run_data_split(run_dir)) if run_dir
                            else [model.example_obs() for _ in range(8)])
     set_mode(model, mode, export_dir, calibration)
-    runner.extra.update({"mode": mode, "deployment": model.deployment})
+    runner.info.mode, runner.info.deployment = mode, model.deployment

@@ -13,11 +13,17 @@ from typing import Any
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from bcbench.data.normalizer import MinMaxNormalizer
 from bcbench.errors import BCBenchError
+from bcbench.evaluation.backends import apply_mode
 from bcbench.evaluation.timing import TimingConfig, measure_runner, verdicts
 from bcbench.modes import MODES
+from bcbench.policies import REGISTRY, is_learned, make_policy
+from bcbench.policies.learned import PolicyRunner
+from bcbench.policies.outside import outside_policy
+from bcbench.utils.device import pick_device
 from bcbench.utils.io import atomic_path, write_json
 from bcbench.utils.system import provenance
 
@@ -31,10 +37,6 @@ def _normalizer() -> MinMaxNormalizer:
 
 def _rows_for(name: str, preset: str, modes: list[str], samplers: list[str], steps: list[int], device: torch.device,
               timing: TimingConfig, rate_hz: float) -> list[dict[str, Any]]:
-    from bcbench.evaluation.backends import apply_mode
-    from bcbench.policies import is_learned, make_policy
-    from bcbench.policies.learned import PolicyRunner
-
     torch.manual_seed(0)
     model = make_policy(name, preset)
     if not is_learned(name):
@@ -84,26 +86,26 @@ def _table(rows: list[dict[str, Any]]) -> str:
 def run_latency_benchmark(policies: list[str] | None = None, presets: list[str] | None = None,
                           modes: list[str] | None = None, steps: list[int] | None = None,
                           samplers: list[str] | None = None, device: str = "auto", threads: int | None = None,
-                          rate_hz: float = 10.0, out: str | None = None, quick_timing: bool = False) -> dict[str, str]:
-    from tqdm import tqdm
-
-    from bcbench.policies import REGISTRY
-    from bcbench.utils.device import pick_device
-
+                          rate_hz: float = 10.0, out: str | None = None, quick_timing: bool = False,
+                          policy_args: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Time every named policy at batch 1: a registered one at each preset, mode and sampler setting; an outside
+    one (module:factory or a plug-in, built with `policy_args`) as it is."""
     if threads:
         torch.set_num_threads(threads)
     dev = pick_device(device)
     names = policies or list(REGISTRY)
-    bad = [n for n in names if n not in REGISTRY]
-    if bad:
-        raise BCBenchError(f"unknown policy '{bad[0]}' (registered: {', '.join(sorted(REGISTRY))})")
+    outside = {n: outside_policy(n, policy_args) for n in names if n not in REGISTRY}  # checked before timing
     if any(not 1 <= k <= 100 for k in steps or []):
         raise BCBenchError("--steps must be in 1..100")
     timing = TimingConfig(min_calls=5, min_seconds=0.5, max_seconds=20) if quick_timing else TimingConfig()
     jobs = [(n, p) for n in names for p in (presets or ["paper", "quick"])]
     rows: list[dict[str, Any]] = []
+    for name, policy in outside.items():
+        rows.append({"policy": policy.name, "preset": "-", "mode": "as given", "variant": "default",
+                     "params": int(policy.describe().get("parameters", 0)), "source": name,
+                     **measure_runner(policy, timing, rate_hz)})
     for name, preset in tqdm(jobs, desc="latency", unit="policy"):
-        if any(r["policy"] == name and r["preset"] == "-" for r in rows):
+        if name in outside or any(r["policy"] == name and r["preset"] == "-" for r in rows):
             continue  # baselines have no sizes
         rows += _rows_for(name, preset, modes or list(MODES), samplers or ["ddpm", "ddim"],
                           list(steps or DEFAULT_STEPS), dev, timing, rate_hz)

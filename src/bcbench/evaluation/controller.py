@@ -32,6 +32,8 @@ import numpy as np
 import torch
 
 from bcbench.errors import BCBenchError
+from bcbench.evaluation.config import EXECUTIONS
+from bcbench.policies.base import ChunkPolicy, SeededPolicy
 
 
 def episode_generator(policy_seed: int, episode_seed: int) -> torch.Generator:
@@ -40,7 +42,6 @@ def episode_generator(policy_seed: int, episode_seed: int) -> torch.Generator:
     return torch.Generator().manual_seed(seed)
 
 
-EXECUTIONS = ("sync", "blocking", "async")
 
 
 @dataclass
@@ -54,7 +55,7 @@ class _Pending:
 class ChunkedController:
     """Observation history and action queues for a set of environments keyed by id."""
 
-    def __init__(self, policy: Any, action_horizon: int | None = None, execution: str = "sync",
+    def __init__(self, policy: ChunkPolicy, action_horizon: int | None = None, execution: str = "sync",
                  delay: Callable[[int], int] | None = None) -> None:
         if execution not in EXECUTIONS:
             raise BCBenchError(f"--execution must be one of {', '.join(EXECUTIONS)}, got '{execution}'")
@@ -65,7 +66,7 @@ class ChunkedController:
         self.action_horizon = int(action_horizon or policy.action_horizon)
         # Index in the chunk of the action for the *current* step. Policies trained on Diffusion Policy's
         # windows predict from the oldest observation on, so the current step is at obs_horizon - 1.
-        self.chunk_start = int(getattr(policy, "chunk_start", 0))
+        self.chunk_start = int(policy.chunk_start)
         if self.chunk_start + self.action_horizon > self.pred_horizon:
             raise BCBenchError(
                 f"action_horizon {self.action_horizon} from chunk index {self.chunk_start} exceeds the "
@@ -86,7 +87,7 @@ class ChunkedController:
         """Start environment `env_id` at `obs`; its noise stream comes from `seed` (default: env_id)."""
         self._history[env_id] = deque([obs] * self.obs_horizon, maxlen=self.obs_horizon)
         self._queue[env_id] = deque()
-        policy_seed = getattr(self.policy, "noise_seed", 0)
+        policy_seed = self.policy.noise_seed if isinstance(self.policy, SeededPolicy) else 0
         self._noise[env_id] = episode_generator(policy_seed, env_id if seed is None else seed)
         self._pending[env_id], self._step[env_id] = None, 0
         self._last[env_id] = np.asarray(obs["agent_pos"], dtype=np.float32)  # before any command: stay put

@@ -21,59 +21,18 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
+from bcbench.env.pusht import dp_initial_state, make_env
+from bcbench.env.video import VideoWriter
 from bcbench.errors import BCBenchError
+from bcbench.evaluation.config import EvalConfig
 from bcbench.evaluation.controller import ChunkedController
 from bcbench.evaluation.latency_sources import LatencySource
+from bcbench.policies.base import ChunkPolicy
 from bcbench.stats import score_summary
 from bcbench.utils.io import write_json
 from bcbench.utils.system import provenance
-
-TEST_SEED_START = 100_000  # Diffusion Policy's test seeds
-
-
-@dataclass
-class EvalConfig:
-    episodes: int = 40
-    """number of evaluation episodes (the study used 40)"""
-    seed_start: int = TEST_SEED_START
-    """episode i uses seed seed_start + i"""
-    max_steps: int = 300
-    """steps per episode at most"""
-    action_horizon: int | None = None
-    """actions executed per chunk (default: the policy's own, 8)"""
-    workers: int | None = None
-    """simulator processes (default: one per core)"""
-    video: int = 0
-    """write videos of the first N episodes"""
-    video_size: int = 256
-    """video frame size in pixels"""
-    execution: str = "sync"
-    """sync (the world waits for the policy), blocking or async (it does not): see bcbench.evaluation.controller"""
-    latency: str | None = None
-    """where a call's latency comes from: 'measured' or 'profile:NAME' (or latency_ms)"""
-    latency_ms: float | None = None
-    """a fixed latency per call in milliseconds"""
-
-    def __post_init__(self) -> None:
-        if self.episodes < 1:
-            raise BCBenchError(f"--episodes must be >= 1, got {self.episodes}")
-        if not 1 <= self.max_steps <= 10_000:
-            raise BCBenchError(f"--max-steps must be in 1..10000, got {self.max_steps}")
-        if self.seed_start < 0:
-            raise BCBenchError(f"--seed-start must be >= 0, got {self.seed_start}")
-        if self.workers is not None and self.workers < 1:
-            raise BCBenchError(f"--workers must be >= 1, got {self.workers}")
-        if self.video < 0 or self.video > self.episodes:
-            raise BCBenchError(f"--video must be in 0..episodes ({self.episodes}), got {self.video}")
-        if self.action_horizon is not None and self.action_horizon < 1:
-            raise BCBenchError(f"--action-horizon must be >= 1, got {self.action_horizon}")
-        from bcbench.evaluation.controller import EXECUTIONS
-        from bcbench.evaluation.latency_sources import LatencySource
-
-        if self.execution not in EXECUTIONS:
-            raise BCBenchError(f"--execution must be one of {', '.join(EXECUTIONS)}, got '{self.execution}'")
-        LatencySource.parse(self.latency, self.latency_ms)  # validates
 
 
 @dataclass
@@ -95,9 +54,6 @@ class EpisodeResult:
 
 def _worker(conn: Any, video_size: int) -> None:
     """Own a set of environments; answer 'reset', 'step' and 'close' messages until 'stop'."""
-    from bcbench.env.pusht import dp_initial_state, make_env
-    from bcbench.env.video import VideoWriter
-
     envs: dict[int, Any] = {}
     videos: dict[int, VideoWriter] = {}
     try:
@@ -202,11 +158,9 @@ def _split(items: dict[int, Any] | list[Any], n: int, key=lambda x: x) -> list[A
     return groups
 
 
-def run_episodes(policy: Any, cfg: EvalConfig, out_dir: Path | None = None, progress: bool = True
+def run_episodes(policy: ChunkPolicy, cfg: EvalConfig, out_dir: Path | None = None, progress: bool = True
                  ) -> tuple[list[EpisodeResult], dict[str, float]]:
     """Run cfg.episodes closed-loop episodes; returns per-episode results and timing counters."""
-    from tqdm import tqdm
-
     n_workers = max(1, min(cfg.workers or os.cpu_count() or 1, cfg.episodes))
     results = {i: EpisodeResult(episode=i, seed=cfg.seed_start + i) for i in range(cfg.episodes)}
     source = LatencySource.parse(cfg.latency, cfg.latency_ms)
@@ -269,7 +223,7 @@ def run_episodes(policy: Any, cfg: EvalConfig, out_dir: Path | None = None, prog
     return [results[i] for i in sorted(results)], timing
 
 
-def evaluate(policy: Any, cfg: EvalConfig, out_dir: str | Path | None = None, progress: bool = True,
+def evaluate(policy: ChunkPolicy, cfg: EvalConfig, out_dir: str | Path | None = None, progress: bool = True,
              extra: dict[str, Any] | None = None) -> dict[str, Any]:
     """Evaluate and (if out_dir) write `eval.json` there atomically; returns the result dict."""
     out = Path(out_dir) if out_dir is not None else None

@@ -20,7 +20,10 @@ from typing import Any
 import numpy as np
 
 from bcbench.errors import BCBenchError
-from bcbench.evaluation.timing import TimingConfig, random_observation, time_calls
+from bcbench.evaluation.config import PROFILES as PROFILE_NAMES
+from bcbench.evaluation.config import check_latency_options
+from bcbench.evaluation.timing import TimingConfig, time_calls
+from bcbench.policies.base import ChunkPolicy, example_observation, is_generative
 from bcbench.protocol import CONTROL_DT_S
 from bcbench.reference import A100_DP_MS, A100_MS
 
@@ -29,6 +32,12 @@ from bcbench.reference import A100_DP_MS, A100_MS
 _A100_DP_PER_STEP_MS = (A100_DP_MS[100] - A100_DP_MS[10]) / 90
 _A100_DP_BASE_MS = A100_DP_MS[10] - 10 * _A100_DP_PER_STEP_MS
 PROFILES: dict[str, dict[str, float]] = {"a100": dict(A100_MS)}
+assert tuple(PROFILES) == PROFILE_NAMES
+
+
+def sampler_steps(policy: ChunkPolicy) -> int | None:
+    """The step count a generative policy samples with (a hardware profile's time depends on it), else None."""
+    return policy.sampler_steps if is_generative(policy) else None
 
 
 def steps_for(latency_s: float) -> int:
@@ -60,22 +69,14 @@ class LatencySource:
 
     @classmethod
     def parse(cls, latency: str | None, latency_ms: float | None) -> LatencySource:
-        if latency_ms is not None and latency is not None:
-            raise BCBenchError("give --latency-ms or --latency, not both")
+        check_latency_options(latency, latency_ms)
         if latency_ms is not None:
-            if latency_ms < 0:
-                raise BCBenchError(f"--latency-ms must be >= 0, got {latency_ms:g}")
             return cls("fixed", ms=float(latency_ms))
         if latency is None:
             return cls()
         if latency == "measured":
             return cls("measured")
-        if latency.startswith("profile:"):
-            name = latency.split(":", 1)[1]
-            if name not in PROFILES:
-                raise BCBenchError(f"unknown latency profile '{name}' (known: {', '.join(sorted(PROFILES))})")
-            return cls("profile", name=name)
-        raise BCBenchError(f"--latency must be 'measured' or 'profile:NAME', got '{latency}'")
+        return cls("profile", name=latency.split(":", 1)[1])
 
     def describe(self) -> dict[str, Any]:
         out: dict[str, Any] = {"kind": self.kind}
@@ -88,12 +89,12 @@ class LatencySource:
             out.update(calls=int(ms.size), median_ms=float(np.median(ms)), max_ms=float(ms.max()))
         return out
 
-    def resolve(self, runner: Any) -> None:
+    def resolve(self, runner: ChunkPolicy) -> None:
         """Fill in what depends on the policy: its profile time, or its measured call times on this machine."""
         if self.kind == "profile":
-            self.ms = profile_ms(self.name, runner.name, getattr(runner, "extra", {}).get("steps"))
+            self.ms = profile_ms(self.name, runner.name, sampler_steps(runner))
         elif self.kind == "measured" and not self.samples_ms:
-            obs = random_observation(1, runner.obs_horizon)
+            obs = example_observation(1, runner.obs_horizon)
             self.samples_ms = time_calls(lambda: runner.predict_action_chunk(obs), TimingConfig())["samples_ms"]
 
     def delay_fn(self, seeds: dict[int, int]) -> Callable[[int], int]:

@@ -9,7 +9,8 @@ from typing import Any
 
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.evaluate import EvalConfig, evaluate
-from bcbench.evaluation.latency_sources import profile_ms
+from bcbench.evaluation.latency_sources import profile_ms, sampler_steps
+from bcbench.policies.base import ChunkPolicy
 from bcbench.protocol import CONTROL_DT_S
 from bcbench.utils.system import provenance
 
@@ -29,7 +30,7 @@ def sweep_settings(delays: list[int], executions: list[str], profiles: list[str]
     return settings
 
 
-def sweep(policy: Any, delays: list[int], executions: list[str], episodes: int, profiles: list[str],
+def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episodes: int, profiles: list[str],
           measured: bool, progress: bool = True, max_steps: int = 300, seed_start: int = 100_000,
           skip_missing_profiles: bool = False, done: dict[str, dict[str, Any]] | None = None,
           on_setting: Callable[[dict[str, dict[str, Any]]], None] | None = None) -> dict[str, dict[str, Any]]:
@@ -40,7 +41,7 @@ def sweep(policy: Any, delays: list[int], executions: list[str], episodes: int, 
     usable = []
     for p in profiles:  # fail before hours of episodes, not after (or, in a study, leave that profile out)
         try:
-            profile_ms(p, policy.name, getattr(policy, "extra", {}).get("steps"))
+            profile_ms(p, policy.name, sampler_steps(policy))
             usable.append(p)
         except BCBenchError:
             if not skip_missing_profiles:
@@ -59,8 +60,9 @@ def sweep(policy: Any, delays: list[int], executions: list[str], episodes: int, 
 
 
 def realtime_record(settings: dict[str, dict[str, Any]], study: str, label: str, variant: dict[str, Any],
-                    margin: float, device: str = "cpu") -> dict[str, Any]:
+                    margin: float, device: str = "cpu", outside_policy: str | None = None) -> dict[str, Any]:
     """One sweep's record, as a study's report reads it (`bcbench.analysis.results.load_realtime`): its settings'
     evaluation results under a label, with where and at which commit it ran."""
-    return {"type": "realtime", "study": {"name": study, "label": label, "variant": variant}, "margin": margin,
+    where = {"outside_policy": outside_policy} if outside_policy else {}
+    return {"type": "realtime", "study": {"name": study, "label": label, "variant": variant, **where}, "margin": margin,
             "settings": settings, "node": platform.node(), **provenance(device)}

@@ -18,15 +18,20 @@ from typing import Any
 import numpy as np
 import torch
 
+from bcbench.evaluation.backends import apply_mode, dataset_observations, run_data_split
+from bcbench.evaluation.evaluate import EvalConfig, evaluate
+from bcbench.policies.checkpoint import configure_runner, load_runner
+from bcbench.policies.learned import PolicyRunner
 from bcbench.stats import fmt_estimate, paired_bootstrap
+from bcbench.utils.io import atomic_path, write_json
+from bcbench.utils.system import provenance
 
 BASE = "fast"
 
 
-def chunk_deviation(runner: Any, modes: list[str], observations: list[dict[str, torch.Tensor]]) -> dict[str, float]:
+def chunk_deviation(runner: PolicyRunner, modes: list[str],
+                    observations: list[dict[str, torch.Tensor]]) -> dict[str, float]:
     """Largest |chunk - fast chunk| in pixels per mode over `observations` (normalised, batch 1 each)."""
-    from bcbench.evaluation.backends import apply_mode
-
     chunks: dict[str, np.ndarray] = {}
     for mode in [BASE, *modes]:
         apply_mode(runner, mode)
@@ -49,12 +54,6 @@ def paired(base: dict[str, Any], other: dict[str, Any]) -> dict[str, Any]:
 
 def run_tiers(run_dir: str | Path, modes: list[str], episodes: int, sampler: str | None, steps: int | None,
               out: Path, seed_start: int = 100_000, observations: int = 100, progress: bool = True) -> dict[str, Any]:
-    from bcbench.evaluation.backends import apply_mode, dataset_observations, run_data_split
-    from bcbench.evaluation.evaluate import EvalConfig, evaluate
-    from bcbench.policies.checkpoint import configure_runner, load_runner
-    from bcbench.utils.io import atomic_path, write_json
-    from bcbench.utils.system import provenance
-
     runner = load_runner(run_dir)
     configure_runner(runner, sampler, steps)
     obs = dataset_observations(runner.model, "val", observations, seed=1, data_split=run_data_split(run_dir))

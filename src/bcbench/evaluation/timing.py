@@ -16,12 +16,17 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
 import torch
 
 from bcbench.errors import BCBenchError
+from bcbench.evaluation.backends import apply_mode
+from bcbench.policies.base import ChunkPolicy, example_observation
+from bcbench.policies.learned import PolicyRunner
+from bcbench.utils.system import provenance
 
 ACTION_HORIZON = 8
 
@@ -42,13 +47,6 @@ class TimingConfig:
     def __post_init__(self) -> None:
         if self.min_calls < 1 or self.max_calls < self.min_calls or self.warmup < 0:
             raise BCBenchError("need warmup >= 0 and 1 <= min_calls <= max_calls")
-
-
-def random_observation(batch: int = 1, obs_horizon: int = 2, seed: int = 0) -> dict[str, np.ndarray]:
-    """A raw observation as the controller hands it over (weights and inputs do not change the timing)."""
-    rng = np.random.default_rng(seed)
-    return {"image": rng.integers(0, 256, size=(batch, obs_horizon, 96, 96, 3), dtype=np.uint8),
-            "agent_pos": rng.uniform(0, 512, size=(batch, obs_horizon, 2)).astype(np.float32)}
 
 
 def time_calls(fn: Any, cfg: TimingConfig, cuda: bool = False) -> dict[str, Any]:
@@ -112,9 +110,9 @@ def verdicts(tail_ms: float, rate_hz: float, action_horizon: int = ACTION_HORIZO
     }
 
 
-def measure_runner(runner: Any, cfg: TimingConfig, rate_hz: float = 10.0) -> dict[str, Any]:
+def measure_runner(runner: ChunkPolicy, cfg: TimingConfig, rate_hz: float = 10.0) -> dict[str, Any]:
     """Time `runner.predict_action_chunk` on a batch-1 raw observation."""
-    obs = random_observation(1, runner.obs_horizon)
+    obs = example_observation(1, runner.obs_horizon)
     out = runner.predict_action_chunk(obs)
     if np.asarray(out).shape != (1, runner.pred_horizon, 2):
         raise BCBenchError(f"{runner.name} returned {np.asarray(out).shape}, expected (1, {runner.pred_horizon}, 2)")
@@ -123,21 +121,15 @@ def measure_runner(runner: Any, cfg: TimingConfig, rate_hz: float = 10.0) -> dic
     return {**stats, **verdicts(stats["tail_ms"], rate_hz, runner.action_horizon, stats["tail_stat"])}
 
 
-def latency_record(policy: Any, cfg: TimingConfig, rate_hz: float = 10.0,
+def latency_record(policy: ChunkPolicy, cfg: TimingConfig, rate_hz: float = 10.0,
                    modes: tuple[str, ...] = ("reference", "fast")) -> dict[str, Any]:
     """Time a policy in each mode (baselines have one); a JSON-ready record with provenance."""
-    from datetime import UTC, datetime
-
-    from bcbench.evaluation.backends import apply_mode
-    from bcbench.policies.learned import PolicyRunner
-    from bcbench.utils.system import provenance
-
     out: dict[str, Any] = {"type": "latency", "created": datetime.now(UTC).isoformat(timespec="seconds"),
                            "policy": policy.describe(), "batch": 1, "timing": cfg.__dict__, "modes": {}}
     if not isinstance(policy, PolicyRunner):
         out["modes"]["reference"] = measure_runner(policy, cfg, rate_hz)
     else:
-        before = policy.extra.get("mode", "fast")
+        before = policy.info.mode or "fast"
         for mode in modes:  # the same runner in each form, one after the other
             apply_mode(policy, mode)
             out["modes"][mode] = {**measure_runner(policy, cfg, rate_hz), "deployment": policy.model.deployment}

@@ -10,10 +10,12 @@ from __future__ import annotations
 from typing import Any
 
 from bcbench.errors import BCBenchError
+from bcbench.policies.base import ChunkPolicy
 from bcbench.policies.baselines import BaselineConfig, RandomPolicy, ScriptedPolicy
 from bcbench.policies.bct import BCTConfig, BCTPolicy
 from bcbench.policies.bet import BeTConfig, BeTPolicy
 from bcbench.policies.cnn_mlp import CNNMLPConfig, CNNMLPPolicy
+from bcbench.policies.config import with_overrides
 from bcbench.policies.diffusion import DiffusionConfig, DiffusionPolicy
 from bcbench.policies.flow import FlowConfig, FlowPolicy
 from bcbench.policies.learned import BCPolicy
@@ -34,20 +36,26 @@ def is_learned(name: str) -> bool:
     return name in REGISTRY and issubclass(REGISTRY[name][1], BCPolicy)
 
 
+def sampler_kinds(name: str) -> tuple[str, ...]:
+    """The sampler kinds of a registered policy (generative ones: diffusion, flow), else ()."""
+    cls = REGISTRY[name][1]
+    return cls.samplers if issubclass(cls, BCPolicy) else ()
+
+
 def learned_policies() -> list[str]:
     return [n for n in REGISTRY if is_learned(n)]
 
 
 def make_config(name: str, preset: str = "quick", overrides: dict[str, Any] | None = None) -> Any:
-    from bcbench.policies.config import with_overrides
-
+    """The typed config of a registered policy's preset, with (dotted) field overrides."""
     if name not in REGISTRY:
         raise BCBenchError(f"unknown policy '{name}' (registered: {', '.join(sorted(REGISTRY))})")
     cfg = REGISTRY[name][0].preset(preset)
     return with_overrides(cfg, overrides) if overrides else cfg
 
 
-def make_policy(name: str, config: str = "quick", **overrides: Any) -> Any:
-    """Build a registered policy from a preset with (dotted) field overrides."""
-    cfg = make_config(name, config, overrides)
+def make_policy(name: str, preset: str = "quick", **overrides: Any) -> BCPolicy | ChunkPolicy:
+    """Build a registered policy from a preset with (dotted) field overrides: a baseline is a ready ChunkPolicy,
+    a learned policy an untrained BCPolicy network (wrap it in a PolicyRunner to run it on raw observations)."""
+    cfg = make_config(name, preset, overrides)
     return REGISTRY[name][1](cfg)

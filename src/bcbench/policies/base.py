@@ -1,31 +1,107 @@
-"""What the evaluation harness needs of a policy.
+"""The public policy interface: what every seam of bcbench (evaluation, controller, latency, real time, tiers,
+studies) takes, for the built-in policies and for yours (`bcbench eval --policy my_pkg.my_module:make`).
 
-A `ChunkPolicy` maps a batch of observation windows in environment units to action chunks in
-environment units:
+A `ChunkPolicy` maps a batch of observation windows in environment units to action chunks in environment units:
 
     obs = {"image": uint8 (B, To, 96, 96, 3), "agent_pos": float32 (B, To, 2) in pixels of the 512 world}
     predict_action_chunk(obs) -> float32 (B, pred_horizon, 2), target agent positions in the 512 world
 
 `chunk_start` is the chunk index of the action for the current step (0 when the chunk starts now;
 obs_horizon - 1 for policies trained on Diffusion Policy's windows, whose chunk starts at the oldest
-observation). History and receding-horizon execution live in `bcbench.evaluation.controller`, never here.
+observation). History, action queues and execution strategies live in `bcbench.evaluation.controller`, never
+in a policy. A stochastic policy may also read `obs["generators"]` (one torch.Generator per row, seeded by the
+controller from the policy's `noise_seed` and the episode seed) so that an episode's actions do not depend on
+which other episodes share its batch.
+
+Optional parts, each its own protocol, so that code asks `isinstance` instead of probing with `hasattr`:
+- `SeededPolicy`: `noise_seed`, combined with each episode's seed into that episode's noise stream;
+- `GenerativePolicy`: samplers and a step count (`set_sampler`), as Diffusion Policy and flow matching have;
+- `FilmSplittable`: the exact FiLM split of the denoising U-Net that the fast inference form switches on.
 """
 
 from __future__ import annotations
 
+from dataclasses import asdict, dataclass
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+Observation = dict[str, Any]
+"""image uint8 (B, To, 96, 96, 3); agent_pos float32 (B, To, 2) in pixels; optional generators (B torch.Generator)"""
+
 
 @runtime_checkable
 class ChunkPolicy(Protocol):
+    """The one interface bcbench needs of a policy."""
+
     name: str
-    obs_horizon: int
-    pred_horizon: int
-    action_horizon: int
-    chunk_start: int
+    obs_horizon: int  # observation frames per call (To)
+    pred_horizon: int  # actions per predicted chunk (Tp)
+    action_horizon: int  # actions executed before re-planning (sync execution)
+    chunk_start: int  # index in the chunk of the action for the current step
 
-    def predict_action_chunk(self, obs: dict[str, np.ndarray]) -> np.ndarray: ...
+    def predict_action_chunk(self, obs: Observation) -> np.ndarray:
+        """(B, pred_horizon, 2) float32 target positions in pixels, for a batch of B observation windows."""
+        ...
 
-    def describe(self) -> dict[str, Any]: ...
+    def describe(self) -> dict[str, Any]:
+        """What result files record about the policy: at least {"name": ...}; JSON-ready."""
+        ...
+
+
+@runtime_checkable
+class SeededPolicy(Protocol):
+    """A stochastic policy whose per-episode noise streams start from `noise_seed`."""
+
+    noise_seed: int
+
+
+@runtime_checkable
+class GenerativePolicy(Protocol):
+    """A policy that samples its chunk in steps: a sampler kind and a step count (and a timestep spacing)."""
+
+    samplers: tuple[str, ...]  # the sampler kinds set_sampler accepts, e.g. ("ddpm", "ddim")
+    sampler_kind: str
+    sampler_steps: int
+    sampler_spacing: str | None
+
+    def set_sampler(self, kind: str, steps: int, spacing: str | None = None) -> None: ...
+
+
+@runtime_checkable
+class FilmSplittable(Protocol):
+    """A denoiser whose FiLM conditioning can be split out of the step loop (exact; the fast form)."""
+
+    split_film: bool
+
+
+def example_observation(batch: int = 1, obs_horizon: int = 2, seed: int = 0) -> Observation:
+    """A random raw observation as the controller hands it over (timing and the contract check use it)."""
+    rng = np.random.default_rng(seed)
+    return {"image": rng.integers(0, 256, size=(batch, obs_horizon, 96, 96, 3), dtype=np.uint8),
+            "agent_pos": rng.uniform(0, 512, size=(batch, obs_horizon, 2)).astype(np.float32)}
+
+
+def is_generative(policy: object) -> bool:
+    return isinstance(policy, GenerativePolicy) and bool(policy.samplers)
+
+
+@dataclass
+class RunInfo:
+    """What a runner of a trained run carries besides its model: where it came from and how it is set to run.
+    Written by checkpoint loading (run_dir, checkpoint, weights, preset), sampler configuration (sampler, steps,
+    spacing) and the backends (mode, deployment); read by latency, real-time profiles and result records."""
+
+    run_dir: str | None = None
+    checkpoint: str | None = None
+    weights: str | None = None  # "ema" or "raw"
+    preset: str | None = None
+    sampler: str | None = None
+    steps: int | None = None
+    spacing: str | None = None
+    mode: str | None = None  # bcbench.modes.MODES; None: never switched (the fast form)
+    deployment: dict[str, Any] | None = None
+
+    def describe(self) -> dict[str, Any]:
+        """The fields that are set, for result files (the keys records have always used)."""
+        return {k: v for k, v in asdict(self).items() if v is not None or (k == "preset" and self.run_dir)}

@@ -48,7 +48,7 @@ class BaselineConfig:
     @classmethod
     def preset(cls, name: str) -> BaselineConfig:
         if name not in ("quick", "paper"):
-            raise BCBenchError(f"unknown config '{name}' (choose quick or paper)")
+            raise BCBenchError(f"unknown preset '{name}' (choose quick or paper; a baseline has no sizes)")
         return cls()
 
 

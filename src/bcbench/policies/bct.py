@@ -15,7 +15,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from bcbench.errors import BCBenchError
-from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile
+from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile, pick_preset
 from bcbench.policies.encoders import RESNET18_LAYERS, FrameFeatures
 from bcbench.policies.learned import BCPolicy
 
@@ -52,15 +52,14 @@ class BCTConfig(PolicyConfig):
 
     @classmethod
     def preset(cls, name: str) -> BCTConfig:
-        if name == "paper":
-            return cls()
-        if name == "quick":  # 1/4-width encoder, a small transformer: 15 minutes on 2 cores
-            return cls(encoder_width=16, d_model=128, n_heads=4, n_layers=2, ffn_dim=512,
-                       optim=OptimConfig(optimizer="adamw", lr=1e-3, weight_decay=1e-4, schedule="cosine",
-                                         warmup_steps=100, epochs=4, batch_size=64, checkpoint_every=200))
-        if name == "cpu":  # the quick network trained to its plateau on 2 cores (see cpu_profile)
-            return cpu_profile(cls.preset("quick"), epochs=30)
-        raise BCBenchError(f"unknown config '{name}' for bct (choose quick, cpu or paper)")
+        return pick_preset("bct", name, {
+            "quick": lambda: cls(  # 1/4-width encoder, a small transformer: 15 minutes on 2 cores
+                encoder_width=16, d_model=128, n_heads=4, n_layers=2, ffn_dim=512,
+                optim=OptimConfig(optimizer="adamw", lr=1e-3, weight_decay=1e-4, schedule="cosine",
+                                  warmup_steps=100, epochs=4, batch_size=64, checkpoint_every=200)),
+            "cpu": lambda: cpu_profile(cls.preset("quick"), epochs=30),  # trained to its plateau on 2 cores
+            "paper": cls,
+        })
 
 
 class BCTPolicy(BCPolicy):

@@ -23,7 +23,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from bcbench.errors import BCBenchError
-from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile
+from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile, pick_preset
 from bcbench.policies.encoders import RESNET18_LAYERS, FrameFeatures
 from bcbench.policies.learned import BCPolicy
 
@@ -62,16 +62,15 @@ class BeTConfig(PolicyConfig):
 
     @classmethod
     def preset(cls, name: str) -> BeTConfig:
-        if name == "paper":
-            return cls()
-        if name == "quick":
-            return cls(encoder_width=16, n_bins=32, d_model=96, n_heads=4, n_layers=3,
-                       optim=OptimConfig(optimizer="adamw", lr=1e-3, weight_decay=0.1, betas=(0.9, 0.95),
-                                         schedule="cosine", warmup_steps=100, epochs=4, batch_size=64,
-                                         grad_clip=1.0, checkpoint_every=200))
-        if name == "cpu":  # the quick network trained to its plateau on 2 cores (see cpu_profile)
-            return cpu_profile(cls.preset("quick"), epochs=30)
-        raise BCBenchError(f"unknown config '{name}' for bet (choose quick, cpu or paper)")
+        return pick_preset("bet", name, {
+            "quick": lambda: cls(
+                encoder_width=16, n_bins=32, d_model=96, n_heads=4, n_layers=3,
+                optim=OptimConfig(optimizer="adamw", lr=1e-3, weight_decay=0.1, betas=(0.9, 0.95),
+                                  schedule="cosine", warmup_steps=100, epochs=4, batch_size=64, grad_clip=1.0,
+                                  checkpoint_every=200)),
+            "cpu": lambda: cpu_profile(cls.preset("quick"), epochs=30),  # trained to its plateau on 2 cores
+            "paper": cls,
+        })
 
 
 def kmeans(x: np.ndarray, k: int, iters: int = 50, seed: int = 0) -> np.ndarray:

@@ -13,6 +13,7 @@ A checkpoint is written into a temporary directory, renamed into place, and only
 
 from __future__ import annotations
 
+import pickle
 import shutil
 from pathlib import Path
 from typing import Any
@@ -22,6 +23,10 @@ from safetensors.torch import load_file, save_file
 
 from bcbench.data.normalizer import MinMaxNormalizer
 from bcbench.errors import BCBenchError
+from bcbench.policies import REGISTRY
+from bcbench.policies.base import RunInfo
+from bcbench.policies.config import config_from_dict
+from bcbench.policies.learned import PolicyRunner
 from bcbench.utils.io import read_json, write_json
 
 KEEP = 2  # step directories kept besides the newest
@@ -75,7 +80,14 @@ def load_weights(path: Path, model: torch.nn.Module, ema: bool = False) -> None:
 
 
 def load_state(path: Path) -> dict[str, Any]:
-    return torch.load(Path(path) / "state.pt", map_location="cpu", weights_only=False)
+    """The optimiser, schedule, RNG and loop state of a checkpoint, unpickled with `weights_only=True`: tensors,
+    numbers, strings and containers only, so a run folder from someone else cannot run code when resumed."""
+    try:
+        return torch.load(Path(path) / "state.pt", map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise BCBenchError(f"{Path(path) / 'state.pt'} holds more than tensors and plain values (refused: "
+                           f"unpickling it could run code): {first}") from None
 
 
 def read_run(run_dir: str | Path) -> dict[str, Any]:
@@ -88,9 +100,6 @@ def read_run(run_dir: str | Path) -> dict[str, Any]:
 
 
 def build_model(run: dict[str, Any]) -> torch.nn.Module:
-    from bcbench.policies import REGISTRY
-    from bcbench.policies.config import config_from_dict
-
     name = run["policy"]
     if name not in REGISTRY:
         raise BCBenchError(f"run uses policy '{name}', which this bcbench does not know")
@@ -98,10 +107,8 @@ def build_model(run: dict[str, Any]) -> torch.nn.Module:
     return policy_cls(config_from_dict(config_cls, run["config"]))
 
 
-def load_runner(run_dir: str | Path, use_ema: bool = True, device: str = "cpu") -> Any:
+def load_runner(run_dir: str | Path, use_ema: bool = True, device: str = "cpu") -> PolicyRunner:
     """A PolicyRunner (raw obs -> chunk in pixels) from a run's newest checkpoint."""
-    from bcbench.policies.learned import PolicyRunner
-
     run_dir = Path(run_dir)
     run = read_run(run_dir)
     ckpt = latest_checkpoint(run_dir)
@@ -111,12 +118,12 @@ def load_runner(run_dir: str | Path, use_ema: bool = True, device: str = "cpu") 
     has_ema = (ckpt / "ema.safetensors").exists()
     load_weights(ckpt, model, ema=use_ema and has_ema)
     norm = MinMaxNormalizer.from_dict(read_json(run_dir / "normalizer.json"))
-    extra = {"run_dir": str(run_dir), "checkpoint": ckpt.name, "weights": "ema" if use_ema and has_ema else "raw",
-             "preset": run.get("preset")}
-    return PolicyRunner(model, norm, device, extra=extra)
+    info = RunInfo(run_dir=str(run_dir), checkpoint=ckpt.name, weights="ema" if use_ema and has_ema else "raw",
+                   preset=run.get("preset"))
+    return PolicyRunner(model, norm, device, info)
 
 
-def configure_runner(runner: Any, sampler: str | None = None, steps: int | None = None, seed: int = 0,
+def configure_runner(runner: PolicyRunner, sampler: str | None = None, steps: int | None = None, seed: int = 0,
                      spacing: str | None = None) -> str:
     """Seed a trained runner's inference noise and, for diffusion, pick the sampler, steps and spacing.
 
@@ -130,7 +137,7 @@ def configure_runner(runner: Any, sampler: str | None = None, steps: int | None 
         kind, k = sampler or runner.model.sampler_kind, steps or runner.model.sampler_steps
         runner.model.set_sampler(kind, k, spacing)
         spacing = runner.model.sampler_spacing
-        runner.extra.update({"sampler": kind, "steps": k, "spacing": spacing})
+        runner.info.sampler, runner.info.steps, runner.info.spacing = kind, k, spacing
         return f"{kind}{k}-" + ("" if spacing in (None, "trailing") else f"{spacing}-")
     if sampler or steps or spacing:
         raise BCBenchError(f"--sampler/--steps/--spacing apply to generative policies (diffusion, flow), not to "

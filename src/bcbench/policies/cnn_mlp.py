@@ -15,7 +15,7 @@ import torch
 from torch import nn
 
 from bcbench.errors import BCBenchError
-from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile
+from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile, pick_preset
 from bcbench.policies.regressor import ChunkRegressor, TimeMerge, conv_bn_relu
 
 
@@ -38,14 +38,13 @@ class CNNMLPConfig(PolicyConfig):
 
     @classmethod
     def preset(cls, name: str) -> CNNMLPConfig:
-        if name == "paper":
-            return cls()
-        if name == "quick":  # same network (it is small); 4 epochs, about 15 minutes on 2 cores
-            return cls(optim=OptimConfig(optimizer="adam", lr=1e-3, schedule="plateau", epochs=4, batch_size=64,
-                                         plateau_patience=1, checkpoint_every=200))
-        if name == "cpu":  # the quick network trained to its plateau on 2 cores (see cpu_profile)
-            return cpu_profile(cls.preset("quick"), epochs=20)
-        raise BCBenchError(f"unknown config '{name}' for cnn_mlp (choose quick, cpu or paper)")
+        return pick_preset("cnn_mlp", name, {
+            "quick": lambda: cls(  # same network (it is small); 4 epochs, about 15 minutes on 2 cores
+                optim=OptimConfig(optimizer="adam", lr=1e-3, schedule="plateau", epochs=4, batch_size=64,
+                                  plateau_patience=1, checkpoint_every=200)),
+            "cpu": lambda: cpu_profile(cls.preset("quick"), epochs=20),  # trained to its plateau on 2 cores
+            "paper": cls,
+        })
 
 
 class CNNMLPPolicy(ChunkRegressor):

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import typing
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -98,6 +99,13 @@ class PolicyConfig:
         if not 1 <= self.action_horizon <= self.pred_horizon - self.obs_horizon + 1:
             raise BCBenchError(f"action_horizon {self.action_horizon} does not fit in pred_horizon "
                                f"{self.pred_horizon} after obs_horizon {self.obs_horizon}")
+
+
+def pick_preset(policy: str, name: str, presets: dict[str, Callable[[], Any]]) -> Any:
+    """A policy's preset by name, from its table of builders (name -> a function returning the config)."""
+    if name not in presets:
+        raise BCBenchError(f"unknown preset '{name}' for {policy} (choose {', '.join(presets)})")
+    return presets[name]()
 
 
 def config_to_dict(cfg: Any) -> dict[str, Any]:

@@ -10,13 +10,14 @@ the observation is encoded once per call and only the U-Net runs K times (bcbenc
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 
 from bcbench.errors import BCBenchError
-from bcbench.policies.config import OptimConfig, cpu_profile
+from bcbench.policies.config import OptimConfig, cpu_profile, pick_preset
 from bcbench.policies.denoiser import DenoiserNetConfig, DenoiserPolicy
 from bcbench.policies.samplers import DEFAULT_SPACING, check_spacing, make_train_scheduler, plan, run_plan
 
@@ -45,22 +46,22 @@ class DiffusionConfig(DenoiserNetConfig):
 
     @classmethod
     def preset(cls, name: str) -> DiffusionConfig:
-        base, _, schedule = name.partition("_")
-        if base not in ("quick", "cpu", "paper") or schedule not in ("", "linear"):
-            raise BCBenchError(f"unknown config '{name}' for diffusion (quick, cpu, paper, each with _linear)")
-        betas = "linear" if schedule else "squaredcos_cap_v2"
-        if base == "paper":
-            return cls(beta_schedule=betas)
-        if base == "cpu":  # the quick network trained to its plateau on 2 cores: lr 1e-3 for batch 256
-            return cpu_profile(cls.preset("quick_linear" if schedule else "quick"), epochs=60, lr=1e-3,
-                               warmup_steps=100)
-        # CPU-sized: 1/4-width ResNet-18 with one block per stage, a 64/128/256 U-Net, a higher learning
-        # rate, 8 epochs (2,736 steps, about 15 minutes on 2 cores).
-        return cls(encoder_width=16, encoder_layers=(1, 1, 1, 1), down_dims=(64, 128, 256), step_embed_dim=64,
-                   beta_schedule=betas,
-                   optim=OptimConfig(optimizer="adamw", lr=5e-4, betas=(0.95, 0.999), weight_decay=1e-6,
-                                     schedule="cosine", warmup_steps=200, epochs=8, batch_size=64, ema=True,
-                                     ema_power=0.75, ema_max_decay=0.9999, checkpoint_every=200))
+        def quick() -> DiffusionConfig:
+            # CPU-sized: 1/4-width ResNet-18 with one block per stage, a 64/128/256 U-Net, a higher learning
+            # rate, 8 epochs (2,736 steps, about 15 minutes on 2 cores).
+            return cls(encoder_width=16, encoder_layers=(1, 1, 1, 1), down_dims=(64, 128, 256), step_embed_dim=64,
+                       optim=OptimConfig(optimizer="adamw", lr=5e-4, betas=(0.95, 0.999), weight_decay=1e-6,
+                                         schedule="cosine", warmup_steps=200, epochs=8, batch_size=64, ema=True,
+                                         ema_power=0.75, ema_max_decay=0.9999, checkpoint_every=200))
+
+        def cpu() -> DiffusionConfig:  # the quick network trained to its plateau on 2 cores: lr 1e-3 for batch 256
+            return cpu_profile(quick(), epochs=60, lr=1e-3, warmup_steps=100)
+
+        # every preset with the cosine (squaredcos_cap_v2) schedule, and as NAME_linear with linear betas
+        base = {"quick": quick, "cpu": cpu, "paper": cls}
+        table = {**base, **{f"{k}_linear": (lambda b=b: dataclasses.replace(b(), beta_schedule="linear"))
+                            for k, b in base.items()}}
+        return pick_preset("diffusion", name, table)
 
 
 class DiffusionPolicy(DenoiserPolicy):

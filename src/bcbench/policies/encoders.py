@@ -124,7 +124,7 @@ def load_pretrained(model: ResNet, path: str | Path) -> list[str]:
         raise BCBenchError(f"--pretrained {path}: no such file (nothing is downloaded; give a local file)")
     try:
         if path.suffix == ".safetensors":
-            from safetensors.torch import load_file
+            from safetensors.torch import load_file  # only for --pretrained .safetensors files
 
             state = load_file(str(path))
         else:

@@ -52,7 +52,7 @@ class FlowConfig(DenoiserNetConfig):
     def preset(cls, name: str) -> FlowConfig:
         """Every profile of diffusion (quick, cpu, paper): its network sizes and optimiser, flow objective."""
         if "_" in name:
-            raise BCBenchError(f"unknown config '{name}' for flow (quick, cpu or paper; it has no beta schedule)")
+            raise BCBenchError(f"unknown preset '{name}' for flow (quick, cpu or paper; it has no beta schedule)")
         dp = DiffusionConfig.preset(name)
         shared = {f.name: getattr(dp, f.name) for f in dataclasses.fields(cls) if hasattr(dp, f.name)
                   and f.name not in ("sampler", "sampling_steps")}

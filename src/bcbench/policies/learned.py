@@ -27,6 +27,7 @@ import torch
 from torch import nn
 
 from bcbench.data.normalizer import MinMaxNormalizer
+from bcbench.policies.base import Observation, RunInfo
 from bcbench.policies.config import config_to_dict
 from bcbench.policies.encoders import count_parameters
 
@@ -119,7 +120,7 @@ class PolicyRunner:
     """Raw observations -> action chunk in world pixels, for the controller and the latency benchmark."""
 
     def __init__(self, model: BCPolicy, normalizer: MinMaxNormalizer, device: str | torch.device = "cpu",
-                 extra: dict[str, Any] | None = None) -> None:
+                 info: RunInfo | None = None) -> None:
         self.model = model.to(device).eval()
         self.normalizer = normalizer
         self.device = torch.device(device)
@@ -127,7 +128,7 @@ class PolicyRunner:
         self.name = model.name
         self.obs_horizon, self.pred_horizon, self.action_horizon = cfg.obs_horizon, cfg.pred_horizon, cfg.action_horizon
         self.chunk_start = cfg.obs_horizon - 1
-        self.extra = extra or {}
+        self.info = info or RunInfo()
 
     def prepare(self, obs: dict[str, Any]) -> dict[str, Any]:
         image = torch.from_numpy(np.ascontiguousarray(obs["image"])).to(self.device)  # (B, To, H, W, 3) uint8
@@ -138,16 +139,37 @@ class PolicyRunner:
             out["generators"] = obs["generators"]  # per-episode noise streams, from the controller
         return out
 
+    # A generative model's sampler seen through the runner, so that the runner is a GenerativePolicy exactly when
+    # its model is one (on other models these attributes raise AttributeError, and isinstance says no).
+    @property
+    def samplers(self) -> tuple[str, ...]:
+        return self.model.samplers
+
+    @property
+    def sampler_kind(self) -> str:
+        return self.model.sampler_kind
+
+    @property
+    def sampler_steps(self) -> int:
+        return self.model.sampler_steps
+
+    @property
+    def sampler_spacing(self) -> str | None:
+        return self.model.sampler_spacing
+
+    def set_sampler(self, kind: str, steps: int, spacing: str | None = None) -> None:
+        self.model.set_sampler(kind, steps, spacing)
+
     @property
     def noise_seed(self) -> int:
         """The seed the controller combines with each episode's seed for that episode's noise stream."""
         return int(self.model.config.seed if self.model.noise_seed is None else self.model.noise_seed)
 
     @torch.inference_mode()
-    def predict_action_chunk(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+    def predict_action_chunk(self, obs: Observation) -> np.ndarray:
         chunk = self.model.predict_action_chunk(self.prepare(obs))  # (B, Tp, 2) normalised
         return self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()
 
     def describe(self) -> dict[str, Any]:
         return {"name": self.name, "parameters": self.model.num_parameters(),
-                "config": config_to_dict(self.model.config), **self.extra}
+                "config": config_to_dict(self.model.config), **self.info.describe()}

@@ -14,7 +14,7 @@ import torch
 from torch import nn
 
 from bcbench.errors import BCBenchError
-from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile
+from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile, pick_preset
 from bcbench.policies.encoders import RESNET50_LAYERS, load_pretrained, resnet50
 from bcbench.policies.regressor import ChunkRegressor, TimeMerge, conv_bn_relu
 
@@ -48,15 +48,14 @@ class ResNet50Config(PolicyConfig):
 
     @classmethod
     def preset(cls, name: str) -> ResNet50Config:
-        if name == "paper":
-            return cls()
-        if name == "quick":  # same topology at 1/8 width, one block per stage: trains in 15 min on 2 cores
-            return cls(width=8, layers=(1, 1, 1, 1), head_channels=(128, 128, 64, 32), hidden=256,
-                       optim=OptimConfig(optimizer="adam", lr=1e-3, schedule="plateau", epochs=4, batch_size=64,
-                                         plateau_patience=1, checkpoint_every=200))
-        if name == "cpu":  # the quick network trained to its plateau on 2 cores (see cpu_profile)
-            return cpu_profile(cls.preset("quick"), epochs=20)
-        raise BCBenchError(f"unknown config '{name}' for resnet50 (choose quick, cpu or paper)")
+        return pick_preset("resnet50", name, {
+            "quick": lambda: cls(  # same topology at 1/8 width, one block per stage: trains in 15 min on 2 cores
+                width=8, layers=(1, 1, 1, 1), head_channels=(128, 128, 64, 32), hidden=256,
+                optim=OptimConfig(optimizer="adam", lr=1e-3, schedule="plateau", epochs=4, batch_size=64,
+                                  plateau_patience=1, checkpoint_every=200)),
+            "cpu": lambda: cpu_profile(cls.preset("quick"), epochs=20),  # trained to its plateau on 2 cores
+            "paper": cls,
+        })
 
 
 class ResNet50Policy(ChunkRegressor):

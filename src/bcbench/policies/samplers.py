@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import torch
 
 from bcbench.errors import BCBenchError
+from bcbench.utils.system import require_known_version
 
 SPACINGS = ("trailing", "leading")
 DEFAULT_SPACING = "trailing"
@@ -36,9 +37,7 @@ NoiseFn = Callable[[tuple[int, ...]], torch.Tensor]
 
 
 def make_train_scheduler(num_train_timesteps: int, beta_schedule: str):
-    from diffusers import DDPMScheduler
-
-    from bcbench.utils.system import require_known_version
+    from diffusers import DDPMScheduler  # diffusers takes seconds to import: only when a sampler is built
 
     require_known_version("diffusers")  # the plan below reproduces its formulas and spacings
 
@@ -56,7 +55,7 @@ def check_spacing(spacing: str) -> str:
 
 def make_diffusers_sampler(train_scheduler, kind: str, steps: int, spacing: str = DEFAULT_SPACING):
     """diffusers' scheduler for sampling (the 'reference' way), timesteps set for `steps` and `spacing`."""
-    from diffusers import DDIMScheduler, DDPMScheduler
+    from diffusers import DDIMScheduler, DDPMScheduler  # as above
 
     cls = {"ddpm": DDPMScheduler, "ddim": DDIMScheduler}[kind]
     sched = cls.from_config(train_scheduler.config, timestep_spacing=check_spacing(spacing))

@@ -19,11 +19,18 @@ tasks finish. So a study killed under Ray resumes under Ray or without it, and t
 
 from __future__ import annotations
 
+import platform
 import time
+from dataclasses import asdict
 from typing import Any
 
+from tqdm import tqdm
+
 from bcbench.errors import BCBenchError
+from bcbench.study.runner import StudyRunner
 from bcbench.study.spec import RunSpec, StudySpec, Variant
+from bcbench.utils.io import write_json
+from bcbench.utils.system import git_commit
 
 NODE_RESOURCE, NODE_UNITS = "bcbench_node", 1000
 EXCLUSIVE = ("latency", "realtime")  # stages that must have their node to themselves
@@ -31,7 +38,7 @@ EXCLUSIVE = ("latency", "realtime")  # stages that must have their node to thems
 
 def _ray() -> Any:
     try:
-        import ray
+        import ray  # optional extra (bcbench[ray]); only for --ray
     except ImportError as e:
         raise BCBenchError(f"--ray needs the ray package (pip install 'bcbench[ray]'): {e}") from e
     return ray
@@ -40,11 +47,6 @@ def _ray() -> Any:
 def _execute(spec: StudySpec, out: str, data: str | None, stage: str, run_index: int,
              variant: Variant | None) -> dict[str, Any]:
     """One stage in a Ray worker: compute it and hand the record back (the driver writes it)."""
-    import platform
-
-    from bcbench.study.runner import StudyRunner
-    from bcbench.utils.system import git_commit
-
     git_commit()  # the worker's code, read before the stage runs (as the CLI does)
     runner = StudyRunner(spec, out, data, progress=False)
     started = time.monotonic()
@@ -74,13 +76,8 @@ def _connect(ray: Any, address: str | None, cpus: int | None) -> bool:
     return True
 
 
-def run_on_ray(runner: Any, address: str | None = None, cpus: int | None = None) -> dict[str, Any]:
+def run_on_ray(runner: StudyRunner, address: str | None = None, cpus: int | None = None) -> dict[str, Any]:
     """Run a StudyRunner's pending stages as Ray tasks; returns the same summary as StudyRunner.run."""
-    from dataclasses import asdict
-
-    from tqdm import tqdm
-
-    from bcbench.utils.io import write_json
 
     ray = _ray()
     spec: StudySpec = runner.spec

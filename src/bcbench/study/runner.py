@@ -13,6 +13,8 @@ it stopped; a training stage resumes from its newest checkpoint. Every file is w
 
 from __future__ import annotations
 
+import hashlib
+import json
 import platform
 import time
 from dataclasses import asdict
@@ -20,23 +22,41 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+import torch
+from tqdm import tqdm
+
+from bcbench.evaluation.backends import apply_mode
+from bcbench.evaluation.evaluate import EvalConfig, evaluate
+from bcbench.evaluation.realtime import realtime_record, sweep
+from bcbench.evaluation.timing import TimingConfig, latency_record
+from bcbench.modes import mode_name
+from bcbench.policies import make_policy
+from bcbench.policies.base import ChunkPolicy
+from bcbench.policies.checkpoint import configure_runner, load_runner
+from bcbench.policies.outside import outside_policy
 from bcbench.study.spec import RunSpec, StudySpec, Variant
-from bcbench.utils.io import append_jsonl, read_json, write_json
+from bcbench.training.loop import TrainOptions, new_run, train
+from bcbench.utils.device import pick_device
+from bcbench.utils.io import append_jsonl, read_json, safe_name, write_json
 
 DONE_TRAINING = ("finished", "stopped by time: schedule not finished")  # the latter is marked in the report
 
 
 class StudyRunner:
     def __init__(self, spec: StudySpec, out: str | Path, data: str | None = None, progress: bool = True) -> None:
-        from bcbench.utils.device import pick_device
-
         self.spec, self.out, self.data, self.progress = spec, Path(out), data, progress
         self.executed = 0  # stages executed (not skipped) in this process
         self.device = str(pick_device(spec.device))  # training, evaluation and timing all run here
 
     # ------------------------------------------------------------------ layout
     def run_dir(self, run: RunSpec) -> Path:
-        key = run.key(self.spec.val_fraction) if run.learned else f"{run.policy}-{run.config}-s{run.seed}-baseline"
+        if run.learned:
+            key = run.key(self.spec.val_fraction)
+        elif run.outside:  # its factory arguments are part of what was run
+            h = hashlib.sha256(json.dumps(run.args, sort_keys=True).encode()).hexdigest()[:8]
+            key = f"{safe_name(run.policy)}-s{run.seed}-{h}-outside"
+        else:
+            key = f"{run.policy}-{run.config}-s{run.seed}-baseline"
         return self.out / "runs" / key
 
     def stages(self) -> list[tuple[str, RunSpec, Variant | None]]:
@@ -71,8 +91,6 @@ class StudyRunner:
 
     # ------------------------------------------------------------------ stages
     def _train(self, run: RunSpec) -> None:
-        from bcbench.training.loop import TrainOptions, new_run, train
-
         opts = TrainOptions(max_minutes=run.max_minutes, threads=self.spec.threads, data=self.data,
                             val_fraction=self.spec.val_fraction, progress=self.progress, device=self.device,
                             eval_every=run.eval_every, eval_episodes=self.spec.curve_episodes)
@@ -83,12 +101,9 @@ class StudyRunner:
         if summary["stopped"] not in DONE_TRAINING:
             raise KeyboardInterrupt  # Ctrl-C during training: the checkpoint is saved; stop the study here
 
-    def _policy(self, run: RunSpec, variant: Variant) -> Any:
-        from bcbench.evaluation.backends import apply_mode
-        from bcbench.modes import mode_name
-        from bcbench.policies import make_policy
-        from bcbench.policies.checkpoint import configure_runner, load_runner
-
+    def _policy(self, run: RunSpec, variant: Variant) -> ChunkPolicy:
+        if run.outside:
+            return outside_policy(run.policy, run.args)
         if not run.learned:
             return make_policy(run.policy, run.config, seed=run.seed)
         runner = load_runner(self.run_dir(run), use_ema=True, device=self.device)
@@ -97,19 +112,14 @@ class StudyRunner:
         return runner
 
     def _eval(self, run: RunSpec, variant: Variant) -> dict[str, Any]:
-        from bcbench.evaluation.evaluate import EvalConfig, evaluate
-
         cfg = EvalConfig(episodes=self.spec.episodes, seed_start=self.spec.seed_start, max_steps=self.spec.max_steps)
         extra = {"study": {"name": self.spec.name, "purpose": self.spec.purpose, "label": run.label,
-                           "variant": asdict(variant), "run_dir": str(self.run_dir(run))}}
+                           "variant": asdict(variant), "run_dir": str(self.run_dir(run)),
+                           **({"outside_policy": run.policy, "args": run.args} if run.outside else {})}}
         return evaluate(self._policy(run, variant), cfg, None, progress=self.progress, extra=extra)
 
     def _latency(self, run: RunSpec, variant: Variant) -> dict[str, Any]:
-        from bcbench.evaluation.timing import TimingConfig, latency_record
-
         if self.spec.threads:
-            import torch
-
             torch.set_num_threads(self.spec.threads)
         timing = TimingConfig(min_calls=self.spec.latency_min_calls, min_seconds=self.spec.latency_min_seconds,
                               max_calls=max(200, self.spec.latency_min_calls))
@@ -119,8 +129,6 @@ class StudyRunner:
         return rec
 
     def _realtime(self, run: RunSpec, variant: Variant) -> dict[str, Any]:
-        from bcbench.evaluation.realtime import realtime_record, sweep
-
         rt = self.spec.realtime or {}
         partial = self.partial_file(run, variant)
         settings = sweep(self._policy(run, variant), rt["delays"], rt["executions"], self.spec.episodes,
@@ -128,7 +136,8 @@ class StudyRunner:
                          skip_missing_profiles=True,  # e.g. the study gives no A100 time for BeT
                          done=read_json(partial) if partial.exists() else None,
                          on_setting=lambda results: write_json(partial, results))
-        return realtime_record(settings, self.spec.name, run.label, asdict(variant), self.spec.margin, self.device)
+        return realtime_record(settings, self.spec.name, run.label, asdict(variant), self.spec.margin, self.device,
+                               run.policy if run.outside else None)
 
     def after_stage(self) -> None:
         """Called after each executed stage (not after a skipped one); does nothing. The extension point for
@@ -159,8 +168,6 @@ class StudyRunner:
         self.executed += 1
 
     def run(self) -> dict[str, Any]:
-        from tqdm import tqdm
-
         self.out.mkdir(parents=True, exist_ok=True)
         write_json(self.out / "spec.json", {**asdict(self.spec), "runs": [asdict(r) for r in self.spec.runs]})
         stages = self.stages()

@@ -18,7 +18,7 @@
 
     [[run]]
     policy = "diffusion"
-    config = "quick"        # preset; diffusion also has quick_linear / paper_linear
+    preset = "quick"        # diffusion also has quick_linear / paper_linear (`config` is the old name of this key)
     steps = 3000            # training budget in optimiser steps (optional; default: the preset's epochs)
     max_minutes = 60        # safety stop (optional): a run that hits it is marked "schedule not finished"
     eval_every = 500        # learning curve: rollouts every 500 steps on validation seeds (optional)
@@ -40,12 +40,18 @@ from pathlib import Path
 from typing import Any
 
 from bcbench.errors import BCBenchError
+from bcbench.evaluation.latency_sources import PROFILES
+from bcbench.modes import MODES, mode_name
+from bcbench.policies import REGISTRY, is_learned, make_config, sampler_kinds
+from bcbench.policies.config import config_to_dict
+from bcbench.policies.outside import load_factory
 from bcbench.protocol import check_purpose
 
 STUDY_KEYS = {"name", "episodes", "seed_start", "val_fraction", "latency", "threads", "max_steps", "rate_hz",
               "latency_min_calls", "latency_min_seconds", "device", "margin", "curve_episodes", "realtime",
               "backend", "precision", "latency_modes", "resources", "purpose"}
-RUN_KEYS = {"policy", "config", "steps", "max_minutes", "seeds", "set", "eval", "label", "eval_every", "realtime"}
+RUN_KEYS = {"policy", "preset", "config", "steps", "max_minutes", "seeds", "set", "eval", "label", "eval_every",
+            "realtime", "args"}
 REALTIME_KEYS = {"delays", "execution", "profiles", "measured"}
 
 
@@ -75,17 +81,18 @@ class RunSpec:
     label: str
     eval_every: int | None = None  # rollouts every this many training steps: the learning curve
     realtime: list[Variant] = field(default_factory=list)  # variants swept under real-time execution
+    args: dict[str, Any] = field(default_factory=dict)  # an outside policy's factory arguments
+
+    @property
+    def outside(self) -> bool:
+        """A policy from outside bcbench (module:factory or a plug-in), run as it is given."""
+        return self.policy not in REGISTRY
 
     @property
     def learned(self) -> bool:
-        from bcbench.policies import is_learned
-
         return is_learned(self.policy)
 
     def config_dict(self) -> dict[str, Any]:
-        from bcbench.policies import make_config
-        from bcbench.policies.config import config_to_dict
-
         return config_to_dict(make_config(self.policy, self.config, {**self.overrides, "seed": self.seed}))
 
     def key(self, val_fraction: float) -> str:
@@ -128,9 +135,7 @@ def _variants(i: int, run: dict[str, Any], policy: str) -> list[Variant]:
     entries = run.get("eval")
     if entries is None:
         return [Variant()]
-    from bcbench.policies import REGISTRY
-
-    kinds = REGISTRY[policy][1].samplers if hasattr(REGISTRY[policy][1], "samplers") else ()
+    kinds = sampler_kinds(policy)
     if not kinds:
         raise BCBenchError(f"{_where(i, run)}: 'eval' variants (sampler/steps) apply to generative policies only "
                            "(diffusion, flow)")
@@ -157,8 +162,6 @@ def _variants(i: int, run: dict[str, Any], policy: str) -> list[Variant]:
 
 
 def _run_specs(i: int, run: Any) -> list[RunSpec]:
-    from bcbench.policies import REGISTRY, make_config
-
     if not isinstance(run, dict):
         raise BCBenchError(f"[[run]] #{i + 1} must be a table")
     if "minutes" in run:
@@ -169,9 +172,16 @@ def _run_specs(i: int, run: Any) -> list[RunSpec]:
         allowed = ", ".join(sorted(RUN_KEYS))
         raise BCBenchError(f"{_where(i, run)}: unknown key(s) {', '.join(unknown)} (allowed: {allowed})")
     policy = run.get("policy")
+    if not isinstance(policy, str) or not policy:
+        raise BCBenchError(f"{_where(i, run)}: policy must be a name, a plug-in or module:factory")
     if policy not in REGISTRY:
-        raise BCBenchError(f"{_where(i, run)}: unknown policy '{policy}' (registered: {', '.join(sorted(REGISTRY))})")
-    config = run.get("config", "quick")
+        return _outside_run_specs(i, run, policy)
+    if "args" in run:
+        raise BCBenchError(f"{_where(i, run)}: args go with an outside policy (module:factory or a plug-in); "
+                           "a registered policy takes set = {...}")
+    if "preset" in run and "config" in run:
+        raise BCBenchError(f"{_where(i, run)}: give preset (or its old name, config), not both")
+    config = run.get("preset", run.get("config", "quick"))  # the preset's name
     overrides = run.get("set", {})
     if not isinstance(overrides, dict):
         raise BCBenchError(f"{_where(i, run)}: 'set' must be a table of config overrides")
@@ -212,6 +222,29 @@ def _run_specs(i: int, run: Any) -> list[RunSpec]:
     return [RunSpec(policy, config, s, minutes, overrides, variants, label, every, realtime) for s in seeds]
 
 
+def _outside_run_specs(i: int, run: dict[str, Any], policy: str) -> list[RunSpec]:
+    """A policy from outside bcbench: it is resolved now (import, plug-in), built and checked when it runs."""
+    try:
+        load_factory(policy)
+    except BCBenchError as exc:
+        raise BCBenchError(f"{_where(i, run)}: {exc}") from None
+    extra = sorted(set(run) & {"preset", "config", "steps", "max_minutes", "set", "eval", "eval_every"})
+    if extra:
+        raise BCBenchError(f"{_where(i, run)}: an outside policy is run as given: {', '.join(extra)} do not apply")
+    args = run.get("args", {})
+    if not isinstance(args, dict):
+        raise BCBenchError(f"{_where(i, run)}: args must be a table of the factory's keyword arguments")
+    seeds = run.get("seeds", [0])
+    if not isinstance(seeds, list) or not seeds or not all(isinstance(s, int) and s >= 0 for s in seeds):
+        raise BCBenchError(f"{_where(i, run)}: seeds must be a non-empty list of whole numbers >= 0")
+    rt = run.get("realtime", False)
+    if not isinstance(rt, bool):
+        raise BCBenchError(f"{_where(i, run)}: realtime must be true or false for an outside policy")
+    label = run.get("label", policy)
+    return [RunSpec(policy, "-", s, None, {}, [Variant()], label, None, [Variant()] if rt else [], dict(args))
+            for s in seeds]
+
+
 def _realtime_table(rt: Any) -> dict[str, Any]:
     """[study] realtime = { delays = [1, 2, 4, 8], execution = ["blocking", "async"], profiles = ["a100"],
     measured = true }, validated; defaults fill what is left out."""
@@ -223,7 +256,6 @@ def _realtime_table(rt: Any) -> dict[str, Any]:
         raise BCBenchError("study.realtime.delays must be whole numbers of control steps >= 0")
     if not set(out["executions"]) <= {"blocking", "async"} or not out["executions"]:
         raise BCBenchError("study.realtime.execution must list blocking and/or async")
-    from bcbench.evaluation.latency_sources import PROFILES
 
     if any(p not in PROFILES for p in out["profiles"]) or not isinstance(out["measured"], bool):
         raise BCBenchError(f"study.realtime.profiles must be among {', '.join(PROFILES)}; measured true or false")
@@ -268,8 +300,6 @@ def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
 
 
 def _backend_keys(study: dict[str, Any], spec: StudySpec) -> None:
-    from bcbench.modes import MODES, mode_name
-
     spec.backend, spec.precision = str(study.get("backend", "torch")), str(study.get("precision", "fp32"))
     try:
         mode_name(spec.backend, spec.precision)

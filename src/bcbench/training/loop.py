@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields
 from datetime import UTC, datetime
 from pathlib import Path
@@ -23,9 +22,11 @@ from typing import Any
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from bcbench.data import MinMaxNormalizer, load_replay_buffer, make_datasets, resolve_dataset
 from bcbench.errors import BCBenchError
+from bcbench.evaluation.evaluate import EvalConfig, run_episodes
 from bcbench.policies import REGISTRY
 from bcbench.policies.checkpoint import (
     build_model,
@@ -36,8 +37,11 @@ from bcbench.policies.checkpoint import (
     save_checkpoint,
 )
 from bcbench.policies.config import OptimConfig, config_to_dict, dotted_value, with_overrides
+from bcbench.policies.learned import BCPolicy, PolicyRunner
 from bcbench.protocol import VALIDATION_SEED_START
 from bcbench.reference import CPU_DEVIATIONS
+from bcbench.stats import estimate
+from bcbench.training.options import TrainOptions
 from bcbench.training.parts import (
     EMA,
     Distributed,
@@ -65,42 +69,6 @@ __all__ = ["EMA", "STOPPED_BY_TIME", "TrainOptions", "TrainState", "new_run", "p
 
 
 @dataclass
-class TrainOptions:
-    """How to run, as opposed to what to train (that is the policy config)."""
-
-    max_minutes: float | None = None
-    """safety stop only (budgets are steps or epochs, in the config): past it training stops at the next step,
-    saves, and the run is marked 'stopped by time: schedule not finished'"""
-    threads: int | None = None
-    """torch intra-op threads (default: torch's choice)"""
-    device: str = "auto"
-    """auto (cuda when present), cpu or cuda"""
-    data: str | None = None
-    """dataset path (default: see `bcbench data info`)"""
-    val_fraction: float = 0.1
-    """share of episodes held out for validation (the study's 90/10)"""
-    split_seed: int = 0
-    """seed of the episode split"""
-    eval_every: int | None = None
-    """closed-loop rollouts every this many optimiser steps (and at the end): the learning curve"""
-    eval_episodes: int = 20
-    """episodes per periodic rollout, on validation seeds 200000+ (never the test seeds 100000+)"""
-    progress: bool = True
-    """show a progress bar"""
-    callbacks: tuple[Callable[[Run], None], ...] = ()
-    """called with the `Run` after every optimiser step, in order: the extension point for code that watches or
-    stops training from outside (a custom display, an experiment inspecting the model, the resume tests)"""
-
-    def __post_init__(self) -> None:
-        if self.max_minutes is not None and not self.max_minutes > 0:
-            raise BCBenchError(f"--max-minutes must be > 0, got {self.max_minutes}")
-        if self.eval_every is not None and self.eval_every < 1:
-            raise BCBenchError(f"--eval-every must be >= 1, got {self.eval_every}")
-        if self.eval_episodes < 1:
-            raise BCBenchError(f"--eval-episodes must be >= 1, got {self.eval_episodes}")
-
-
-@dataclass
 class TrainState:
     """What the loop changes besides weights, optimiser and RNG; saved with every checkpoint."""
 
@@ -125,7 +93,7 @@ class Run:
 
     run_dir: Path
     meta: dict[str, Any]  # run.json
-    model: Any
+    model: BCPolicy
     ema: EMA | None
     optimizer: torch.optim.Optimizer
     scheduler: Any
@@ -287,10 +255,6 @@ def validate(r: Run) -> float:
 
 def rollout_score(r: Run, episodes: int) -> dict[str, Any]:
     """Closed-loop score of the weights evaluated at test time (EMA if kept) on validation seeds 200000+."""
-    from bcbench.evaluation.evaluate import EvalConfig, run_episodes
-    from bcbench.policies.learned import PolicyRunner
-    from bcbench.stats import estimate
-
     model = r.ema.model if r.ema is not None else r.model
     runner = PolicyRunner(model, r.normalizer, r.device)
     if model.samplers:  # learning curves sample with 10 steps: cheap, and close to the best
@@ -325,8 +289,6 @@ def _log(r: Run, record: dict[str, Any], t_start: float) -> None:
 
 def train(run_dir: str | Path, opts: TrainOptions) -> dict[str, Any]:
     """Train the run to its step budget (or the safety stop, or Ctrl-C); returns and writes the summary."""
-    from tqdm import tqdm
-
     r = prepare(run_dir, opts)
     o, state, seed, bs = r.o, r.state, r.model.config.seed, r.o.batch_size
     t_start, deadline = time.monotonic(), None

@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import ctypes
 import math
+import os
 import signal
 from typing import Any
 
@@ -76,8 +78,6 @@ def keep_freed_memory() -> bool:
     this (about 12% more samples/s, 130 MB more resident memory). No mmap for blocks (M_MMAP_MAX 0) and a
     1 GiB trim threshold; process-wide, for the rest of the process. Returns False where libc is not glibc.
     """
-    import ctypes
-
     try:
         libc = ctypes.CDLL("libc.so.6")
         m_trim_threshold, m_mmap_max = -1, -4  # glibc's mallopt parameter numbers (malloc.h)
@@ -171,8 +171,6 @@ class Distributed:
     """
 
     def __init__(self, device: torch.device) -> None:
-        import os
-
         self.world = int(os.environ.get("WORLD_SIZE", "1"))
         self.rank = int(os.environ.get("RANK", "0"))
         if self.world > 1 and device.type == "cuda":

@@ -83,3 +83,8 @@ def write_jsonl(path: str | Path, records: list[dict[str, Any]]) -> None:
     """Replace a JSON Lines file atomically."""
     with atomic_path(path) as tmp:
         tmp.write_text("".join(json.dumps(r, default=_json_default) + "\n" for r in records))
+
+
+def safe_name(text: str) -> str:
+    """A file-system-safe name: 'my_pkg.mod:make' -> 'my_pkg.mod-make' (letters, digits, . _ - kept)."""
+    return "".join(c if c.isalnum() or c in "._-" else "-" for c in text).strip("-") or "policy"

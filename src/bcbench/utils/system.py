@@ -10,6 +10,8 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from bcbench.errors import BCBenchError
+
 _PACKAGES = ("bcbench", "torch", "numpy", "gymnasium", "gym-pusht", "pymunk", "shapely", "zarr", "diffusers")
 
 
@@ -73,8 +75,6 @@ KNOWN_GOOD = {"gym-pusht": ("0.1.8",), "diffusers": ("0.42.1",)}
 
 def require_known_version(package: str) -> None:
     """Fail with one clear line when `package` is at a version bcbench was not checked against."""
-    from bcbench.errors import BCBenchError
-
     try:
         have = metadata.version(package)
     except metadata.PackageNotFoundError:

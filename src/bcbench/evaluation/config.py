@@ -1,0 +1,67 @@
+"""What an evaluation is asked to do (torch-free: the command line reads its defaults and help from here)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from bcbench.errors import BCBenchError
+from bcbench.protocol import TEST_SEED_START
+
+EXECUTIONS = ("sync", "blocking", "async")  # how the world moves while the policy computes (see the controller)
+PROFILES = ("a100",)  # hardware latency profiles (bcbench.evaluation.latency_sources holds their times)
+
+
+def check_latency_options(latency: str | None, latency_ms: float | None) -> None:
+    """One line for a bad --latency / --latency-ms pair (what LatencySource.parse accepts)."""
+    if latency_ms is not None and latency is not None:
+        raise BCBenchError("give --latency-ms or --latency, not both")
+    if latency_ms is not None and latency_ms < 0:
+        raise BCBenchError(f"--latency-ms must be >= 0, got {latency_ms:g}")
+    if latency is None or latency == "measured":
+        return
+    if not latency.startswith("profile:"):
+        raise BCBenchError(f"--latency must be 'measured' or 'profile:NAME', got '{latency}'")
+    if latency.split(":", 1)[1] not in PROFILES:
+        raise BCBenchError(f"unknown latency profile '{latency.split(':', 1)[1]}' (known: {', '.join(PROFILES)})")
+
+
+@dataclass
+class EvalConfig:
+    episodes: int = 40
+    """evaluation episodes (the study used 40)"""
+    seed_start: int = TEST_SEED_START
+    """episode i uses seed seed_start + i"""
+    max_steps: int = 300
+    """steps per episode at most"""
+    action_horizon: int | None = None
+    """actions executed per chunk (default: the policy's own, 8)"""
+    workers: int | None = None
+    """simulator processes (default: one per core)"""
+    video: int = 0
+    """write videos of the first N episodes"""
+    video_size: int = 256
+    """video frame size in pixels"""
+    execution: str = "sync"
+    """sync (the world waits for the policy), blocking or async (it does not): see bcbench.evaluation.controller"""
+    latency: str | None = None
+    """where a call's latency comes from: 'measured' or 'profile:NAME' (or latency_ms)"""
+    latency_ms: float | None = None
+    """a fixed latency per call in milliseconds"""
+
+    def __post_init__(self) -> None:
+        if self.episodes < 1:
+            raise BCBenchError(f"--episodes must be >= 1, got {self.episodes}")
+        if not 1 <= self.max_steps <= 10_000:
+            raise BCBenchError(f"--max-steps must be in 1..10000, got {self.max_steps}")
+        if self.seed_start < 0:
+            raise BCBenchError(f"--seed-start must be >= 0, got {self.seed_start}")
+        if self.workers is not None and self.workers < 1:
+            raise BCBenchError(f"--workers must be >= 1, got {self.workers}")
+        if self.video < 0 or self.video > self.episodes:
+            raise BCBenchError(f"--video must be in 0..episodes ({self.episodes}), got {self.video}")
+        if self.action_horizon is not None and self.action_horizon < 1:
+            raise BCBenchError(f"--action-horizon must be >= 1, got {self.action_horizon}")
+
+        if self.execution not in EXECUTIONS:
+            raise BCBenchError(f"--execution must be one of {', '.join(EXECUTIONS)}, got '{self.execution}'")
+        check_latency_options(self.latency, self.latency_ms)
