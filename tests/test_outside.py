@@ -47,7 +47,11 @@ def test_unknown_module_and_plugin_are_clear():
 
 
 def test_the_check_accepts_a_good_policy():
-    check_contract(outside_policy(GOOD, {"x": 100.0}), GOOD)
+    import bcbench
+
+    policy = outside_policy(GOOD, {"x": 100.0})
+    check_contract(policy, GOOD)
+    assert isinstance(policy, bcbench.ChunkPolicy)  # `import bcbench` exposes the interface (structural)
 
 
 def test_factory_policy_in_eval_latency_and_realtime(tmp_path, capsys):

@@ -33,8 +33,8 @@ from bcbench.data.paths import resolve_dataset
 from bcbench.data.replay_buffer import load_replay_buffer
 from bcbench.data.sequence import make_datasets
 from bcbench.errors import BCBenchError
+from bcbench.interface import FilmSplittable
 from bcbench.modes import MODES
-from bcbench.policies.base import FilmSplittable
 from bcbench.policies.checkpoint import read_run
 from bcbench.policies.learned import BCPolicy, PolicyRunner
 

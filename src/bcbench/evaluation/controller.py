@@ -33,7 +33,7 @@ import torch
 
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.config import EXECUTIONS
-from bcbench.policies.base import ChunkPolicy, SeededPolicy
+from bcbench.interface import ChunkPolicy, SeededPolicy
 
 
 def episode_generator(policy_seed: int, episode_seed: int) -> torch.Generator:

@@ -29,7 +29,7 @@ from bcbench.errors import BCBenchError
 from bcbench.evaluation.config import EvalConfig
 from bcbench.evaluation.controller import ChunkedController
 from bcbench.evaluation.latency_sources import LatencySource
-from bcbench.policies.base import ChunkPolicy
+from bcbench.interface import ChunkPolicy
 from bcbench.stats import score_summary
 from bcbench.utils.io import write_json
 from bcbench.utils.system import provenance

@@ -23,7 +23,7 @@ from bcbench.errors import BCBenchError
 from bcbench.evaluation.config import PROFILES as PROFILE_NAMES
 from bcbench.evaluation.config import check_latency_options
 from bcbench.evaluation.timing import TimingConfig, time_calls
-from bcbench.policies.base import ChunkPolicy, example_observation, is_generative
+from bcbench.interface import ChunkPolicy, example_observation, is_generative
 from bcbench.protocol import CONTROL_DT_S
 from bcbench.reference import A100_DP_MS, A100_MS
 

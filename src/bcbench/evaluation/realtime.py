@@ -10,7 +10,7 @@ from typing import Any
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.evaluate import EvalConfig, evaluate
 from bcbench.evaluation.latency_sources import profile_ms, sampler_steps
-from bcbench.policies.base import ChunkPolicy
+from bcbench.interface import ChunkPolicy
 from bcbench.protocol import CONTROL_DT_S
 from bcbench.utils.system import provenance
 

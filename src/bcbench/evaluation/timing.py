@@ -24,7 +24,7 @@ import torch
 
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.backends import apply_mode
-from bcbench.policies.base import ChunkPolicy, example_observation
+from bcbench.interface import ChunkPolicy, example_observation
 from bcbench.policies.learned import PolicyRunner
 from bcbench.utils.system import provenance
 

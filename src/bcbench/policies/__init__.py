@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 from bcbench.errors import BCBenchError
-from bcbench.policies.base import ChunkPolicy
+from bcbench.interface import ChunkPolicy
 from bcbench.policies.baselines import BaselineConfig, RandomPolicy, ScriptedPolicy
 from bcbench.policies.bct import BCTConfig, BCTPolicy
 from bcbench.policies.bet import BeTConfig, BeTPolicy

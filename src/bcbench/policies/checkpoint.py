@@ -23,8 +23,8 @@ from safetensors.torch import load_file, save_file
 
 from bcbench.data.normalizer import MinMaxNormalizer
 from bcbench.errors import BCBenchError
+from bcbench.interface import RunInfo
 from bcbench.policies import REGISTRY
-from bcbench.policies.base import RunInfo
 from bcbench.policies.config import config_from_dict
 from bcbench.policies.learned import PolicyRunner
 from bcbench.utils.io import read_json, write_json

@@ -27,7 +27,7 @@ import torch
 from torch import nn
 
 from bcbench.data.normalizer import MinMaxNormalizer
-from bcbench.policies.base import Observation, RunInfo
+from bcbench.interface import Observation, RunInfo
 from bcbench.policies.config import config_to_dict
 from bcbench.policies.encoders import count_parameters
 

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from bcbench.errors import BCBenchError
-from bcbench.policies.base import ChunkPolicy, example_observation
+from bcbench.interface import ChunkPolicy, example_observation
 
 ENTRY_POINT_GROUP = "bcbench.policies"
 REQUIRED = ("name", "obs_horizon", "pred_horizon", "action_horizon", "chunk_start", "predict_action_chunk",

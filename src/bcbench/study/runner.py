@@ -29,9 +29,9 @@ from bcbench.evaluation.backends import apply_mode
 from bcbench.evaluation.evaluate import EvalConfig, evaluate
 from bcbench.evaluation.realtime import realtime_record, sweep
 from bcbench.evaluation.timing import TimingConfig, latency_record
+from bcbench.interface import ChunkPolicy
 from bcbench.modes import mode_name
 from bcbench.policies import make_policy
-from bcbench.policies.base import ChunkPolicy
 from bcbench.policies.checkpoint import configure_runner, load_runner
 from bcbench.policies.outside import outside_policy
 from bcbench.study.spec import RunSpec, StudySpec, Variant
