@@ -170,13 +170,14 @@ def test_report_from_fixture_files(tmp_path):
     def lat(ms):
         m = {"median_ms": ms, "p99_ms": ms * 1.2, "tail_ms": ms * 1.2, "tail_stat": "p99",
              "max_rate_every_step_hz": 1000 / ms}
-        return {"type": "latency", "modes": {"reference": m, "fast": {**m, "median_ms": ms / 2}}}
+        return {"type": "latency", "modes": {"reference": m, "fast": {**m, "median_ms": ms / 2}},
+                "git_commit": "abc123"}
 
     runs = tmp_path / "runs"
     write_json(runs / "cnn" / "eval-default.json", ev("cnn_mlp", "CNN-MLP", 0.3))
     write_json(runs / "cnn" / "latency-default.json", lat(2.0))
     write_json(runs / "cnn" / "train_summary.json", {"epochs": 3.0, "train_time_s": 600, "samples_per_s": 150,
-                                                     "stopped": "finished"})
+                                                     "stopped": "finished", "git_commit": "abc123"})
     from bcbench.utils.io import append_jsonl
 
     for step, score in ((100, 0.2), (200, 0.28), (300, 0.3), (400, 0.29)):  # a flat last quarter: converged
@@ -184,7 +185,8 @@ def test_report_from_fixture_files(tmp_path):
         append_jsonl(runs / "cnn" / "metrics.jsonl", {"step": step, "samples": 64 * step, "val_loss": 0.1 / step,
                                                       "eval_score": point})
     write_json(runs / "bct" / "eval-default.json", ev("bct", "BCT", 0.3))
-    write_json(runs / "bct" / "train_summary.json", {"epochs": 0.1, "train_time_s": 6, "stopped": "finished"})
+    write_json(runs / "bct" / "train_summary.json", {"epochs": 0.1, "train_time_s": 6, "stopped": "finished",
+                                                     "git_commit": "abc123"})
     for sampler, schedule in (("ddpm", "squaredcos_cap_v2"), ("ddim", "squaredcos_cap_v2"), ("ddim", "linear")):
         d = runs / f"dp-{schedule}"
         for k in (10, 100):
@@ -270,3 +272,22 @@ def test_runner_refuses_test_seeds_in_an_explore_study(tmp_path):
     with pytest.raises(BCBenchError, match="validation seeds"):
         run_study(spec, tmp_path / "out", progress=False)
     assert not (tmp_path / "out").exists()
+
+
+def test_provenance_reads_every_file_kind_and_states_the_reason(tmp_path):
+    """A study completed later (a sweep, a re-timing) shows every commit with what it produced, and its reason."""
+    from bcbench.analysis.report import provenance_notes
+    from bcbench.analysis.results import file_commits
+
+    run = tmp_path / "runs" / "r"
+    run.mkdir(parents=True)
+    (run / "eval-default.json").write_text(json.dumps({"git_commit": "aaa"}))
+    (run / "train_summary.json").write_text(json.dumps({"git_commit": "aaa"}))
+    (run / "realtime-default.json").write_text(json.dumps({"git_commit": "bbb"}))
+    (tmp_path / "latency-paired.json").write_text(json.dumps({"git_commit": "ccc"}))
+    commits = file_commits(tmp_path)
+    assert commits == {"aaa": ["evaluations", "training"], "bbb": ["real-time sweeps"], "ccc": ["interleaved latency"]}
+    notes = provenance_notes([], commits, "sweeps added later")
+    assert "aaa (evaluations, training), bbb (real-time sweeps), ccc (interleaved latency)" in notes[0]
+    assert "mix several commits" in notes[1] and notes[1].endswith("Why: sweeps added later")
+    assert provenance_notes([], {"aaa": ["evaluations"]}) == ["Produced at commit: aaa."]  # one commit: no warning

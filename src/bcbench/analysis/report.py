@@ -19,7 +19,7 @@ from bcbench.analysis.fewstep import fewstep_lines, load_paired
 from bcbench.analysis.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
 from bcbench.analysis.findings import DEFAULT_MARGIN, judge, points_from_rows
 from bcbench.analysis.realtime import delay_vs_sync, highest_safe_rate, largest_safe_delay
-from bcbench.analysis.results import Row, load_realtime, load_rows, study_time
+from bcbench.analysis.results import Row, file_commits, load_realtime, load_rows, study_time
 from bcbench.protocol import CONTROL_DT_S
 from bcbench.reference import CPU_DEVIATIONS, STUDY_REFERENCE
 from bcbench.stats import fmt_estimate
@@ -227,12 +227,20 @@ def convergence_lines(rows: list[Row]) -> list[str]:
     return out or ["- no trained runs"]
 
 
-def provenance_notes(rows: list[Row]) -> list[str]:
-    """The commits the results were produced at, with a warning when several or a dirty tree."""
-    commits = sorted({r.git_commit or "unknown" for r in rows})
-    notes = [f"Produced at commit{'s' if len(commits) > 1 else ''}: " + ", ".join(commits) + "."]
+MIXING_REASON = "mixing-reason.txt"  # a study folder's own account of why its files come from several commits
+
+
+def provenance_notes(rows: list[Row], commits_by_kind: dict[str, list[str]] | None = None,
+                     reason: str = "") -> list[str]:
+    """The commits every result file was produced at (each with the kinds of file it made), with a warning when
+    several, and the study's recorded reason for it if it has one; a warning for a dirty tree."""
+    by_kind = commits_by_kind or {c: [] for c in sorted({r.git_commit or "unknown" for r in rows})}
+    commits = sorted(by_kind)
+    named = [c + (f" ({', '.join(by_kind[c])})" if by_kind[c] and len(commits) > 1 else "") for c in commits]
+    notes = [f"Produced at commit{'s' if len(commits) > 1 else ''}: " + ", ".join(named) + "."]
     if len(commits) > 1:
-        notes.append("Warning: these results mix several commits; numbers from different code may not be comparable.")
+        notes.append("Warning: these results mix several commits; numbers from different code may not be comparable."
+                     + (f" Why: {reason}" if reason else ""))
     if any(c.endswith("-dirty") for c in commits):
         notes.append("Warning: some results come from a working tree with uncommitted changes.")
     nodes: dict[str, list[str]] = {}
@@ -281,7 +289,9 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
              "intervals. Latency: one call at batch 1, raw observation in, chunk out (median, and the p99 from at "
              "least 100 calls or else the maximum, labelled 'max of N'). The study's numbers were measured by the "
              "study on an A100; ours on the hardware named in each row. " + _spacing_note(rows))
-    notes = provenance_notes(rows)
+    reason_file = results / MIXING_REASON
+    notes = provenance_notes(rows, file_commits(results, extra_dirs),
+                             " ".join(reason_file.read_text().split()) if reason_file.exists() else "")
     md = ["# bcbench report", "", intro, "", *[f"> {n}" for n in notes], "",
           "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
     md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
@@ -327,7 +337,7 @@ def _html(intro: str, findings: list[Any], table: list[list[str]], figs: dict[st
 
 
 EXPORTED = ("spec.json", "index.jsonl", "run.json", "train_summary.json", "normalizer.json", "metrics.jsonl",
-            "segments.jsonl")
+            "segments.jsonl", "mixing-reason.txt")
 
 
 def export_results(results: str | Path, dest: str | Path) -> int:

@@ -15,6 +15,26 @@ from bcbench.errors import BCBenchError
 from bcbench.modes import EXACT_MODES
 from bcbench.utils.io import read_json, read_jsonl
 
+# Result files the report reads, by kind: every one records the commit its process ran.
+_KINDS = (("eval-*.json", "evaluations"), ("eval.json", "evaluations"), ("latency-*.json", "timing"),
+          ("train_summary.json", "training"), ("realtime-*.json", "real-time sweeps"), ("tiers.json", "tiers"),
+          ("latency-paired.json", "interleaved latency"))
+
+
+def file_commits(results: Path, extra_dirs: list[str] | None = None) -> dict[str, list[str]]:
+    """commit -> the kinds of result file produced at it, over every file the report reads (not only the
+    evaluations): a study completed later with sweeps, re-timings or backend files shows each commit."""
+    out: dict[str, set[str]] = {}
+    for folder in [results, *map(Path, extra_dirs or [])]:
+        for pattern, kind in _KINDS:
+            for f in folder.rglob(pattern):
+                if ("report" in f.relative_to(folder).parts or f.name.startswith(".")
+                        or (kind == "timing" and f.name == "latency-paired.json")):
+                    continue
+                commit = read_json(f).get("git_commit") or "unknown"
+                out.setdefault(commit, set()).add(kind)
+    return {c: sorted(k) for c, k in sorted(out.items())}
+
 
 @dataclass
 class Row:
