@@ -170,3 +170,30 @@ def test_interleaved_timings_replace_the_study_blocks_where_given():
     assert judge(blocks)[2].verdict == CONTRADICTED  # a 0.70 time ratio from the blocks
     f3 = judge(blocks, ratios={"ddim10/ddpm10": 0.99})[2]
     assert f3.verdict == SUPPORTED and "0.99 (interleaved timing)" in f3.evidence
+
+
+def test_finding_1_compares_the_fixed_slow_setting_not_the_slowest():
+    """DP cosine DDPM-100 is fixed in advance: an even slower setting (DP linear DDIM-100) does not replace it."""
+    fast = [pt("cnn", "cnn_mlp", BASE, ms=2.0)]
+    dp100 = pt("dp100", "diffusion", BASE, ms=1000.0, variant="ddpm100")
+    linear = pt("lin100", "diffusion", BASE - FAR, ms=2000.0, variant="ddim100", beta="linear")
+    finding = judge([*fast, dp100, linear])[0]
+    assert finding.verdict == SUPPORTED and finding.evidence.startswith("dp100 ")
+
+
+def test_finding_3_tests_one_prespecified_pair():
+    """Only DDIM-10 against DDPM-10 decides; another step count is shown, not tested."""
+    pts = [pt("ddim10", "diffusion", BASE, 100.0, "ddim10"), pt("ddpm10", "diffusion", BASE, 100.0, "ddpm10"),
+           pt("ddim2", "diffusion", BASE - FAR, 20.0, "ddim2"), pt("ddpm2", "diffusion", BASE, 20.0, "ddpm2")]
+    finding = judge(pts)[2]
+    assert finding.verdict == SUPPORTED and finding.evidence.startswith("tested: ddim10 vs ddpm10")
+    assert "Not tested (descriptive): ddim2 vs ddpm2" in finding.evidence
+
+
+def test_wilson_interval_of_a_share():
+    from bcbench.stats import fmt_share, wilson
+
+    lo, hi = wilson(0, 100)
+    assert lo == 0.0 and 0.03 < hi < 0.04  # 0%: not [0, 0]
+    assert wilson(50, 100) == pytest.approx((0.4038, 0.5962), abs=1e-4)
+    assert fmt_share({"value": 0.22}, 100) == "22.0% [15.0, 31.1]"

@@ -70,6 +70,23 @@ def intervals_overlap(a: dict[str, Any], b: dict[str, Any]) -> bool:
     return not (a["ci95"][1] < b["ci95"][0] or b["ci95"][1] < a["ci95"][0])
 
 
+def wilson(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """Wilson score interval of a share k / n (never [0, 0] at 0%, unlike a percentile bootstrap)."""
+    if n <= 0:
+        return (float("nan"), float("nan"))
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return (float(max(0.0, centre - half)), float(min(1.0, centre + half)))
+
+
+def fmt_share(e: dict[str, Any], n: int) -> str:
+    """'22.0% [15.0, 31.0]': a share with its Wilson 95% interval, from a stored estimate's value and n."""
+    k = round(e["value"] * n)
+    lo, hi = wilson(k, n)
+    return f"{100 * e['value']:.1f}% [{100 * lo:.1f}, {100 * hi:.1f}]"
+
+
 def fmt_estimate(e: dict[str, Any], pct: bool = False) -> str:
     """'0.41 [0.33, 0.49]' or '40.0% [25.0, 55.0]'."""
     v, (lo, hi) = e["value"], e["ci95"]

@@ -22,10 +22,11 @@ from bcbench.analysis.realtime import delay_vs_sync, highest_safe_rate, largest_
 from bcbench.analysis.results import Row, file_commits, load_realtime, load_rows, study_time
 from bcbench.protocol import CONTROL_DT_S
 from bcbench.reference import CPU_DEVIATIONS, STUDY_REFERENCE
-from bcbench.stats import fmt_estimate
+from bcbench.stats import fmt_estimate, fmt_share
 from bcbench.utils.io import atomic_path, read_json
 
-COLUMNS = ["policy", "params", "mean score [95% CI]", "> 0.5", "> 0.9", "success",
+COLUMNS = ["policy", "params", "mean score [95% CI]", "> 0.5 [Wilson 95%]", "> 0.9 [Wilson 95%]",
+           "success [Wilson 95%]",
            "latency ref. median / tail (ms; tail = p99 from >= 100 calls, else max of N)",
            "latency fast median (ms)", "max rate, every-step re-plan (Hz)", "training", "hardware",
            "study (A100): score / >0.5 / >0.9 / ms"]
@@ -76,8 +77,9 @@ def table_rows(rows: list[Row]) -> list[list[str]]:
         rate = fast.get("max_rate_every_step_hz") or (r.latency.get("reference") or {}).get("max_rate_every_step_hz")
         name = r.label + ("" if r.variant == "default" else f" {r.variant.upper()}")
         out.append([name, f"{r.params / 1e6:.2f} M", fmt_estimate(r.est("mean_score")),
-                    fmt_estimate(r.est("share_above_0.5"), pct=True), fmt_estimate(r.est("share_above_0.9"), pct=True),
-                    fmt_estimate(r.est("success_rate"), pct=True), f"{_ms(r.latency_ms('reference'))} / {tail}",
+                    *(fmt_share(r.est(k), int(r.summary.get("n") or len(r.scores)))
+                      for k in ("share_above_0.5", "share_above_0.9", "success_rate")),
+                    f"{_ms(r.latency_ms('reference'))} / {tail}",
                     _ms(fast.get("median_ms")), "-" if rate is None else f"{rate:.1f}", _train_cell(r), _hw_cell(r),
                     _study_cell(r)])
     return out
