@@ -189,3 +189,17 @@ def test_an_interrupted_sweep_keeps_its_finished_settings(monkeypatch):
     assert ran == ["realtime-blocking-d2"]
     assert {k: v["summary"]["mean_score"] for k, v in resumed.items()} == \
         {k: v["summary"]["mean_score"] for k, v in full.items()}
+
+
+def test_a_measured_setting_with_one_delay_is_shown_as_that_fixed_setting():
+    from bcbench.analysis.report import same_as_fixed
+
+    def setting(steps):
+        return {"summary": {"delay_steps": steps, "mean_score": {"value": 0.5, "ci95": [0.4, 0.6]}}}
+
+    sweep = {"realtime-sync": setting({"0": 10}), "realtime-async-d1": setting({"1": 10}),
+             "realtime-async-d2": setting({"2": 10}), "realtime-async-measured": setting({"1": 10}),
+             "realtime-blocking-measured": setting({"1": 4, "2": 6})}
+    assert same_as_fixed(sweep, "realtime-async-measured") == "async-d1"
+    assert same_as_fixed(sweep, "realtime-blocking-measured") is None  # two delays: its own evidence
+    assert same_as_fixed(sweep, "realtime-async-d1") is None and same_as_fixed(sweep, "realtime-sync") is None

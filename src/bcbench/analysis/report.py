@@ -140,14 +140,29 @@ REALTIME_COLUMNS = ("sync", *(f"{e}-d{d}" for e in ("async", "blocking") for d i
                     "async-measured", "blocking-measured", "async-a100")
 
 
+def same_as_fixed(settings: dict[str, Any], name: str) -> str | None:
+    """The fixed-delay setting a measured or profile setting repeats, if every one of its calls had the same d
+    (e.g. a call under 100 ms is d = 1 at 10 Hz): then its episodes are that setting's, not separate evidence."""
+    if name.rsplit("-", 1)[-1].startswith("d") or name == "realtime-sync":
+        return None
+    steps = settings[name]["summary"].get("delay_steps") or {}
+    mode = name.removeprefix("realtime-").split("-")[0]
+    if len(steps) == 1 and f"realtime-{mode}-d{next(iter(steps))}" in settings:
+        return f"{mode}-d{next(iter(steps))}"
+    return None
+
+
 def realtime_table(realtime: dict[str, dict[str, Any]]) -> list[str]:
-    """Mean score per policy (rows) and setting (columns); measured settings with their median call."""
+    """Mean score per policy (rows) and setting (columns); measured settings with their median call; a setting
+    that repeats a fixed-delay one is marked '= thatsetting'."""
     def cell(settings: dict[str, Any], col: str) -> str:
         r = settings.get(f"realtime-{col}")
         if r is None:
             return "-"
         ms = r["summary"].get("latency_source", {}).get("median_ms") if col.endswith("measured") else None
-        return f"{r['summary']['mean_score']['value']:.3f}" + (f" ({ms:.0f} ms)" if ms is not None else "")
+        same = same_as_fixed(settings, f"realtime-{col}")
+        return (f"{r['summary']['mean_score']['value']:.3f}" + (f" ({ms:.0f} ms)" if ms is not None else "")
+                + (f" = {same}" if same else ""))
 
     head = "| policy | " + " | ".join(REALTIME_COLUMNS) + " |"
     rows = [f"| {label} | " + " | ".join(cell(settings, c) for c in REALTIME_COLUMNS) + " |"
@@ -166,10 +181,13 @@ def realtime_lines(realtime: dict[str, dict[str, Any]], margin: float) -> list[s
            "the fastest rate at which the policy's measured call "
            "(median; slowest timed call) still takes at most that many steps (d / L), reading the delay curve "
            "as holding in steps at other rates.", ""]
-    out += [*realtime_table(realtime), "", "Every setting with its 95% interval, and what the sweep says:", ""]
+    out += [*realtime_table(realtime), "", "Every setting with its 95% interval, and what the sweep says (a measured "
+            "or profile setting whose calls all took the same d repeats that fixed-delay setting and is marked so):",
+            ""]
     for label, settings in realtime.items():
-        parts = [f"{name.removeprefix('realtime-')} {fmt_estimate(r['summary']['mean_score'])}"
-                 for name, r in settings.items()]
+        parts = [f"{name.removeprefix('realtime-')} " + (f"= {same} (every call d = {same.rsplit('-d', 1)[1]}: the "
+                 "same episodes, not separate evidence)" if (same := same_as_fixed(settings, name))
+                 else fmt_estimate(r["summary"]["mean_score"])) for name, r in settings.items()]
         out.append(f"- {label}: " + "; ".join(parts) + ". " + safe_delay_sentence(settings, margin))
     return [*out, ""]
 
