@@ -152,3 +152,35 @@ def test_export_cache_and_the_eval_cli(synthetic_zarr, tmp_path, monkeypatch, ca
     assert main(["eval", "--checkpoint", str(run), "--precision", "bf16"]) == 2
     err = capsys.readouterr().err
     assert err.strip().count("\n") == 0 and "--backend openvino" in err
+
+
+def test_auto_picks_the_faster_of_two_fake_backends():
+    """pick_fastest times interleaved rounds and returns the setup whose calls are fastest."""
+    import time
+
+    from bcbench.evaluation.auto import pick_fastest
+
+    state = {"delay": 0.0}
+    setups = {"slow": lambda: state.update(delay=0.006), "fast": lambda: state.update(delay=0.002)}
+    best, medians = pick_fastest(setups, lambda: time.sleep(state["delay"]), rounds=3, calls=2)
+    assert best == "fast" and medians["fast"] < medians["slow"] and medians["slow"] >= 6.0
+
+
+def test_backend_auto_chooses_an_exact_mode_records_why_and_caches(synthetic_zarr, tmp_path):
+    from bcbench.evaluation.auto import CANDIDATES
+    from bcbench.policies.checkpoint import load_runner
+    from bcbench.training.loop import TrainOptions, new_run, train
+
+    opts = TrainOptions(data=str(synthetic_zarr), threads=1, progress=False)
+    run = new_run("cnn_mlp", "quick", tiny_overrides("cnn_mlp", max_steps=2), tmp_path / "r", opts)
+    train(run, opts)
+    runner = load_runner(run)
+    apply_mode(runner, mode_name("auto"))
+    trial = runner.info.deployment["auto"]
+    assert runner.info.mode == trial["chosen"] in CANDIDATES and set(trial["median_ms"]) == set(CANDIDATES)
+    assert "interleaved" in trial["why"] and trial["cpu_flags"] is not None and trial["cached"] is False
+    again = load_runner(run)
+    apply_mode(again, "auto")
+    assert again.info.deployment["auto"]["cached"] is True and again.info.mode == trial["chosen"]
+    with pytest.raises(BCBenchError, match="auto picks among the exact"):
+        mode_name("auto", "int8")

@@ -58,3 +58,23 @@ def test_latency_cli_writes_json_table_and_plot(tmp_path, capsys):
     modes = {(r["policy"], r["mode"]) for r in data["rows"]}
     assert modes == {("cnn_mlp", "reference"), ("cnn_mlp", "openvino-bf16"), ("random", "reference")}
     assert (tmp_path / "latency.png").stat().st_size > 1000 and "speed-up" in (tmp_path / "latency.md").read_text()
+
+
+def test_the_floor_counts_weights_per_use_and_flops():
+    """A loop of K denoising steps reads the U-Net K times: 10 steps read more than 1, and the floor is the larger
+    of the memory and compute times."""
+    from bcbench.evaluation.benchmark import _normalizer
+    from bcbench.evaluation.floor import call_work, floor_ms
+    from bcbench.policies import make_policy
+    from bcbench.policies.learned import PolicyRunner
+    from tests.tiny import TINY
+
+    model = make_policy("diffusion", "quick", **TINY["diffusion"])
+    runner = PolicyRunner(model, _normalizer())
+    model.set_sampler("ddim", 1)
+    one = call_work(runner)
+    model.set_sampler("ddim", 10)
+    ten = call_work(runner)
+    assert ten["weight_bytes"] > one["weight_bytes"] > 0 and ten["flops"] > one["flops"] > 0
+    f = floor_ms(ten, {"read_gb_per_s": 10.0, "gemm_gflop_per_s": 1e6})
+    assert f["bound"] == "memory" and f["floor_ms"] == pytest.approx(ten["weight_bytes"] / 1e10 * 1e3)

@@ -5,6 +5,7 @@
     openvino-fp32  the graphs exported to OpenVINO and compiled for this CPU at f32: exact
     openvino-bf16  the same with a bf16 inference-precision hint: approximate
     openvino-int8  NNCF post-training quantisation: approximate
+    onnxruntime-fp32  the graphs exported to ONNX and run by ONNX Runtime's CPU provider: exact
 
 How each runs is bcbench.evaluation.backends; the analysis reads these names only.
 """
@@ -13,21 +14,28 @@ from __future__ import annotations
 
 from bcbench.errors import BCBenchError
 
-MODES = ("reference", "fast", "openvino-fp32", "openvino-bf16", "openvino-int8")
-EXACT_MODES = ("reference", "fast", "openvino-fp32")
+MODES = ("reference", "fast", "openvino-fp32", "openvino-bf16", "openvino-int8", "onnxruntime-fp32")
+EXACT_MODES = ("reference", "fast", "openvino-fp32", "onnxruntime-fp32")
 PRECISIONS = ("fp32", "bf16", "int8")
-BACKENDS = ("torch", "openvino")
+BACKENDS = ("torch", "openvino", "onnxruntime", "auto")
+AUTO = "auto"  # the fastest exact mode on this machine for this checkpoint, measured (bcbench.evaluation.auto)
 
 
 def mode_name(backend: str, precision: str = "fp32", reference: bool = False) -> str:
     """The mode of --backend/--precision(/--reference) arguments, checked."""
+    if backend == AUTO:
+        if precision != "fp32" or reference:
+            raise BCBenchError("--backend auto picks among the exact (fp32) modes: no --precision or --reference")
+        return AUTO
     if backend == "torch":
         if precision != "fp32":
             raise BCBenchError(f"--precision {precision} needs --backend openvino (torch runs fp32)")
         return "reference" if reference else "fast"
-    if backend != "openvino" or precision not in PRECISIONS:
-        raise BCBenchError(f"unknown backend/precision '{backend}/{precision}' (torch, or openvino with "
-                           f"{', '.join(PRECISIONS)})")
     if reference:
-        raise BCBenchError("--reference is the torch reference form; it does not combine with --backend openvino")
+        raise BCBenchError(f"--reference is the torch reference form; it does not combine with --backend {backend}")
+    if backend == "onnxruntime" and precision == "fp32":
+        return "onnxruntime-fp32"
+    if backend != "openvino" or precision not in PRECISIONS:
+        raise BCBenchError(f"unknown backend/precision '{backend}/{precision}' (torch, onnxruntime with fp32, or "
+                           f"openvino with {', '.join(PRECISIONS)})")
     return f"openvino-{precision}"

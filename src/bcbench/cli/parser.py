@@ -12,7 +12,7 @@ from typing import Any
 
 from bcbench import __version__
 from bcbench.evaluation.config import EXECUTIONS, EvalConfig
-from bcbench.modes import MODES
+from bcbench.modes import AUTO, BACKENDS, MODES
 from bcbench.training.options import TrainOptions
 from bcbench.utils.fields import field_default, field_docs
 
@@ -157,8 +157,9 @@ def _add_study_commands(sub: Any) -> None:
     _add_policy_arg(p)
     p.add_argument("--preset", "--config", dest="preset", action="append", choices=["quick", "cpu", "paper"],
                    help="presets (default paper and quick; --config is the old name of this option)")
-    p.add_argument("--mode", action="append", choices=list(MODES),
-                   help="inference modes (default all: torch reference and fast, OpenVINO fp32, bf16 and int8)")
+    p.add_argument("--mode", action="append", choices=[*MODES, AUTO],
+                   help="inference modes (default all: torch reference and fast, OpenVINO fp32, bf16 and int8, ONNX "
+                        "Runtime fp32; auto: the fastest exact one on this machine, measured)")
     p.add_argument("--sampler", action="append", choices=["ddpm", "ddim", "euler", "midpoint"],
                    help="samplers of generative policies (default ddpm and ddim; flow: euler)")
     p.add_argument("--steps", type=_positive_int, action="append",
@@ -235,8 +236,8 @@ def _add_policy_arg(p: Any) -> None:
 
 
 def _add_backend_args(p: Any) -> None:
-    p.add_argument("--backend", default="torch", choices=["torch", "openvino"],
-                   help="what runs a trained policy's networks (default torch; openvino exports and compiles "
+    p.add_argument("--backend", default="torch", choices=list(BACKENDS),
+                   help="what runs a trained policy's networks (default torch; openvino and onnxruntime export "
                         "them, cached beside the checkpoint)")
     p.add_argument("--precision", default="fp32", choices=["fp32", "bf16", "int8"],
                    help="with --backend openvino: fp32 (exact, default), bf16 or int8 (approximate)")

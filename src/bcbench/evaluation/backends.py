@@ -33,8 +33,10 @@ from bcbench.data.paths import resolve_dataset
 from bcbench.data.replay_buffer import load_replay_buffer
 from bcbench.data.sequence import make_datasets
 from bcbench.errors import BCBenchError
+from bcbench.evaluation.auto import choose_mode
+from bcbench.evaluation.onnx_runtime import deploy_onnxruntime, ort_version
 from bcbench.interface import FilmSplittable
-from bcbench.modes import MODES
+from bcbench.modes import AUTO, MODES
 from bcbench.policies.checkpoint import read_run
 from bcbench.policies.learned import BCPolicy, PolicyRunner
 
@@ -142,15 +144,17 @@ def export_openvino(model: BCPolicy, precision: str, out_dir: Path,
     return out_dir
 
 
-def export_key(model: BCPolicy, precision: str, checkpoint: Path | None, weights: str) -> str:
-    """What an export depends on: the checkpoint file, the weights used, the precision, OpenVINO's version."""
+def export_key(model: BCPolicy, precision: str, checkpoint: Path | None, weights: str,
+               runtime: str | None = None) -> str:
+    """What an export depends on: the checkpoint file, the weights used, the precision, the runtime's version
+    (OpenVINO's unless `runtime` names another)."""
     stat = ""
     if checkpoint is not None:
         f = checkpoint / ("ema.safetensors" if weights == "ema" else "model.safetensors")
         st = f.stat()
         stat = f"{f}:{st.st_size}:{st.st_mtime_ns}"
     graphs = "int8" if precision == "int8" else "float"  # fp32 and bf16 compile the same float graphs
-    blob = json.dumps([model.name, stat, weights, graphs, _openvino().__version__, GRAPH_FORMAT])
+    blob = json.dumps([model.name, stat, weights, graphs, runtime or _openvino().__version__, GRAPH_FORMAT])
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
 
@@ -186,6 +190,8 @@ def set_mode(model: BCPolicy, mode: str, export_dir: Path | None = None,
     model.deployed, model.deployment = None, {"backend": "torch", "precision": "fp32"}
     if mode.startswith("openvino-"):
         deploy_openvino(model, mode.removeprefix("openvino-"), export_dir, calibration)
+    elif mode == "onnxruntime-fp32":  # its own folder beside OpenVINO's (each export replaces its whole folder)
+        deploy_onnxruntime(model, export_dir and export_dir.with_name(export_dir.name + "-onnxruntime"))
 
 
 def dataset_observations(model: BCPolicy, split: str, n: int, seed: int = 0,
@@ -207,9 +213,19 @@ def run_data_split(run_dir: str | Path) -> dict[str, Any]:
 
 
 def apply_mode(runner: PolicyRunner, mode: str) -> None:
-    """Put a PolicyRunner's policy in `mode`; a trained run's exports are cached under RUN_DIR/export/."""
+    """Put a PolicyRunner's policy in `mode`; a trained run's exports are cached under RUN_DIR/export/. `auto`:
+    the fastest exact mode for this checkpoint on this machine (bcbench.evaluation.auto), recorded as chosen."""
+    if mode == AUTO:
+        trial = choose_mode(runner, apply_mode)
+        apply_mode(runner, trial["chosen"])
+        runner.info.deployment = {**(runner.info.deployment or {}), "auto": trial}
+        return
     model = runner.model
     export_dir, calibration = None, None
+    if mode == "onnxruntime-fp32" and runner.info.run_dir and runner.info.checkpoint:
+        ckpt_dir = Path(runner.info.run_dir) / "checkpoints" / runner.info.checkpoint
+        key = export_key(model, "fp32", ckpt_dir, runner.info.weights or "ema", f"onnxruntime-{ort_version()}")
+        export_dir = Path(runner.info.run_dir) / "export" / f"onnx-float-{key}"  # set_mode appends -onnxruntime
     if mode.startswith("openvino-"):
         precision = mode.removeprefix("openvino-")
         run_dir, ckpt = runner.info.run_dir, runner.info.checkpoint

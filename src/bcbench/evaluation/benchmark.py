@@ -18,6 +18,7 @@ from tqdm import tqdm
 from bcbench.data.normalizer import MinMaxNormalizer
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.backends import apply_mode
+from bcbench.evaluation.floor import call_work, floor_ms, machine_limits
 from bcbench.evaluation.timing import TimingConfig, measure_runner, verdicts
 from bcbench.modes import MODES
 from bcbench.policies import REGISTRY, is_learned, make_policy
@@ -36,7 +37,7 @@ def _normalizer() -> MinMaxNormalizer:
 
 
 def _rows_for(name: str, preset: str, modes: list[str], samplers: list[str], steps: list[int], device: torch.device,
-              timing: TimingConfig, rate_hz: float) -> list[dict[str, Any]]:
+              timing: TimingConfig, rate_hz: float, limits: dict[str, float] | None = None) -> list[dict[str, Any]]:
     torch.manual_seed(0)
     model = make_policy(name, preset)
     if not is_learned(name):
@@ -53,8 +54,14 @@ def _rows_for(name: str, preset: str, modes: list[str], samplers: list[str], ste
                 model.set_sampler(sampler, k)
             model.reset_noise(0)
             stats = measure_runner(runner, timing, rate_hz)
+            floor = {}
+            if limits and device.type == "cpu":  # what this call must read and compute, against this machine
+                work = call_work(runner)
+                floor = {**work, **floor_ms(work, limits)}
+                floor["x_floor"] = stats["median_ms"] / floor["floor_ms"] if floor["floor_ms"] > 0 else None
             rows.append({"policy": name, "preset": preset, "mode": mode, "variant": f"{sampler}{k}" if sampler else
-                         "default", "params": model.num_parameters(), "deployment": model.deployment, **stats})
+                         "default", "params": model.num_parameters(), "deployment": runner.info.deployment or
+                         model.deployment, **stats, **floor})
     return rows
 
 
@@ -71,15 +78,18 @@ def _tail(r: dict[str, Any]) -> str:
 def _table(rows: list[dict[str, Any]]) -> str:
     ref = {(r["policy"], r["preset"], r["variant"]): r["median_ms"] for r in rows if r["mode"] == "reference"}
     head = ("| policy | preset | variant | mode | params | median ms | p90 | tail (p99, or max of N < 100 calls) | min "
-            "| calls/s | speed-up | 10 Hz chunked | 10 Hz every step | max Hz every step |")
-    lines = [head, "|" + "---|" * 14]
+            "| calls/s | speed-up | 10 Hz chunked | 10 Hz every step | max Hz every step | floor ms (bound) "
+            "| x floor |")
+    lines = [head, "|" + "---|" * 16]
     for r in rows:
         base = ref.get((r["policy"], r["preset"], r["variant"]))
         speed = f"{base / r['median_ms']:.2f}x" if base and r["mode"] != "reference" else "-"
         lines.append(f"| {r['policy']} | {r['preset']} | {r['variant']} | {r['mode']} | {r['params'] / 1e6:.2f} M | "
                      f"{r['median_ms']:.2f} | {_opt(r.get('p90_ms'))} | {_tail(r)} | {r['min_ms']:.2f} | "
                      f"{r['calls_per_s']:.1f} | {speed} | {'yes' if r['realtime_chunked'] else 'no'} | "
-                     f"{'yes' if r['realtime_every_step'] else 'no'} | {r['max_rate_every_step_hz']:.1f} |")
+                     f"{'yes' if r['realtime_every_step'] else 'no'} | {r['max_rate_every_step_hz']:.1f} | "
+                     + (f"{r['floor_ms']:.2f} ({r['bound']}) | {r['x_floor']:.2f}x |" if r.get("floor_ms") else
+                        "- | - |"))
     return "\n".join(lines)
 
 
@@ -95,6 +105,7 @@ def run_latency_benchmark(policies: list[str] | None = None, presets: list[str] 
     dev = pick_device(device)
     names = policies or list(REGISTRY)
     outside = {n: outside_policy(n, policy_args) for n in names if n not in REGISTRY}  # checked before timing
+    limits = machine_limits() if dev.type == "cpu" else None  # this machine's floor, measured in the same run
     if any(not 1 <= k <= 100 for k in steps or []):
         raise BCBenchError("--steps must be in 1..100")
     timing = TimingConfig(min_calls=5, min_seconds=0.5, max_seconds=20) if quick_timing else TimingConfig()
@@ -108,9 +119,10 @@ def run_latency_benchmark(policies: list[str] | None = None, presets: list[str] 
         if name in outside or any(r["policy"] == name and r["preset"] == "-" for r in rows):
             continue  # baselines have no sizes
         rows += _rows_for(name, preset, modes or list(MODES), samplers or ["ddpm", "ddim"],
-                          list(steps or DEFAULT_STEPS), dev, timing, rate_hz)
+                          list(steps or DEFAULT_STEPS), dev, timing, rate_hz, limits)
     out_dir = Path(out) if out else Path("runs") / f"latency-{datetime.now():%Y%m%d-%H%M%S}"
     record = {"type": "latency-benchmark", "device": str(dev), "rate_hz": rate_hz, "timing": timing.__dict__,
+              "machine_limits": limits, "floor_rule": floor_ms.__doc__,
               "rows": rows, "verdict_rule": verdicts.__doc__, **provenance(str(dev))}
     write_json(out_dir / "latency.json", record)
     table = _table(rows)

@@ -1,0 +1,77 @@
+"""`--backend auto`: the fastest exact inference mode for this checkpoint on this CPU, found by a short trial.
+
+Which exact runtime is fastest differs by CPU (OpenVINO fp32 was at the memory floor on an Intel Xeon with AMX;
+a plain ONNX Runtime export beat it on an AMD EPYC Zen 3) and by batch, so bcbench measures instead of guessing:
+each exact mode (torch fast, OpenVINO fp32, ONNX Runtime fp32) is set up once and timed at batch 1 in interleaved
+rounds (every round calls each mode in turn, so a drifting machine treats them alike); the mode with the lowest
+median wins. The choice and its evidence are cached beside the run's exports, keyed by the checkpoint, the
+sampler, the CPU model and ISA flags, threads and library versions, and recorded in every result (`deployment`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from bcbench.interface import example_observation
+from bcbench.modes import EXACT_MODES
+from bcbench.utils.io import read_json, write_json
+from bcbench.utils.system import cpu_flags, cpu_model, versions
+
+CANDIDATES = tuple(m for m in EXACT_MODES if m != "reference")  # reference is the slow form by design
+ROUNDS, CALLS = 7, 3
+
+
+def pick_fastest(setups: dict[str, Callable[[], None]], call: Callable[[], Any], rounds: int = ROUNDS,
+                 calls: int = CALLS) -> tuple[str, dict[str, float]]:
+    """The name of the fastest setup and each one's median call in ms. `setups[name]()` puts the policy in that
+    form, `call()` runs it once; every round warms each setup with one call, then times `calls` calls."""
+    samples: dict[str, list[float]] = {name: [] for name in setups}
+    for _ in range(rounds):
+        for name, setup in setups.items():
+            setup()
+            call()  # the first call after switching pays for the switch, not the mode
+            for _ in range(calls):
+                t0 = time.perf_counter()
+                call()
+                samples[name].append((time.perf_counter() - t0) * 1e3)
+    medians = {name: float(np.median(v)) for name, v in samples.items()}
+    return min(medians, key=medians.__getitem__), medians
+
+
+def _cache_key(runner: Any) -> str:
+    info = runner.info
+    ckpt = (Path(info.run_dir) / "checkpoints" / info.checkpoint) if info.run_dir and info.checkpoint else None
+    stat = ""
+    if ckpt is not None:
+        f = ckpt / ("ema.safetensors" if info.weights == "ema" else "model.safetensors")
+        stat = f"{f}:{f.stat().st_size}:{f.stat().st_mtime_ns}" if f.exists() else str(f)
+    blob = json.dumps([stat, runner.name, info.sampler, info.steps, info.spacing, cpu_model(), cpu_flags(),
+                       torch.get_num_threads(), versions(), CANDIDATES], sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:12]
+
+
+def choose_mode(runner: Any, apply: Callable[[Any, str], None]) -> dict[str, Any]:
+    """The fastest exact mode for this runner here (cached per checkpoint, sampler and machine): a record with the
+    chosen mode, every candidate's median ms and why. `apply(runner, mode)` switches the runner's mode."""
+    cache = None
+    if runner.info.run_dir:
+        cache = Path(runner.info.run_dir) / "export" / f"auto-{_cache_key(runner)}.json"
+        if cache.exists():
+            return {**read_json(cache), "cached": True}
+    obs = example_observation(1, runner.obs_horizon)
+    chosen, medians = pick_fastest({m: (lambda m=m: apply(runner, m)) for m in CANDIDATES},
+                                   lambda: runner.predict_action_chunk(obs))
+    record = {"chosen": chosen, "median_ms": medians, "rounds": ROUNDS, "calls_per_round": CALLS, "batch": 1,
+              "why": f"lowest median of {ROUNDS} interleaved rounds x {CALLS} calls at batch 1 among the exact modes",
+              "cpu_model": cpu_model(), "cpu_flags": list(cpu_flags()), "threads": torch.get_num_threads()}
+    if cache is not None:
+        write_json(cache, record)
+    return {**record, "cached": False}

@@ -1,0 +1,109 @@
+"""The ONNX Runtime backend (`onnxruntime-fp32`, exact): the policy's inference graphs exported to ONNX and run by
+ONNX Runtime's CPU execution provider, through the same `call_graph` seam as OpenVINO.
+
+Exported with torch's TorchScript-based ONNX exporter (opset 17) with a dynamic batch axis; graph optimisations at
+ORT_ENABLE_ALL, one session per graph, intra-op threads as torch's. Exports are cached like OpenVINO's (keyed by
+checkpoint, weights and the onnxruntime version; written atomically). On the 2-core AMD EPYC Zen 3 (AVX2 only) a
+plain export of paper-size Diffusion Policy ran faster than OpenVINO fp32 (issue 28); which wins depends on the CPU,
+so measure with `bcbench latency --mode onnxruntime-fp32 --mode openvino-fp32`.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from bcbench.errors import BCBenchError
+from bcbench.policies.learned import BCPolicy
+
+OPSET = 17
+
+
+def _ort() -> Any:
+    try:
+        import onnxruntime  # optional at run time: the torch modes work without it
+    except Exception as e:
+        raise BCBenchError(f"the ONNX Runtime backend needs the onnxruntime package (make install): {e}") from e
+    return onnxruntime
+
+
+def ort_version() -> str:
+    return str(_ort().__version__)
+
+
+class _Graph(torch.nn.Module):
+    """One inference method of a policy as a module, for export."""
+
+    def __init__(self, policy: torch.nn.Module, name: str) -> None:
+        super().__init__()
+        self.policy, self.method = policy, name  # not `graph`: the exporter reads a module's .graph
+
+    def forward(self, *args: torch.Tensor) -> Any:
+        return getattr(self.policy, self.method)(*args)
+
+
+def export_onnx(model: BCPolicy, out_dir: Path) -> Path:
+    """Write the policy's graphs as ONNX (`NAME.onnx` each, any batch) into `out_dir`, atomically."""
+    model = model.eval()
+    tmp = out_dir.with_name(out_dir.name + ".tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    fastpath = torch.backends.mha.get_fastpath_enabled()
+    torch.backends.mha.set_fastpath_enabled(False)  # attention's fused fast path has no ONNX form: the plain ops
+    try:
+        for name, example in model.graph_inputs(1).items():
+            _export_graph(model, name, example, tmp / f"{name}.onnx")
+    finally:
+        torch.backends.mha.set_fastpath_enabled(fastpath)
+    shutil.rmtree(out_dir, ignore_errors=True)
+    tmp.rename(out_dir)
+    return out_dir
+
+
+def _export_graph(model: BCPolicy, name: str, example: tuple[torch.Tensor, ...], path: Path) -> None:
+    inputs = [f"in{i}" for i in range(len(example))]
+    with torch.no_grad(), warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # tracer notes on shape checks that are constant for a policy
+        torch.onnx.export(_Graph(model, name).eval(), tuple(example), str(path), input_names=inputs,
+                          dynamic_axes={n: {0: "batch"} for n in inputs}, opset_version=OPSET, dynamo=False)
+
+
+class _Session:
+    """An ONNX Runtime session called like the torch method: torch tensors in, torch tensors out."""
+
+    def __init__(self, path: Path, threads: int) -> None:
+        ort = _ort()
+        opts = ort.SessionOptions()
+        opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        opts.intra_op_num_threads, opts.inter_op_num_threads = threads, 1
+        opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        # the bytes, not the path: an export to a temporary folder is deleted once the session exists
+        self.session = ort.InferenceSession(path.read_bytes(), opts, providers=["CPUExecutionProvider"])
+        self.inputs = [i.name for i in self.session.get_inputs()]
+        self.n_out = len(self.session.get_outputs())
+
+    def __call__(self, *args: torch.Tensor) -> Any:
+        feed = {n: np.ascontiguousarray(a.detach().cpu().numpy()) for n, a in zip(self.inputs, args, strict=True)}
+        outs = [torch.from_numpy(o) for o in self.session.run(None, feed)]
+        return outs[0] if self.n_out == 1 else tuple(outs)
+
+
+def deploy_onnxruntime(model: BCPolicy, export_dir: Path | None = None, threads: int | None = None) -> None:
+    """Run the policy's graphs in ONNX Runtime (`model.deployed`); exports cached in export_dir."""
+    if export_dir is None:  # nothing to cache it in (an untrained policy): export, load, delete
+        with tempfile.TemporaryDirectory(prefix="bcbench-ort-") as tmp:
+            deploy_onnxruntime(model, Path(tmp) / "graphs", threads)
+        model.deployment["export"] = None
+        return
+    if not all((export_dir / f"{n}.onnx").exists() for n in model.graphs):
+        export_onnx(model, export_dir)
+    n = threads or torch.get_num_threads()
+    model.deployed = {name: _Session(export_dir / f"{name}.onnx", n) for name in model.graphs}
+    model.deployment = {"backend": "onnxruntime", "precision": "fp32", "onnxruntime": ort_version(), "opset": OPSET,
+                        "threads": n, "export": str(export_dir)}
