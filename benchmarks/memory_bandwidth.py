@@ -11,22 +11,15 @@ prints the implied floor for K denoising steps and how close the U-Net gets to i
 from __future__ import annotations
 
 import argparse
-import time
 
-import numpy as np
 import torch
 
+from bcbench.evaluation.floor import median_s
 from bcbench.policies import make_policy
 
 
 def median_time(fn, n: int = 10) -> float:
-    fn()
-    ts = []
-    for _ in range(n):
-        t = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t)
-    return float(np.median(ts))
+    return median_s(fn, n)
 
 
 def main() -> None:

@@ -85,7 +85,8 @@ def test_the_analysis_imports_no_torch_and_no_machinery():
 
 
 def test_no_import_cycles():
-    graph = {m: internal(found, imports()) for m, found in imports().items()}
+    found_all = imports()
+    graph = {m: internal(found, found_all) for m, found in found_all.items()}
     state: dict[str, int] = {}
     cycles: list[str] = []
 

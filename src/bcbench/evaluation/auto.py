@@ -22,6 +22,7 @@ import torch
 
 from bcbench.interface import example_observation
 from bcbench.modes import EXACT_MODES
+from bcbench.policies.learned import PolicyRunner
 from bcbench.utils.io import read_json, write_json
 from bcbench.utils.system import cpu_flags, cpu_model, versions
 
@@ -46,7 +47,7 @@ def pick_fastest(setups: dict[str, Callable[[], None]], call: Callable[[], Any],
     return min(medians, key=medians.__getitem__), medians
 
 
-def _cache_key(runner: Any) -> str:
+def _cache_key(runner: PolicyRunner) -> str:
     info = runner.info
     ckpt = (Path(info.run_dir) / "checkpoints" / info.checkpoint) if info.run_dir and info.checkpoint else None
     stat = ""
@@ -58,7 +59,7 @@ def _cache_key(runner: Any) -> str:
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
 
-def choose_mode(runner: Any, apply: Callable[[Any, str], None]) -> dict[str, Any]:
+def choose_mode(runner: PolicyRunner, apply: Callable[[PolicyRunner, str], None]) -> dict[str, Any]:
     """The fastest exact mode for this runner here (cached per checkpoint, sampler and machine): a record with the
     chosen mode, every candidate's median ms and why. `apply(runner, mode)` switches the runner's mode."""
     cache = None

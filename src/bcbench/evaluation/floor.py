@@ -28,7 +28,8 @@ READ_MB = 256  # bytes streamed per bandwidth sample: well past any L3 cache
 GEMM_N = 1024
 
 
-def _median_s(fn: Any, n: int = 7) -> float:
+def median_s(fn: Any, n: int = 7) -> float:
+    """Median wall time of `fn()` in seconds over n calls, after one warm-up call."""
     fn()
     ts = []
     for _ in range(n):
@@ -42,9 +43,9 @@ def machine_limits() -> dict[str, float]:
     """Streaming read bandwidth (GB/s: a sum over a buffer larger than any cache) and fp32 matrix-product
     throughput (GFLOP/s: a 1024^3 product), with torch's current threads."""
     buf = torch.ones(READ_MB * 2**20 // 4)
-    read_s = _median_s(lambda: buf.sum())
+    read_s = median_s(lambda: buf.sum())
     a, b = torch.randn(GEMM_N, GEMM_N), torch.randn(GEMM_N, GEMM_N)
-    gemm_s = _median_s(lambda: a @ b)
+    gemm_s = median_s(lambda: a @ b)
     return {"read_gb_per_s": buf.numel() * 4 / read_s / 1e9, "gemm_gflop_per_s": 2 * GEMM_N**3 / gemm_s / 1e9,
             "threads": torch.get_num_threads()}
 
