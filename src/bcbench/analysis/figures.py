@@ -236,17 +236,32 @@ def _score_axis(ax: Any, xlabel: str, ylabel: str = "mean score (95% CI)") -> bo
     return labelled
 
 
+def _sweep_colours(by_policy: dict[str, dict[str, dict[str, Any]]]) -> dict[str, tuple[str, str]]:
+    """label -> (colour, marker): the policy's colour of every other figure (from the sweep's evaluation records);
+    a second sweep of the same policy (another backend) keeps the colour and takes the next marker."""
+    out, seen = {}, {}
+    for i, (label, results) in enumerate(by_policy.items()):
+        name = next(iter(results.values()), {}).get("policy", {}).get("name", "")
+        n = seen[name] = seen.get(name, -1) + 1
+        out[label] = (COLOURS.get(name, f"C{i % 10}"), MARKERS[n % len(MARKERS)])
+    return out
+
+
 def realtime_figure(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path) -> Path:
     """Score against delay d (control steps of 0.1 s), one colour per policy: async solid, blocking dashed."""
-    fig, ax = plt.subplots(figsize=(8, 4.5))
-    for i, (label, results) in enumerate(by_policy.items()):
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    style_of = _sweep_colours(by_policy)
+    for label, results in by_policy.items():
+        colour, marker = style_of[label]
         for execution, style in (("async", "-"), ("blocking", "--")):
             pts = delay_curve(results, execution)
             if len(pts) > 1:
                 err = [[e["value"] - e["ci95"][0] for _, e in pts], [e["ci95"][1] - e["value"] for _, e in pts]]
-                ax.errorbar([d for d, _ in pts], [e["value"] for _, e in pts], yerr=err, capsize=3, marker="o",
-                            ls=style, color=f"C{i % 10}", label=f"{label}, {execution}")
+                ax.errorbar([d for d, _ in pts], [e["value"] for _, e in pts], yerr=err, capsize=3, marker=marker,
+                            ls=style, color=colour, label=f"{label}, {execution}")
     _score_axis(ax, "delay d (control steps of 0.1 s at 10 Hz; d = 0: sync, the world waits)")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)  # outside the data
+    fig.tight_layout()
     ax.set_title("Score under real-time execution")
     return _save(fig, path)
 
@@ -254,22 +269,25 @@ def realtime_figure(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path)
 def figure5_realtime(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path) -> Path | None:
     """'Figure 5, real time': each policy's async score at its measured latency on this machine against that
     latency (filled), its sync score at the same latency (hollow, the world waits) joined by the real-time cost."""
-    pts = []
-    for i, (label, results) in enumerate(by_policy.items()):
+    pts, style_of = [], _sweep_colours(by_policy)
+    for label, results in by_policy.items():
         rt, sync = results.get("realtime-async-measured"), results.get("realtime-sync")
         if rt and sync:
             ms = rt["summary"]["latency_source"]["median_ms"]
-            pts.append((label, f"C{i % 10}", ms, rt["summary"]["mean_score"], sync["summary"]["mean_score"]))
+            pts.append((label, style_of[label], ms, rt["summary"]["mean_score"], sync["summary"]["mean_score"]))
     if not pts:
         return None
     fig, ax = plt.subplots(figsize=(9, 5.5))
-    for label, colour, ms, rt, sync in pts:
+    for label, (colour, marker), ms, rt, sync in pts:
         ax.plot([ms, ms], [sync["value"], rt["value"]], color=colour, alpha=0.5, lw=1)
-        ax.scatter(ms, sync["value"], s=60, facecolor="none", edgecolor=colour)
+        ax.scatter(ms, sync["value"], s=60, facecolor="none", edgecolor=colour, marker=marker)
         ax.errorbar(ms, rt["value"], yerr=[[rt["value"] - rt["ci95"][0]], [rt["ci95"][1] - rt["value"]]],
-                    fmt="o", color=colour, capsize=3, label=f"{label} ({ms:.0f} ms)")
+                    fmt=marker, color=colour, capsize=3, label=f"{label} ({ms:.0f} ms)")
     ax.set_xscale("log")
     _budget_lines(ax)
     _score_axis(ax, "median latency per call on this machine (ms, log scale)")
-    ax.set_title("Figure 5, real time: score under async execution at measured latency (hollow: sync)")
+    ax.set_title("Figure 5, real time: score under async execution at measured latency (hollow: sync)", fontsize=10)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)  # outside the data
+    fig.set_size_inches(12, 5.5)
+    fig.tight_layout()
     return _save(fig, path)
