@@ -291,3 +291,49 @@ def test_provenance_reads_every_file_kind_and_states_the_reason(tmp_path):
     assert "aaa (evaluations, training), bbb (real-time sweeps), ccc (interleaved latency)" in notes[0]
     assert "mix several commits" in notes[1] and notes[1].endswith("Why: sweeps added later")
     assert provenance_notes([], {"aaa": ["evaluations"]}) == ["Produced at commit: aaa."]  # one commit: no warning
+
+
+def test_twice_the_steps_decides_convergence():
+    """The 2x check: paired over shared episodes, two-sided; strict studies need it, older ones keep the curve rule."""
+    import numpy as np
+
+    from bcbench.analysis.convergence import apply_checks, doubling_checks
+    from bcbench.analysis.results import Row
+
+    base_scores = np.random.default_rng(0).uniform(0.2, 0.8, 60)
+
+    def row(label, scores, doubles=None):
+        return Row(key=f"{label}:ddim10", label=label, policy="diffusion", preset="cpu", variant="ddim10",
+                   sampler="ddim", steps=10, spacing="trailing", beta_schedule=None, params=1,
+                   summary={"mean_score": {"value": float(np.mean(scores)), "ci95": [0, 1]}},
+                   scores={200_000 + i: float(s) for i, s in enumerate(scores)}, converged=True, run_label=label,
+                   doubles=doubles)
+
+    same = [row("DP", base_scores), row("DP 2x", base_scores + 0.01, doubles="DP")]
+    better = [row("DP", base_scores), row("DP 2x", base_scores + 0.2, doubles="DP")]
+    (c,) = doubling_checks(same, 0.05)
+    assert c.verdict == "converged" and c.n == 60 and c.run == "DP"
+    assert doubling_checks(better, 0.05)[0].verdict == "not converged"
+    apply_checks(better, doubling_checks(better, 0.05), strict=True)
+    assert better[0].converged is False and "twice the steps" in better[0].convergence
+    lone = [row("BCT", base_scores)]
+    apply_checks(lone, [], strict=False)
+    assert lone[0].converged is True  # an older study: the curve rule stands (the report says what it is worth)
+    apply_checks(lone, [], strict=True)
+    assert lone[0].converged is False and "no twice-the-steps check" in lone[0].convergence
+
+
+@pytest.mark.parametrize("doubled, message", [
+    ('{ policy = "cnn_mlp", label = "2x", steps = 30, doubles = "base" }', "twice the optim.max_steps"),
+    ('{ policy = "cnn_mlp", label = "2x", steps = 40, doubles = "nope" }', "not a run of the same policy"),
+    ('{ policy = "cnn_mlp", label = "2x", doubles = "base" }', "must both state steps"),
+])
+def test_a_doubling_run_is_checked(doubled, message):
+    import tomllib
+
+    text = f'run = [{{ policy = "cnn_mlp", label = "base", steps = 20 }}, {doubled}]'
+    with pytest.raises(BCBenchError, match=message):
+        parse_spec(tomllib.loads(text))
+    ok = parse_spec(tomllib.loads('run = [{ policy = "cnn_mlp", label = "base", steps = 20 }, '
+                                  '{ policy = "cnn_mlp", label = "2x", steps = 40, doubles = "base" }]'))
+    assert ok.runs[1].doubles == "base"

@@ -15,6 +15,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+from bcbench.analysis.convergence import Check, apply_checks, doubling_checks
 from bcbench.analysis.fewstep import fewstep_lines, load_paired
 from bcbench.analysis.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
 from bcbench.analysis.findings import DEFAULT_MARGIN, judge, points_from_rows
@@ -234,6 +235,19 @@ def preset_change_lines(rows: list[Row]) -> list[str]:
     return lines
 
 
+def check_lines(checks: list[Check], strict: bool, margin: float) -> list[str]:
+    """The twice-the-steps checks, or what the curve rule above is worth when a study has none."""
+    if not checks:
+        return [] if strict else [
+            "This study has no twice-the-steps convergence check: 'converged' above is the learning-curve rule (a line "
+            "through the last quarter's rollout points rising by less than the margin), which a cosine schedule "
+            "passes by construction; read it as 'the curve flattened', not as evidence of convergence.", ""]
+    return ["### Twice the steps", "",
+            f"A run trained again with twice its optimiser steps (same recipe, its own schedule), minus the run, on "
+            f"the same episodes (paired, two-sided 95%): converged if the interval lies below +{margin}.", "",
+            *[c.line() for c in checks], ""]
+
+
 def convergence_lines(rows: list[Row]) -> list[str]:
     """One line per trained run: whether its learning curve reached its plateau, and why."""
     seen, out = set(), []
@@ -291,6 +305,9 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     results = Path(results)
     margin = _spec(results).get("margin", DEFAULT_MARGIN)
     rows = load_rows(results, extra_dirs, margin)
+    checks = doubling_checks(rows, margin)
+    strict = bool(_spec(results).get("purpose"))  # studies under the seed protocol need the check
+    apply_checks(rows, checks, strict)
     out = results / "report"
     out.mkdir(parents=True, exist_ok=True)
     figs = {"Figure 5: accuracy against inference time": figure5(rows, out / "fig5_accuracy_vs_latency.png"),
@@ -316,8 +333,8 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
           "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
     md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
     md += ["", "## Results", "", _md_table(COLUMNS, table), "", "## Training: converged?", "",
-           *convergence_lines(rows), "", *deviation_lines(rows), *fewstep_lines(points_from_rows(rows, "fast"), margin,
-                                                                   paired=paired),
+           *convergence_lines(rows), "", *check_lines(checks, strict, margin), *deviation_lines(rows),
+           *fewstep_lines(points_from_rows(rows, "fast"), margin, paired=paired),
            *time_lines(results),
            *realtime_lines(realtime, margin)]
     for title, path in figs.items():

@@ -64,6 +64,8 @@ class Row:
     overrides: dict[str, Any] = field(default_factory=dict)  # dotted preset overrides (its run.json)
     preset_values: dict[str, Any] = field(default_factory=dict)  # the preset's value of each overridden key
     deviations: str = ""  # how its preset departs from the paper's recipe, as the run recorded it
+    run_label: str = ""  # the study's label of its run (variants of one run share it)
+    doubles: str | None = None  # this run checks the convergence of the run so labelled (twice its steps)
 
     def est(self, name: str) -> dict[str, Any]:
         return self.summary[name]
@@ -106,7 +108,8 @@ def _row_from_eval(path: Path, margin: float = 0.05) -> Row:
     label = study.get("label") or pol["name"]
     if study.get("outside_policy"):  # a user's policy (module:factory or a plug-in): labelled as such everywhere
         label += f" (outside bcbench: {study['outside_policy']})"
-    row = Row(key=f"{run_dir.name}:{vkey}", label=label, policy=pol["name"],
+    row = Row(key=f"{run_dir.name}:{vkey}", label=label, policy=pol["name"], run_label=study.get("label", ""),
+              doubles=study.get("doubles"),
               preset=pol.get("preset"), variant=vkey, sampler=sampler, steps=steps, spacing=spacing,
               beta_schedule=cfg.get("beta_schedule"), params=int(pol.get("parameters", 0)), summary=ev["summary"],
               scores={int(e["seed"]): float(e["score"]) for e in ev.get("episodes", [])},

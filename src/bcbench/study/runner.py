@@ -115,7 +115,8 @@ class StudyRunner:
         cfg = EvalConfig(episodes=self.spec.episodes, seed_start=self.spec.seed_start, max_steps=self.spec.max_steps)
         extra = {"study": {"name": self.spec.name, "purpose": self.spec.purpose, "label": run.label,
                            "variant": asdict(variant), "run_dir": str(self.run_dir(run)),
-                           **({"outside_policy": run.policy, "args": run.args} if run.outside else {})}}
+                           **({"outside_policy": run.policy, "args": run.args} if run.outside else {}),
+                           **({"doubles": run.doubles} if run.doubles else {})}}
         return evaluate(self._policy(run, variant), cfg, None, progress=self.progress, extra=extra)
 
     def _latency(self, run: RunSpec, variant: Variant) -> dict[str, Any]:

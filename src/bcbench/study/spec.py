@@ -51,7 +51,7 @@ STUDY_KEYS = {"name", "episodes", "seed_start", "val_fraction", "latency", "thre
               "latency_min_calls", "latency_min_seconds", "device", "margin", "curve_episodes", "realtime",
               "backend", "precision", "latency_modes", "resources", "purpose"}
 RUN_KEYS = {"policy", "preset", "config", "steps", "max_minutes", "seeds", "set", "eval", "label", "eval_every",
-            "realtime", "args"}
+            "realtime", "args", "doubles"}
 REALTIME_KEYS = {"delays", "execution", "profiles", "measured"}
 
 
@@ -82,6 +82,7 @@ class RunSpec:
     eval_every: int | None = None  # rollouts every this many training steps: the learning curve
     realtime: list[Variant] = field(default_factory=list)  # variants swept under real-time execution
     args: dict[str, Any] = field(default_factory=dict)  # an outside policy's factory arguments
+    doubles: str | None = None  # the label of the run whose convergence this run checks (twice its steps)
 
     @property
     def outside(self) -> bool:
@@ -219,7 +220,11 @@ def _run_specs(i: int, run: Any) -> list[RunSpec]:
         realtime = [by_key[k] for k in rt]
     else:
         raise BCBenchError(f"{_where(i, run)}: realtime must be true, false or a list of eval variant keys")
-    return [RunSpec(policy, config, s, minutes, overrides, variants, label, every, realtime) for s in seeds]
+    doubles = run.get("doubles")
+    if doubles is not None and not isinstance(doubles, str):
+        raise BCBenchError(f"{_where(i, run)}: doubles names the label of the run this one checks (twice its steps)")
+    return [RunSpec(policy, config, s, minutes, overrides, variants, label, every, realtime, doubles=doubles)
+            for s in seeds]
 
 
 def _outside_run_specs(i: int, run: dict[str, Any], policy: str) -> list[RunSpec]:
@@ -296,7 +301,32 @@ def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
     spec.resources = _resources(study.get("resources", {}))
     for i, run in enumerate(runs):
         spec.runs.extend(_run_specs(i, run))
+    _check_doubling(spec)
     return spec
+
+
+def _check_doubling(spec: StudySpec) -> None:
+    """A convergence check (`doubles = "LABEL"`) trains the same policy and preset as the run it checks, with twice
+    its optimiser steps (stated as `steps` in both, or as optim.epochs in both)."""
+    by_label = {r.label: r for r in spec.runs if r.learned}
+    for r in spec.runs:
+        if r.doubles is None:
+            continue
+        base = by_label.get(r.doubles)
+        if base is None or base.policy != r.policy or base.config != r.config:
+            raise BCBenchError(f"run '{r.label}' doubles '{r.doubles}', which is not a run of the same policy and "
+                               "preset in this study")
+        for key in ("optim.max_steps", "optim.epochs"):
+            if key in r.overrides and key in base.overrides:
+                if r.overrides[key] != 2 * base.overrides[key]:
+                    raise BCBenchError(f"run '{r.label}' must have twice the {key} of '{r.doubles}' "
+                                       f"({2 * base.overrides[key]}), got {r.overrides[key]}")
+                break
+        else:
+            raise BCBenchError(f"run '{r.label}' and '{r.doubles}' must both state steps (or optim.epochs) so that the "
+                               "doubling can be checked")
+        if r.variants != base.variants:
+            raise BCBenchError(f"run '{r.label}' must evaluate the same variants as '{r.doubles}'")
 
 
 def _backend_keys(study: dict[str, Any], spec: StudySpec) -> None:
