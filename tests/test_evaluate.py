@@ -117,3 +117,20 @@ def test_stochastic_policy_chunks_do_not_depend_on_the_batch(name):
     # same noise; only float rounding of batched matrix products may differ (measured: 3e-5 px)
     np.testing.assert_allclose(alone[2], batched[2], atol=1e-3, rtol=0)
     assert not np.array_equal(batched[0], batched[1]) or name == "bet"
+
+
+def test_two_level_bootstrap_widens_with_training_seed_variance():
+    """Seeds that disagree widen the interval and take the variance share; identical seeds give one-level width."""
+    from bcbench.stats import two_level_bootstrap
+
+    rng = np.random.default_rng(0)
+    eps = rng.uniform(0, 1, 100)
+    alike = [{100_000 + i: float(s) for i, s in enumerate(eps)} for _ in range(3)]
+    apart = [{100_000 + i: float(s) + shift for i, s in enumerate(eps)} for shift in (-0.2, 0.0, 0.2)]
+    a, b = two_level_bootstrap(alike, n_boot=2000), two_level_bootstrap(apart, n_boot=2000)
+    assert a["value"] == pytest.approx(eps.mean()) and b["value"] == pytest.approx(eps.mean())
+    assert a["training_seed_share"] == 0.0 and b["training_seed_share"] > 0.9
+    assert b["ci95"][1] - b["ci95"][0] > 2 * (a["ci95"][1] - a["ci95"][0])
+    assert b["per_seed"] == pytest.approx([eps.mean() - 0.2, eps.mean(), eps.mean() + 0.2])
+    paired = two_level_bootstrap(apart, [alike], n_boot=2000)  # apart minus alike, per episode within each seed
+    assert paired["value"] == pytest.approx(0.0, abs=1e-12) and paired["ci95"][0] < 0 < paired["ci95"][1]

@@ -45,6 +45,56 @@ def paired_bootstrap(a: dict[int, float], others: list[dict[int, float]], seed: 
     return est, float(lo), float(hi), n
 
 
+def two_level_bootstrap(seeds: list[dict[int, float]], others: list[list[dict[int, float]]] | None = None,
+                        seed: int = 0, level: float = 0.95, n_boot: int = N_BOOT) -> dict[str, Any]:
+    """Mean over training seeds of each seed's mean episode score, with an interval that resamples training seeds
+    and, within each drawn seed, its episodes (a two-level bootstrap).
+
+    `seeds[j]` maps episode seed -> score for training seed j. With `others` (one list per alternative, the same
+    training seeds in the same order) the statistic is paired: a - max(others), differences taken per episode seed
+    within each training seed (shared episode seeds only), the maximum inside every resample. Also returns the
+    share of the variance that comes from training seeds (between-seed variance of the seed means over it plus the
+    mean within-seed variance of a seed mean): how much of the interval a single training seed would hide.
+    """
+    groups = [seeds, *(others or [])]
+    k = len(seeds)
+    if k == 0 or any(len(g) != k for g in groups):
+        raise ValueError("every alternative needs the same training seeds as the first")
+    rng = np.random.default_rng(seed)
+    per_seed = []  # for each training seed: (n_j,) a's scores and (m, n_j) the others', on shared episodes
+    for j in range(k):
+        shared = sorted(set(seeds[j]).intersection(*(o[j] for o in (others or []))))
+        a = np.array([seeds[j][e] for e in shared])
+        rest = np.array([[o[j][e] for e in shared] for o in (others or [])]).reshape(len(others or []), len(shared))
+        per_seed.append((a, rest))
+
+    def stat(means_a: np.ndarray, means_rest: np.ndarray) -> np.ndarray:
+        return means_a - (means_rest.max(axis=0) if means_rest.size else 0.0)
+
+    point = stat(np.array([a.mean() for a, _ in per_seed]).mean(),
+                 np.array([r.mean(axis=1) for _, r in per_seed]).mean(axis=0) if others else np.empty(0))
+    boot = np.empty(n_boot)
+    draws = rng.integers(0, k, size=(n_boot, k))  # training seeds, with replacement
+    for b in range(n_boot):
+        ma, mr = [], []
+        for j in draws[b]:
+            a, rest = per_seed[j]
+            idx = rng.integers(0, a.size, a.size)  # its episodes, with replacement
+            ma.append(a[idx].mean())
+            if others:
+                mr.append(rest[:, idx].mean(axis=1))
+        boot[b] = stat(np.mean(ma), np.mean(mr, axis=0) if others else np.empty(0))
+    alpha = (1.0 - level) / 2.0
+    lo, hi = np.quantile(boot, [alpha, 1.0 - alpha])
+    diffs = [a - (r.max(axis=0) if r.size else 0.0) for a, r in per_seed]  # per-episode statistic, per seed
+    seed_means = np.array([d.mean() for d in diffs])
+    between = float(seed_means.var(ddof=1)) if k > 1 else 0.0
+    within = float(np.mean([d.var(ddof=1) / d.size for d in diffs if d.size > 1])) if diffs else 0.0
+    share = between / (between + within) if between + within > 0 else 0.0
+    return {"value": float(point), "ci95": [float(lo), float(hi)], "per_seed": seed_means.tolist(),
+            "training_seed_share": share, "training_seeds": k}
+
+
 def estimate(values: np.ndarray, seed: int = 0) -> dict[str, Any]:
     """Mean with its 95% interval, as stored in result files."""
     x = np.asarray(values, dtype=np.float64)
