@@ -38,7 +38,7 @@ from bcbench.evaluation.onnx_runtime import deploy_onnxruntime, ort_version
 from bcbench.interface import FilmSplittable
 from bcbench.modes import AUTO, MODES
 from bcbench.policies.checkpoint import read_run
-from bcbench.policies.learned import BCPolicy, PolicyRunner
+from bcbench.policies.learned import BCPolicy, GraphModule, PolicyRunner
 
 GRAPH_FORMAT = 1  # bump when a policy's graphs change meaning: cached exports are then rebuilt
 
@@ -49,17 +49,6 @@ def _openvino() -> Any:
     except Exception as e:
         raise BCBenchError(f"the OpenVINO backend needs the openvino package (make install): {e}") from e
     return openvino
-
-
-class _Graph(torch.nn.Module):
-    """One inference method of a policy as a module, for tracing."""
-
-    def __init__(self, policy: torch.nn.Module, name: str) -> None:
-        super().__init__()
-        self.policy, self.graph = policy, name
-
-    def forward(self, *args: torch.Tensor) -> Any:
-        return getattr(self.policy, self.graph)(*args)
 
 
 class _Compiled:
@@ -131,7 +120,7 @@ def export_openvino(model: BCPolicy, precision: str, out_dir: Path,
         shapes = [ov.PartialShape([-1, *a.shape[1:]]) for a in example]  # any batch, fixed the rest
         with torch.no_grad(), warnings.catch_warnings():
             warnings.simplefilter("ignore")  # tracer notes on shape checks that are constant for a policy
-            ov_model = ov.convert_model(_Graph(model, name).eval(), example_input=example, input=shapes)
+            ov_model = ov.convert_model(GraphModule(model, name).eval(), example_input=example, input=shapes)
         if precision == "int8":
             import nncf  # heavy (seconds to import): only for int8
 

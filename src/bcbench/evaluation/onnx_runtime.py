@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from bcbench.errors import BCBenchError
-from bcbench.policies.learned import BCPolicy
+from bcbench.policies.learned import BCPolicy, GraphModule
 
 OPSET = 17
 
@@ -35,17 +35,6 @@ def _ort() -> Any:
 
 def ort_version() -> str:
     return str(_ort().__version__)
-
-
-class _Graph(torch.nn.Module):
-    """One inference method of a policy as a module, for export."""
-
-    def __init__(self, policy: torch.nn.Module, name: str) -> None:
-        super().__init__()
-        self.policy, self.method = policy, name  # not `graph`: the exporter reads a module's .graph
-
-    def forward(self, *args: torch.Tensor) -> Any:
-        return getattr(self.policy, self.method)(*args)
 
 
 def export_onnx(model: BCPolicy, out_dir: Path) -> Path:
@@ -70,7 +59,7 @@ def _export_graph(model: BCPolicy, name: str, example: tuple[torch.Tensor, ...],
     inputs = [f"in{i}" for i in range(len(example))]
     with torch.no_grad(), warnings.catch_warnings():
         warnings.simplefilter("ignore")  # tracer notes on shape checks that are constant for a policy
-        torch.onnx.export(_Graph(model, name).eval(), tuple(example), str(path), input_names=inputs,
+        torch.onnx.export(GraphModule(model, name).eval(), tuple(example), str(path), input_names=inputs,
                           dynamic_axes={n: {0: "batch"} for n in inputs}, opset_version=OPSET, dynamo=False)
 
 

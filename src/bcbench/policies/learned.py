@@ -116,6 +116,17 @@ class BCPolicy(nn.Module):
         return count_parameters(self)
 
 
+class GraphModule(nn.Module):
+    """One inference graph of a policy (a method named in `graphs`) as a module, for the exporters (OpenVINO, ONNX)."""
+
+    def __init__(self, policy: BCPolicy, name: str) -> None:
+        super().__init__()
+        self.policy, self.method = policy, name  # not `graph`: torch's ONNX exporter reads a module's .graph
+
+    def forward(self, *args: torch.Tensor) -> Any:
+        return getattr(self.policy, self.method)(*args)
+
+
 class PolicyRunner:
     """Raw observations -> action chunk in world pixels, for the controller and the latency benchmark."""
 

@@ -198,9 +198,7 @@ def _run_specs(i: int, run: Any) -> list[RunSpec]:
     minutes = run.get("max_minutes")
     if minutes is not None and (not isinstance(minutes, int | float) or minutes <= 0):
         raise BCBenchError(f"{_where(i, run)}: max_minutes must be a positive number, got {minutes!r}")
-    seeds = run.get("seeds", [0])
-    if not isinstance(seeds, list) or not seeds or not all(isinstance(s, int) and s >= 0 for s in seeds):
-        raise BCBenchError(f"{_where(i, run)}: seeds must be a non-empty list of whole numbers >= 0")
+    seeds = _seeds(i, run)
     variants = _variants(i, run, policy)
     label = run.get("label", f"{policy} ({config})")
     every = run.get("eval_every")
@@ -227,6 +225,13 @@ def _run_specs(i: int, run: Any) -> list[RunSpec]:
             for s in seeds]
 
 
+def _seeds(i: int, run: dict[str, Any]) -> list[int]:
+    seeds = run.get("seeds", [0])
+    if not isinstance(seeds, list) or not seeds or not all(isinstance(s, int) and s >= 0 for s in seeds):
+        raise BCBenchError(f"{_where(i, run)}: seeds must be a non-empty list of whole numbers >= 0")
+    return seeds
+
+
 def _outside_run_specs(i: int, run: dict[str, Any], policy: str) -> list[RunSpec]:
     """A policy from outside bcbench: it is resolved now (import, plug-in), built and checked when it runs."""
     try:
@@ -239,9 +244,7 @@ def _outside_run_specs(i: int, run: dict[str, Any], policy: str) -> list[RunSpec
     args = run.get("args", {})
     if not isinstance(args, dict):
         raise BCBenchError(f"{_where(i, run)}: args must be a table of the factory's keyword arguments")
-    seeds = run.get("seeds", [0])
-    if not isinstance(seeds, list) or not seeds or not all(isinstance(s, int) and s >= 0 for s in seeds):
-        raise BCBenchError(f"{_where(i, run)}: seeds must be a non-empty list of whole numbers >= 0")
+    seeds = _seeds(i, run)
     rt = run.get("realtime", False)
     if not isinstance(rt, bool):
         raise BCBenchError(f"{_where(i, run)}: realtime must be true or false for an outside policy")
