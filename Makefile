@@ -7,7 +7,9 @@ STAMP   := $(VENV)/.bcbench-installed
 WHEELS  := $(wildcard /opt/wheels)
 PIPOPTS := -q $(if $(WHEELS),--find-links $(WHEELS),)
 
-.PHONY: install test lint demo clean
+.PHONY: install test test-sidecar lint demo clean lerobot-env
+LEROBOT_VENV ?= .lerobot-venv
+LEROBOT_PY   ?= $(firstword $(wildcard $(HOME)/.pyenv/versions/3.12*/bin/python3.12) $(shell command -v python3.12))
 
 install: $(STAMP)
 
@@ -22,7 +24,20 @@ lint: install
 	$(VENV)/bin/ruff check src tests benchmarks
 
 test: install lint
-	$(VENV)/bin/pytest -q --durations=15
+	$(VENV)/bin/pytest -q --durations=15 -m "not sidecar"
+
+# The LeRobot sidecar (opt-in): LeRobot 0.6.1 needs Python >= 3.12, torch < 2.12 and diffusers < 0.40, so it
+# lives in its own venv (about 5.6 GB, 3-4 minutes). `bcbench eval --policy lerobot:FOLDER` finds it here.
+lerobot-env: $(LEROBOT_VENV)/.installed
+$(LEROBOT_VENV)/.installed:
+	@test -n "$(LEROBOT_PY)" || { echo "error: LeRobot needs Python 3.12 (pyenv install 3.12)" >&2; exit 2; }
+	$(LEROBOT_PY) -m venv $(LEROBOT_VENV)
+	$(LEROBOT_VENV)/bin/pip install -q "lerobot[diffusion,pusht]==0.6.1"
+	@touch $@
+
+# The tests against LeRobot itself (tests/test_lerobot_sidecar.py; about 4 minutes): run where the sidecar is.
+test-sidecar: install lerobot-env
+	$(VENV)/bin/pytest -q --durations=10 -m sidecar
 
 demo: install
 	$(VENV)/bin/bcbench data replay --quiet --out runs/demo/replay.json
@@ -36,4 +51,4 @@ demo: install
 	@echo "  rollout videos:             runs/demo/videos/videos/"
 
 clean:
-	rm -rf $(VENV) runs build src/*.egg-info .pytest_cache .ruff_cache
+	rm -rf $(VENV) $(LEROBOT_VENV) runs build src/*.egg-info .pytest_cache .ruff_cache

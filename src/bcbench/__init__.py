@@ -13,10 +13,11 @@ from bcbench.interface import (
     Observation,
     RunInfo,
     SeededPolicy,
+    SelfTimedPolicy,
     example_observation,
 )
 
 __version__ = "0.1.0"
 
 __all__ = ["ChunkPolicy", "FilmSplittable", "GenerativePolicy", "Observation", "RunInfo", "SeededPolicy",
-           "__version__", "example_observation"]
+           "SelfTimedPolicy", "__version__", "example_observation"]

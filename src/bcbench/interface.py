@@ -16,6 +16,7 @@ which other episodes share its batch.
 Optional parts, each its own protocol, so that code asks `isinstance` instead of probing with `hasattr`:
 - `SeededPolicy`: `noise_seed`, combined with each episode's seed into that episode's noise stream;
 - `GenerativePolicy`: samplers and a step count (`set_sampler`), as Diffusion Policy and flow matching have;
+- `SelfTimedPolicy`: a policy in another process reports its own compute time (latency excludes the pipe);
 - `FilmSplittable`: the exact FiLM split of the denoising U-Net that the fast inference form switches on.
 """
 
@@ -73,6 +74,14 @@ class FilmSplittable(Protocol):
     """A denoiser whose FiLM conditioning can be split out of the step loop (exact; the fast form)."""
 
     split_film: bool
+
+
+@runtime_checkable
+class SelfTimedPolicy(Protocol):
+    """A policy whose call crosses a process boundary (a LeRobot worker): it reports the compute time of its last
+    call, and latency records use that, so the pipe between the processes is not counted."""
+
+    last_compute_s: float
 
 
 def example_observation(batch: int = 1, obs_horizon: int = 2, seed: int = 0) -> Observation:

@@ -49,11 +49,37 @@ def cmd_data_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_data_export(args: argparse.Namespace) -> int:
+    from bcbench.data import load_replay_buffer, resolve_dataset
+    from bcbench.data.lerobot_format import export_lerobot
+
+    buf = load_replay_buffer(resolve_dataset(args.data), images=True)
+    info = export_lerobot(buf, args.dest, video=args.video, force=args.force)
+    print(f"wrote LeRobot v3.0 dataset {info['path']}: {info['episodes']} episodes, {info['frames']} frames, "
+          f"{info['frames_stored_as']}")
+    return 0
+
+
+def cmd_data_import(args: argparse.Namespace) -> int:
+    from bcbench.data.lerobot_import import import_lerobot
+    from bcbench.data.replay_buffer import write_replay_buffer_atomic
+
+    buf = import_lerobot(args.source)
+    write_replay_buffer_atomic(args.out, buf, force=args.force)
+    _print_summary({**buf.summary(), "path": args.out})
+    if buf.missing:
+        print(f"  note: the dataset has no {', '.join('bcbench.' + m for m in buf.missing)}: zeros stand in (training "
+              "on images works; `bcbench data replay` needs the block pose)")
+    return 0
+
+
 def cmd_data_replay(args: argparse.Namespace) -> int:
     from bcbench.data import load_replay_buffer, resolve_dataset
     from bcbench.env.replay import replay_buffer_episodes, replay_report
 
     buf = load_replay_buffer(resolve_dataset(args.data), images=False)
+    if "block_pose" in buf.missing:
+        raise BCBenchError(f"{buf.source} has no block pose (imported from a dataset without it): nothing to replay")
     episodes = list(range(buf.n_episodes))[: args.episodes] if args.episodes else None
     results = replay_buffer_episodes(buf, episodes, workers=args.workers, progress=not args.quiet)
     report = replay_report(results)

@@ -101,6 +101,19 @@ def _add_data_commands(sub: Any) -> None:
     p.add_argument("--out", metavar="FILE", help="write the JSON report here")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func="cmd_data_replay")
+    p = dsub.add_parser("export", help="write the demonstrations as a LeRobot v3.0 dataset (lossless PNG frames)")
+    _add_data_flag(p)
+    p.add_argument("--to", dest="fmt", choices=["lerobot"], required=True, help="the format: lerobot (v3.0)")
+    p.add_argument("dest", metavar="DIR", help="the dataset folder to write")
+    p.add_argument("--video", action="store_true", help="frames as AV1 video, as the Hub's lerobot/pusht (lossy)")
+    p.add_argument("--force", action="store_true", help="replace an existing folder at DIR")
+    p.set_defaults(func="cmd_data_export")
+    p = dsub.add_parser("import", help="read a LeRobot v3.0 Push-T dataset into a bcbench replay buffer (zarr)")
+    p.add_argument("--from", dest="fmt", choices=["lerobot"], required=True, help="the format: lerobot (v3.0)")
+    p.add_argument("source", metavar="DIR", help="the LeRobot dataset folder (parquet + AV1 video or PNG frames)")
+    p.add_argument("--out", metavar="ZARR", required=True, help="the replay buffer to write (train with --data ZARR)")
+    p.add_argument("--force", action="store_true", help="replace an existing folder at --out")
+    p.set_defaults(func="cmd_data_import")
 
 
 def _add_train_eval_commands(sub: Any) -> None:

@@ -37,6 +37,7 @@ class ReplayBuffer:
     keypoint: np.ndarray | None = None  # (N, 9, 2) float32
     n_contacts: np.ndarray | None = None  # (N, 1) float32
     source: str = ""
+    missing: tuple[str, ...] = ()  # arrays an import could not fill (zeros): "block_pose", "keypoint", "n_contacts"
 
     @property
     def n_steps(self) -> int:
@@ -68,6 +69,7 @@ class ReplayBuffer:
             },
             "images": None if self.images is None else list(self.images.shape),
             "image_dtype": None if self.images is None else str(self.images.dtype),
+            **({"missing": list(self.missing)} if self.missing else {}),
         }
 
 
@@ -153,6 +155,7 @@ def load_replay_buffer(path: str | Path, *, images: bool = True) -> ReplayBuffer
         keypoint=_read(root, "data/keypoint", path).astype(np.float32),
         n_contacts=_read(root, "data/n_contacts", path).astype(np.float32),
         source=str(path),
+        missing=tuple(root.attrs.get("bcbench_missing", ())),
     )
 
 
@@ -177,7 +180,26 @@ def write_replay_buffer(path: str | Path, buf: ReplayBuffer, chunk: int = 161) -
         a[:] = data
     ends = root.create_array("meta/episode_ends", shape=buf.episode_ends.shape, dtype=np.int64, compressors=comp)
     ends[:] = buf.episode_ends
+    if buf.missing:  # an import without the block pose: zeros stand in, and the store says so
+        root.attrs["bcbench_missing"] = list(buf.missing)
     return Path(path)
+
+
+def write_replay_buffer_atomic(path: str | Path, buf: ReplayBuffer, force: bool = False) -> Path:
+    """`write_replay_buffer` into a temporary folder beside `path`, renamed into place when complete."""
+    import shutil
+    import tempfile
+
+    path = Path(path)
+    if path.exists() and not force:
+        raise DatasetError(f"{path} already exists; pass --force to replace it")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=".bcbench-write-", dir=path.parent) as tmp:
+        staged = write_replay_buffer(Path(tmp) / "buffer.zarr", buf)
+        if path.exists():
+            shutil.rmtree(path)
+        staged.rename(path)
+    return path
 
 
 def subset(buf: ReplayBuffer, episodes: list[int] | np.ndarray) -> ReplayBuffer:
@@ -191,4 +213,5 @@ def subset(buf: ReplayBuffer, episodes: list[int] | np.ndarray) -> ReplayBuffer:
     return ReplayBuffer(
         state=buf.state[idx], action=buf.action[idx], episode_ends=np.cumsum(lengths).astype(np.int64),
         images=take(buf.images), keypoint=take(buf.keypoint), n_contacts=take(buf.n_contacts), source=buf.source,
+        missing=buf.missing,
     )

@@ -22,7 +22,7 @@ import numpy as np
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.config import PROFILES as PROFILE_NAMES
 from bcbench.evaluation.config import check_latency_options
-from bcbench.evaluation.timing import TimingConfig, time_calls
+from bcbench.evaluation.timing import TimingConfig, self_clock, time_calls
 from bcbench.interface import ChunkPolicy, example_observation, is_generative
 from bcbench.protocol import CONTROL_DT_S
 from bcbench.reference import A100_DP_MS, A100_MS
@@ -95,7 +95,8 @@ class LatencySource:
             self.ms = profile_ms(self.name, runner.name, sampler_steps(runner))
         elif self.kind == "measured" and not self.samples_ms:
             obs = example_observation(1, runner.obs_horizon)
-            self.samples_ms = time_calls(lambda: runner.predict_action_chunk(obs), TimingConfig())["samples_ms"]
+            self.samples_ms = time_calls(lambda: runner.predict_action_chunk(obs), TimingConfig(),
+                                         clock=self_clock(runner))["samples_ms"]
 
     def delay_fn(self, seeds: dict[int, int]) -> Callable[[int], int]:
         """env id -> d for its next call; measured draws come from each episode's own stream."""

@@ -5,6 +5,8 @@ Three ways to name a policy wherever bcbench takes one (`eval`, `latency`, `real
 - a registered name (`scripted`, or a trained run through `--checkpoint`);
 - `my_pkg.my_module:make_policy`: a factory (function or class) that returns a `bcbench.ChunkPolicy`, called
   with the keyword arguments of `--policy-arg KEY=VALUE` (values are JSON where they parse, else strings);
+- `lerobot:FOLDER`: a LeRobot Diffusion Policy or ACT folder, run in the LeRobot sidecar
+  (`bcbench.policies.lerobot_policy`; the built-in plug-in `lerobot` with `--policy-arg path=FOLDER`);
 - the name of a plug-in: an installed package that declares an entry point in the group `bcbench.policies`
   (`knn = "bcbench_knn:make_policy"` in its pyproject.toml); `bcbench policies` lists them.
 
@@ -26,13 +28,14 @@ from bcbench.errors import BCBenchError
 from bcbench.interface import ChunkPolicy, example_observation
 
 ENTRY_POINT_GROUP = "bcbench.policies"
+LEROBOT_PREFIX = "lerobot:"  # a LeRobot policy folder, through the built-in `lerobot` plug-in
 REQUIRED = ("name", "obs_horizon", "pred_horizon", "action_horizon", "chunk_start", "predict_action_chunk",
             "describe")
 
 
 def is_factory_path(name: str) -> bool:
     """'pkg.module:attr' names a factory; a plain name is a registered policy or a plug-in."""
-    return ":" in name
+    return ":" in name and not name.startswith(LEROBOT_PREFIX)
 
 
 def plugins() -> dict[str, metadata.EntryPoint]:
@@ -82,6 +85,8 @@ def load_factory(name: str) -> Callable[..., Any]:
 
 def outside_policy(name: str, kwargs: dict[str, Any] | None = None) -> ChunkPolicy:
     """Build an outside policy and check its contract; every failure is one BCBenchError line."""
+    if name.startswith(LEROBOT_PREFIX):  # `lerobot:FOLDER`: LeRobot's package cannot be imported here anyway
+        kwargs, name = {"path": name.removeprefix(LEROBOT_PREFIX), **(kwargs or {})}, "lerobot"
     factory = load_factory(name)
     try:
         policy = factory(**(kwargs or {}))

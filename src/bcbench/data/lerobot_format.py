@@ -1,0 +1,257 @@
+"""Push-T demonstrations in Hugging Face LeRobot's dataset format v3.0, both ways, with pyarrow and PyAV only.
+
+LeRobot v3.0 (LeRobot 0.6.1, `lerobot/datasets/utils.py`): a folder with
+    meta/info.json                                  features, fps, totals, path templates
+    meta/stats.json                                 per-feature min, max, mean, std, count, q01 ... q99
+    meta/tasks.parquet                              task string (pandas index) -> task_index
+    meta/episodes/chunk-000/file-000.parquet        per episode: length, dataset_from_index/to_index, file indices
+    data/chunk-000/file-000.parquet                 one row per frame
+    videos/observation.image/chunk-000/file-000.mp4 (video datasets) all episodes back to back, AV1
+Frames are either PNG bytes inside the parquet (`dtype: image`, lossless) or AV1 video (`dtype: video`,
+lossy, as the Hub's `lerobot/pusht`). This module reads both and writes both, PNG by default, so that
+`export` then `import` gives back bcbench's arrays bit for bit.
+
+No torch and no torchcodec (which does not load without FFmpeg's shared libraries): frames are decoded with
+PyAV's `to_ndarray(format="rgb24")`, the call LeRobot's own PyAV decoder makes.
+
+Mapping (bcbench replay buffer <-> LeRobot features):
+    data/img        (N, 96, 96, 3) uint8   <-> observation.image (image or video, 96x96x3)
+    data/state[:2]  agent position, pixels <-> observation.state (2,)
+    data/action     target position        <-> action (2,)
+    data/state[2:]  block x, y, angle      <-> bcbench.block_pose (3,)   (not an input of LeRobot policies:
+    data/keypoint   (N, 9, 2)              <-> bcbench.keypoint (18,)     only `observation.*` features are;
+    data/n_contacts (N, 1)                 <-> bcbench.n_contacts (1,)    LeRobot carries these columns along)
+    meta/episode_ends                      <-> meta/episodes dataset_to_index
+A LeRobot dataset without the bcbench.* columns (the Hub's lerobot/pusht has agent position and action only)
+imports with those arrays zero-filled and named in the zarr's `bcbench_missing` attribute: training on
+images works; the simulator replay check, which needs the block pose, refuses it.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bcbench.data.replay_buffer import ReplayBuffer
+from bcbench.errors import DatasetError
+
+CODEBASE_VERSION = "v3.0"
+FPS = 10  # Push-T's control rate
+TASK = "Push the T-shaped block onto the T-shaped target."
+IMAGE_KEY = "observation.image"
+DATA_FILE = "data/chunk-000/file-000.parquet"
+EPISODES_FILE = "meta/episodes/chunk-000/file-000.parquet"
+VIDEO_FILE = f"videos/{IMAGE_KEY}/chunk-000/file-000.mp4"
+# AV1 as LeRobot 0.6.1 writes it (its rgb_encoder_defaults): SVT-AV1, yuv420p, GOP 2, CRF 30, preset 12.
+VIDEO_OPTIONS = {"g": "2", "crf": "30", "preset": "12"}
+QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
+EXTRA = {"bcbench.block_pose": 3, "bcbench.keypoint": 18, "bcbench.n_contacts": 1}  # bcbench's lossless columns
+
+
+def _require_backends() -> tuple[Any, Any]:
+    try:
+        import av  # optional (extra `lerobot`): only the LeRobot format needs it
+        import pyarrow
+    except ImportError as e:
+        raise DatasetError(f"the LeRobot format needs pyarrow and PyAV: pip install 'bcbench[lerobot]' ({e})"
+                           ) from None
+    return pyarrow, av
+
+
+# ---------------------------------------------------------------------------------------------- statistics
+def _numeric_stats(x: np.ndarray) -> dict[str, list]:
+    """LeRobot's per-feature statistics over the frame axis of x (N, D)."""
+    x = x.astype(np.float64)
+    out = {"min": x.min(0), "max": x.max(0), "mean": x.mean(0), "std": x.std(0)}
+    out.update({f"q{round(q * 100):02d}": np.quantile(x, q, axis=0) for q in QUANTILES})
+    return {**{k: v.tolist() for k, v in out.items()}, "count": [int(x.shape[0])]}
+
+
+def _image_stats(images: np.ndarray) -> dict[str, list]:
+    """Per-channel statistics of uint8 frames in [0, 1], shaped (3, 1, 1) as LeRobot stores them. Exact:
+    from each channel's 256-bin histogram (quantiles by numpy's linear rule on the sorted values)."""
+    stats: dict[str, list] = {k: [] for k in ("min", "max", "mean", "std", *(f"q{round(q * 100):02d}"
+                                                                              for q in QUANTILES))}
+    for c in range(3):
+        hist = np.bincount(images[..., c].ravel(), minlength=256).astype(np.float64)
+        n = hist.sum()
+        levels = np.arange(256) / 255.0
+        mean = float((hist * levels).sum() / n)
+        stats["mean"].append(mean)
+        stats["std"].append(float(np.sqrt((hist * (levels - mean) ** 2).sum() / n)))
+        stats["min"].append(float(levels[np.nonzero(hist)[0][0]]))
+        stats["max"].append(float(levels[np.nonzero(hist)[0][-1]]))
+        cum = np.cumsum(hist)
+        for q in QUANTILES:
+            pos = (n - 1) * q  # numpy's "linear": between order statistics floor(pos) and ceil(pos)
+            lo, hi = (int(np.searchsorted(cum, k, side="right")) for k in (np.floor(pos), np.ceil(pos)))
+            frac = pos - np.floor(pos)
+            stats[f"q{round(q * 100):02d}"].append(float(levels[lo] + frac * (levels[hi] - levels[lo])))
+    shaped = {k: [[[v]] for v in vals] for k, vals in stats.items()}
+    return {**shaped, "count": [int(images.shape[0])]}
+
+
+# ---------------------------------------------------------------------------------------------- export
+def _png(img: np.ndarray) -> bytes:
+    from PIL import Image  # Pillow, a dependency of matplotlib: PNG is lossless
+
+    bio = io.BytesIO()
+    Image.fromarray(img).save(bio, format="PNG")
+    return bio.getvalue()
+
+
+def _write_video(path: Path, images: np.ndarray, av: Any) -> None:
+    os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 prints its configuration to stderr at its default level
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with av.open(str(path), "w") as out:
+        stream = out.add_stream("libsvtav1", FPS, options=VIDEO_OPTIONS)
+        stream.pix_fmt, stream.width, stream.height = "yuv420p", images.shape[2], images.shape[1]
+        for img in images:
+            for packet in stream.encode(av.VideoFrame.from_ndarray(img, format="rgb24")):
+                out.mux(packet)
+        for packet in stream.encode():
+            out.mux(packet)
+
+
+def _features(video: bool) -> dict[str, Any]:
+    def vec(n: int, names: Any = None, dtype: str = "float32") -> dict[str, Any]:
+        return {"dtype": dtype, "shape": [n], "names": names}
+
+    image: dict[str, Any] = {"dtype": "video" if video else "image", "shape": [96, 96, 3],
+                             "names": ["height", "width", "channel"]}
+    if video:
+        image["info"] = {"video.height": 96, "video.width": 96, "video.codec": "av1", "video.pix_fmt": "yuv420p",
+                         "video.fps": FPS, "video.channels": 3, "has_audio": False, "video.g": 2, "video.crf": 30,
+                         "video.preset": 12, "video.fast_decode": 0, "video.video_backend": "pyav",
+                         "video.extra_options": {}, "is_depth_map": False}
+    return {IMAGE_KEY: image, "observation.state": vec(2, {"motors": ["x", "y"]}),
+            "action": vec(2, {"motors": ["x", "y"]}), "bcbench.block_pose": vec(3, ["x", "y", "angle"]),
+            "bcbench.keypoint": vec(18), "bcbench.n_contacts": vec(1), "next.done": vec(1, dtype="bool"),
+            "timestamp": vec(1), "frame_index": vec(1, dtype="int64"), "episode_index": vec(1, dtype="int64"),
+            "index": vec(1, dtype="int64"), "task_index": vec(1, dtype="int64")}
+
+
+def _hf_metadata(features: dict[str, Any], video: bool) -> bytes:
+    """The `huggingface` schema metadata LeRobot's loader (Hugging Face datasets) reads the columns' types from."""
+    hf: dict[str, Any] = {}
+    for key, ft in features.items():
+        if ft["dtype"] == "video":
+            continue
+        if ft["dtype"] == "image":
+            hf[key] = {"_type": "Image"}
+        elif ft["shape"] == [1]:
+            hf[key] = {"dtype": ft["dtype"], "_type": "Value"}
+        else:
+            hf[key] = {"feature": {"dtype": ft["dtype"], "_type": "Value"}, "length": ft["shape"][0],
+                       "_type": "List"}
+    return json.dumps({"info": {"features": hf}}).encode()
+
+
+def _frame_table(buf: ReplayBuffer, video: bool, pa: Any) -> Any:
+    n, starts = buf.n_steps, buf.episode_starts
+    episode = np.repeat(np.arange(buf.n_episodes), buf.episode_lengths)
+    frame = np.arange(n) - starts[episode]
+    done = np.zeros(n, dtype=bool)
+    done[buf.episode_ends - 1] = True
+    assert buf.keypoint is not None and buf.n_contacts is not None and buf.images is not None
+
+    def fixed(a: np.ndarray) -> Any:
+        a = np.ascontiguousarray(a, dtype=np.float32)
+        return pa.FixedSizeListArray.from_arrays(pa.array(a.ravel()), a.shape[1])
+
+    cols: dict[str, Any] = {}
+    if not video:
+        cols[IMAGE_KEY] = pa.StructArray.from_arrays(
+            [pa.array([_png(img) for img in buf.images], pa.binary()),
+             pa.array([f"frame-{f:06d}.png" for f in frame], pa.string())], names=["bytes", "path"])
+    cols.update({"observation.state": fixed(buf.state[:, :2]), "action": fixed(buf.action),
+                 "bcbench.block_pose": fixed(buf.state[:, 2:5]),
+                 "bcbench.keypoint": fixed(buf.keypoint.reshape(n, 18)),
+                 "bcbench.n_contacts": pa.array(buf.n_contacts[:, 0].astype(np.float32)), "next.done": pa.array(done),
+                 "timestamp": pa.array((frame / FPS).astype(np.float32)),
+                 "frame_index": pa.array(frame.astype(np.int64)),
+                 "episode_index": pa.array(episode.astype(np.int64)), "index": pa.array(np.arange(n, dtype=np.int64)),
+                 "task_index": pa.array(np.zeros(n, dtype=np.int64))})
+    table = pa.table(cols)
+    return table.replace_schema_metadata({b"huggingface": _hf_metadata(_features(video), video)})
+
+
+def _episode_table(buf: ReplayBuffer, video: bool, pa: Any) -> Any:
+    starts, ends, e = buf.episode_starts, buf.episode_ends, buf.n_episodes
+    cols: dict[str, Any] = {"episode_index": np.arange(e), "tasks": [[TASK]] * e, "length": buf.episode_lengths,
+                            "data/chunk_index": np.zeros(e, np.int64), "data/file_index": np.zeros(e, np.int64),
+                            "dataset_from_index": starts, "dataset_to_index": ends}
+    if video:  # the episodes lie back to back in one file: each one's time span in it
+        cols.update({f"videos/{IMAGE_KEY}/chunk_index": np.zeros(e, np.int64),
+                     f"videos/{IMAGE_KEY}/file_index": np.zeros(e, np.int64),
+                     f"videos/{IMAGE_KEY}/from_timestamp": starts / FPS,
+                     f"videos/{IMAGE_KEY}/to_timestamp": ends / FPS})
+    cols.update({"meta/episodes/chunk_index": np.zeros(e, np.int64),
+                 "meta/episodes/file_index": np.zeros(e, np.int64)})
+    return pa.table({k: pa.array(v) for k, v in cols.items()})
+
+
+def _tasks_table(pa: Any) -> Any:
+    table = pa.table({"task_index": pa.array([0], pa.int64()), "task": pa.array([TASK], pa.string())})
+    pandas_meta = {"index_columns": ["task"], "column_indexes": [], "columns": [
+        {"name": "task_index", "field_name": "task_index", "pandas_type": "int64", "numpy_type": "int64",
+         "metadata": None},
+        {"name": "task", "field_name": "task", "pandas_type": "unicode", "numpy_type": "object", "metadata": None}],
+        "attributes": {}, "creator": {"library": "pyarrow", "version": pa.__version__}, "pandas_version": "2.2.0"}
+    return table.replace_schema_metadata({b"pandas": json.dumps(pandas_meta).encode()})
+
+
+def export_lerobot(buf: ReplayBuffer, out: str | Path, *, video: bool = False, force: bool = False
+                   ) -> dict[str, Any]:
+    """Write `buf` as a LeRobot v3.0 dataset at `out` (PNG frames in the parquet, or AV1 video with `video`).
+    Atomic: written into a temporary folder beside `out`, renamed into place when complete."""
+    pa, av = _require_backends()
+    import pyarrow.parquet as pq
+
+    if buf.images is None or buf.keypoint is None or buf.n_contacts is None:
+        raise DatasetError("export needs the full replay buffer (images, keypoints, contacts)")
+    out = Path(out)
+    if out.exists() and not force:
+        raise DatasetError(f"{out} already exists; pass --force to replace it")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    features = _features(video)
+    with tempfile.TemporaryDirectory(prefix=".bcbench-export-", dir=out.parent) as tmp_str:
+        tmp = Path(tmp_str) / "dataset"
+        tables = {DATA_FILE: _frame_table(buf, video, pa), EPISODES_FILE: _episode_table(buf, video, pa),
+                  "meta/tasks.parquet": _tasks_table(pa)}
+        for rel, table in tables.items():
+            (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
+            pq.write_table(table, tmp / rel)
+        if video:
+            _write_video(tmp / VIDEO_FILE, buf.images, av)
+        n = buf.n_steps
+        columns = {"observation.state": buf.state[:, :2], "action": buf.action,
+                   "bcbench.block_pose": buf.state[:, 2:5],
+                   "bcbench.keypoint": buf.keypoint.reshape(n, 18), "bcbench.n_contacts": buf.n_contacts}
+        stats = {IMAGE_KEY: _image_stats(buf.images), **{k: _numeric_stats(v) for k, v in columns.items()}}
+        episode = np.repeat(np.arange(buf.n_episodes), buf.episode_lengths)
+        frame = np.arange(n) - buf.episode_starts[episode]
+        for key, values in (("frame_index", frame), ("episode_index", episode), ("index", np.arange(n)),
+                            ("timestamp", frame / FPS), ("task_index", np.zeros(n))):
+            stats[key] = _numeric_stats(values[:, None])
+        info = {"codebase_version": CODEBASE_VERSION, "fps": FPS, "features": features,
+                "total_episodes": buf.n_episodes, "total_frames": n, "total_tasks": 1, "chunks_size": 1000,
+                "data_files_size_in_mb": 100, "video_files_size_in_mb": 200,
+                "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
+                "video_path": ("videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
+                               if video else None),
+                "robot_type": None, "splits": {"train": f"0:{buf.n_episodes}"}}
+        (tmp / "meta/info.json").write_text(json.dumps(info, indent=4))
+        (tmp / "meta/stats.json").write_text(json.dumps(stats, indent=4))
+        if out.exists():
+            shutil.rmtree(out)
+        tmp.rename(out)
+    return {"path": str(out), "episodes": buf.n_episodes, "frames": buf.n_steps,
+            "frames_stored_as": "AV1 video (lossy)" if video else "PNG in parquet (lossless)"}
