@@ -24,7 +24,7 @@ lint: install
 	$(VENV)/bin/ruff check src tests benchmarks
 
 test: install lint
-	$(VENV)/bin/pytest -q --durations=15 -m "not sidecar"
+	$(VENV)/bin/pytest -q --durations=15 -m "not sidecar" -n auto --dist loadfile
 
 # The LeRobot sidecar (opt-in): LeRobot 0.6.1 needs Python >= 3.12, torch < 2.12 and diffusers < 0.40, so it
 # lives in its own venv (about 5.6 GB, 3-4 minutes). `bcbench eval --policy lerobot:FOLDER` finds it here.
@@ -32,7 +32,7 @@ lerobot-env: $(LEROBOT_VENV)/.installed
 $(LEROBOT_VENV)/.installed:
 	@test -n "$(LEROBOT_PY)" || { echo "error: LeRobot needs Python 3.12 (pyenv install 3.12)" >&2; exit 2; }
 	$(LEROBOT_PY) -m venv $(LEROBOT_VENV)
-	$(LEROBOT_VENV)/bin/pip install -q "lerobot[diffusion,pusht]==0.6.1"
+	$(LEROBOT_VENV)/bin/pip install -q "lerobot[diffusion,pusht,training]==0.6.1"
 	@touch $@
 
 # The tests against LeRobot itself (tests/test_lerobot_sidecar.py; about 4 minutes): run where the sidecar is.

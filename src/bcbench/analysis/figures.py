@@ -57,6 +57,7 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference") -> Path | None
         return None
     fig, ax = plt.subplots(figsize=(9, 5.5))
     legend: dict[str, Any] = {}
+    labels: list[tuple[float, float, str]] = []
     nth = _nth_of_policy(pts)
     for r in pts:
         lo, hi = r.est("mean_score")["ci95"]
@@ -71,9 +72,10 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference") -> Path | None
             ax.annotate("", (deployed[1], r.score), xytext=(r.latency_ms(mode), r.score),
                         arrowprops={"arrowstyle": "->", "color": COLOURS.get(r.policy, "k"), "alpha": 0.6, "lw": 1})
         if r.variant != "default":  # a generative policy's settings: name the setting, the legend names it
-            ax.annotate(r.variant.upper().replace("-LEADING", "-L"), (r.latency_ms(mode), r.score), fontsize=6,
-                        xytext=(4, 4), textcoords="offset points")
-    ax.legend(legend.values(), legend.keys(), fontsize=7, loc="upper left", markerscale=0.5)
+            labels.append((r.latency_ms(mode), r.score, r.variant.upper().replace("-LEADING", "-L")))
+    ax.legend(legend.values(), legend.keys(), fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0),
+              markerscale=0.5)  # outside the data
+    fig.set_size_inches(12, 5.5)
 
     shown = {r.reference_key for r in pts}
     for key, ref in STUDY_REFERENCE.items():  # the study's own points (A100), hollow, for comparison
@@ -90,7 +92,31 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference") -> Path | None
     ax.set_ylim(-0.05, 1.05)
     ax.set_title("Accuracy against inference time (the study's Fig. 5)")
     ax.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    place_labels(ax, labels)
     return _save(fig, path)
+
+
+OFFSETS = ((4, 3), (4, -9), (-4, 3), (-4, -9), (4, 10), (4, -16), (-4, 10), (-4, -16), (4, 17), (-4, 17))
+
+
+def place_labels(ax: Any, items: list[tuple[float, float, str]], fontsize: float = 6) -> None:
+    """Name points without labels overlapping: each label (left to right) takes the first offset in OFFSETS
+    whose box, estimated from its length in display units, meets no label placed before it (else the first)."""
+    ax.figure.canvas.draw()  # final limits and log scale: data -> display transform
+    pt = ax.figure.dpi / 72  # display units per typographic point
+    placed: list[tuple[float, float, float, float]] = []
+    for x, y, text in sorted(items):
+        px, py = ax.transData.transform((x, y))
+        w, h = 0.62 * fontsize * len(text) * pt, fontsize * pt
+        boxes = [(px + dx * pt - (w if dx < 0 else 0), py + dy * pt, w, h) for dx, dy in OFFSETS]
+        free = [i for i, (bx, by, _, _) in enumerate(boxes)
+                if not any(bx < qx + qw and qx < bx + w and by < qy + qh and qy < by + h for qx, qy, qw, qh in placed)]
+        i = free[0] if free else 0
+        placed.append(boxes[i])
+        dx, dy = OFFSETS[i]
+        ax.annotate(text, (x, y), xytext=(dx, dy), textcoords="offset points", fontsize=fontsize,
+                    ha="right" if dx < 0 else "left")
 
 
 def _dp_rows(rows: list[Any], sampler: str, schedule: str, spacing: str | None = None) -> list[Any]:

@@ -15,6 +15,8 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+from bcbench.analysis.choose import HEADER as CHOOSE_HEADER
+from bcbench.analysis.choose import control_loop_lines, control_loop_rows
 from bcbench.analysis.convergence import Check, apply_checks, doubling_checks
 from bcbench.analysis.fewstep import fewstep_lines, load_paired
 from bcbench.analysis.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
@@ -26,6 +28,7 @@ from bcbench.reference import CPU_DEVIATIONS, STUDY_REFERENCE
 from bcbench.stats import fmt_estimate, fmt_share
 from bcbench.utils.io import atomic_path, read_json
 
+FIG5 = "Figure 5: accuracy against inference time"
 COLUMNS = ["policy", "params", "mean score [95% CI]", "> 0.5 [Wilson 95%]", "> 0.9 [Wilson 95%]",
            "success [Wilson 95%]",
            "latency ref. median / tail (ms; tail = p99 from >= 100 calls, else max of N)",
@@ -310,7 +313,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     apply_checks(rows, checks, strict)
     out = results / "report"
     out.mkdir(parents=True, exist_ok=True)
-    figs = {"Figure 5: accuracy against inference time": figure5(rows, out / "fig5_accuracy_vs_latency.png"),
+    figs = {FIG5: figure5(rows, out / "fig5_accuracy_vs_latency.png"),
             "Figure 3: generative policies against sampling steps": figure3(rows, out / "fig3_denoising_steps.png"),
             "Figure 4: DDPM-cosine, DDIM-cosine, DDIM-linear": figure4(rows, out / "fig4_samplers.png"),
             "Learning curves": learning_curves(rows, out / "learning_curves.png")}
@@ -329,7 +332,9 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     reason_file = results / MIXING_REASON
     notes = provenance_notes(rows, file_commits(results, extra_dirs),
                              " ".join(reason_file.read_text().split()) if reason_file.exists() else "")
+    fig5 = figs.pop(FIG5)  # the report opens with it, and with which policy suits which control loop
     md = ["# bcbench report", "", intro, "", *[f"> {n}" for n in notes], "",
+          *([f"![{FIG5}]({fig5.name})", ""] if fig5 else []), *control_loop_lines(rows, realtime, margin),
           "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
     md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
     md += ["", "## Results", "", _md_table(COLUMNS, table), "", "## Training: converged?", "",
@@ -345,13 +350,20 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
         tmp.write_text("\n".join(md) + "\n")
     html_path = out / "report.html"
     with atomic_path(html_path) as tmp:
+        lead = (_img(FIG5, fig5) if fig5 else "") + "<h2>Which policy for my control loop</h2>" + _html_table(
+            CHOOSE_HEADER, control_loop_rows(rows, realtime, margin))
         tmp.write_text(_html(intro + " " + " ".join(notes), findings, table, figs, FINDINGS_INTRO.format(m=margin),
-                             convergence_lines(rows)))
+                             convergence_lines(rows), lead))
     return {"markdown": str(md_path), "html": str(html_path), "dir": str(out)}
 
 
+def _img(title: str, path: Path) -> str:
+    t = html.escape(title)
+    return f"<h2>{t}</h2><img alt='{t}' src='data:image/png;base64,{base64.b64encode(path.read_bytes()).decode()}'>"
+
+
 def _html(intro: str, findings: list[Any], table: list[list[str]], figs: dict[str, Path | None],
-          rules_intro: str, training: list[str]) -> str:
+          rules_intro: str, training: list[str], lead: str) -> str:
     css = ("body{font-family:system-ui,sans-serif;max-width:1400px;margin:2em auto;padding:0 1em;color:#222}"
            "table{border-collapse:collapse;font-size:12px}td,th{border:1px solid #ccc;padding:3px 6px;text-align:left}"
            "th{background:#f3f3f3}.supported{color:#176b2c}.contradicted{color:#a11}.inconclusive{color:#8a6d00}"
@@ -361,14 +373,9 @@ def _html(intro: str, findings: list[Any], table: list[list[str]], figs: dict[st
         f"<li><b>{html.escape(f.claim)}</b>: <span class='{f.verdict.split()[0]}'>{html.escape(f.verdict)}</span>. "
         f"{html.escape(f.evidence)}<br><i>Rule: {html.escape(f.rule)}</i></li>" for f in findings)
     train_items = "".join(f"<li>{html.escape(t[2:].replace('**', ''))}</li>" for t in training)
-    images = ""
-    for title, path in figs.items():
-        if path:
-            data = base64.b64encode(path.read_bytes()).decode()
-            t = html.escape(title)
-            images += f"<h2>{t}</h2><img alt='{t}' src='data:image/png;base64,{data}'>"
+    images = "".join(_img(title, path) for title, path in figs.items() if path)
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>bcbench report</title><style>{css}</style>"
-            f"</head><body><h1>bcbench report</h1><p>{html.escape(intro)}</p><h2>The study's findings on this "
+            f"</head><body><h1>bcbench report</h1><p>{html.escape(intro)}</p>{lead}<h2>The study's findings on this "
             f"evidence</h2><p>{html.escape(rules_intro)}</p><ol>{items}</ol><h2>Results</h2>"
             f"{_html_table(COLUMNS, table)}<h2>Training: converged?</h2><ul>{train_items}</ul>{images}</body></html>\n")
 

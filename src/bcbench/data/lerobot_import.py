@@ -19,7 +19,7 @@ from bcbench.data.replay_buffer import ReplayBuffer
 from bcbench.errors import DatasetError
 
 TOLERANCE_S = 1e-4  # LeRobot's default tolerance between a row's timestamp and its video frame
-REQUIRED = {"observation.state": [2], "action": [2]}
+REQUIRED = {"observation.state": 2, "action": 2}  # feature -> numbers per frame
 ROW_COLUMNS = ("index", "episode_index", "frame_index", "timestamp")
 
 
@@ -42,13 +42,11 @@ def _info(src: Path) -> dict[str, Any]:
     if image.get("dtype") not in ("image", "video") or list(image.get("shape", [])) != [96, 96, 3]:
         raise DatasetError(f"{src}: feature '{IMAGE_KEY}' is {image.get('dtype')} {image.get('shape')}, expected an "
                            "image or video of shape [96, 96, 3]")
-    for key, shape in {**REQUIRED, **EXTRA}.items():
-        if key in features and list(features[key].get("shape", [])) != list(shape if isinstance(shape, list)
-                                                                               else [shape]):
-            raise DatasetError(f"{src}: feature '{key}' has shape {features[key].get('shape')}, expected "
-                               f"{shape if isinstance(shape, list) else [shape]}")
+    for key, width in {**REQUIRED, **EXTRA}.items():
         if key in REQUIRED and key not in features:
             raise DatasetError(f"{src}: no feature '{key}' in meta/info.json (Push-T needs it)")
+        if key in features and list(features[key].get("shape", [])) != [width]:
+            raise DatasetError(f"{src}: feature '{key}' has shape {features[key].get('shape')}, expected [{width}]")
     return info
 
 
