@@ -36,7 +36,9 @@ cp "$WORK/lerobot-dp/checkpoints/last/pretrained_model/train_config.json" "$OUT/
 EVAL=(--episodes 50 --seed-start 200000 --quiet)
 $BC eval --policy "lerobot:$LR" "${EVAL[@]}" --out "$OUT/eval-lerobot-dp-ddim10"
 $BC eval --checkpoint "$WORK/bcbench-dp" --sampler ddim --steps 10 "${EVAL[@]}" --out "$OUT/eval-bcbench-dp-ddim10"
-# one call at batch 1, 2 threads; bcbench's quick network in torch (as LeRobot runs) and in its fastest exact mode
-$BC latency --policy "lerobot:$LR" --threads 2 --out "$OUT/latency-lerobot-dp-ddim10"
-$BC latency --policy diffusion --preset quick --sampler ddim --steps 10 --mode reference --mode auto --threads 2 \
-  --out "$OUT/latency-bcbench-dp-ddim10"
+# one call at batch 1, 2 threads, in interleaved rounds (separate blocks drift by tens of percent on a VM):
+# LeRobot's DP beside bcbench's quick DP in torch (as LeRobot runs) and in OpenVINO fp32 (what auto picks here)
+.venv/bin/python benchmarks/lerobot_paired_latency.py "$LR" --out "$OUT/latency-paired"
+# LeRobot's ACT at Push-T's chunk (16, 8 executed), random weights: a call's time does not depend on them
+.lerobot-venv/bin/python tests/sidecar/make_random_lerobot.py act "$WORK/act-random"
+$BC latency --policy "lerobot:$WORK/act-random" --threads 2 --out "$OUT/latency-lerobot-act-random"

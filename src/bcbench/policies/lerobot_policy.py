@@ -121,6 +121,7 @@ class LeRobotPolicy:
 
     def describe(self) -> dict[str, Any]:
         return {"name": self.name, "source": "lerobot", "path": str(self.path), "noise_seed": self.noise_seed,
+                "parameters": int(self.config.get("parameters", 0)),
                 "config": self.config, "versions": self.versions,
                 "timing": "compute time reported by the worker (the pipe excluded)"}
 
