@@ -15,7 +15,7 @@ from typing import Any
 
 from bcbench.cli.parser import EXIT_USAGE, build_parser
 from bcbench.errors import BCBenchError
-from bcbench.stats import fmt_estimate
+from bcbench.stats import fmt_estimate, fmt_share
 from bcbench.utils.io import safe_name, write_json
 from bcbench.utils.system import git_commit, provenance
 
@@ -92,8 +92,9 @@ def cmd_data_replay(args: argparse.Namespace) -> int:
           f"{report['exact_episodes']}/{report['episodes']} = {100 * report['exact_fraction']:.1f}%")
     print(f"  block position error px: median {e['median']:.3g}, p95 {e['p95']:.3g}, max {e['max']:.3g}")
     print(f"  demonstrators' score (the ceiling for cloning): mean {fmt_estimate(d['mean_score'])}")
-    print(f"    > 0.5: {fmt_estimate(d['share_above_0.5'], pct=True)}   > 0.9: "
-          f"{fmt_estimate(d['share_above_0.9'], pct=True)}   success: {fmt_estimate(d['success_rate'], pct=True)}")
+    n = report["episodes"]
+    print(f"    > 0.5: {fmt_share(d['share_above_0.5'], n)}   > 0.9: {fmt_share(d['share_above_0.9'], n)}   "
+          f"success: {fmt_share(d['success_rate'], n)}")
     if args.out:
         write_json(args.out, report)
         print(f"  report written to {args.out}")
@@ -149,9 +150,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
     result = evaluate(policy, cfg, out, progress=not args.quiet)
     s = result["summary"]
     print(f"{policy.name}: {s['n']} episodes from seed {cfg.seed_start}")
-    print(f"  mean score {fmt_estimate(s['mean_score'])}   > 0.5 {fmt_estimate(s['share_above_0.5'], pct=True)}"
-          f"   > 0.9 {fmt_estimate(s['share_above_0.9'], pct=True)}"
-          f"   success {fmt_estimate(s['success_rate'], pct=True)}")
+    n = s["n"]  # shares with Wilson intervals (a bootstrap gives [0, 0] at 0%)
+    print(f"  mean score {fmt_estimate(s['mean_score'])}   > 0.5 {fmt_share(s['share_above_0.5'], n)}"
+          f"   > 0.9 {fmt_share(s['share_above_0.9'], n)}   success {fmt_share(s['success_rate'], n)}")
     print(f"  wall {s['wall_time_s']:.1f} s, {s['env_steps']} env steps ({s['env_steps_per_s']:.0f}/s on "
           f"{s['workers']} workers), {s['policy_calls']} batched policy calls ({s['policy_time_s']:.2f} s)")
     print(f"  results: {out / 'eval.json'}")
