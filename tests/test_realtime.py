@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -28,8 +30,8 @@ class PlannedStep:
         return chunk.astype(np.float32)
 
 
-def _run(execution: str, d: int, steps: int = 24) -> list[tuple[float, float]]:
-    ctl = ChunkedController(PlannedStep(), execution=execution, delay=lambda env_id: d)
+def _run(execution: str, d: int, steps: int = 24, s: int | None = None) -> list[tuple[float, float]]:
+    ctl = ChunkedController(PlannedStep(), execution=execution, delay=lambda env_id: d, execution_horizon=s)
     obs = lambda t: {"pixels": np.zeros((96, 96, 3), np.uint8), "agent_pos": np.array([t, -1.0])}  # noqa: E731
     ctl.reset(0, obs(0))
     out = []
@@ -51,6 +53,24 @@ def test_async_skips_the_past_and_uses_the_old_chunks_leftovers():
         assert acts[t][0] == t  # every action executed at step t is the one planned for step t
     # call 1 is made at step 5 (3 actions left) from step 5's observation; steps 5-7 still run call 0's chunk
     assert [a[1] for a in acts[3:9]] == [0, 0, 0, 0, 0, 1]
+
+
+def test_the_execution_horizon_runs_s_actions_of_every_chunk():
+    """Diffusion Policy's latency protocol (its Fig. 6): the first d actions dropped, then 8 executed (s = 8)."""
+    acts = _run("async", 3, steps=60, s=8)
+    assert all(acts[t][0] == t for t in range(3, 60))  # still the action planned for each step
+    calls = [int(a[1]) for a in acts[3:]]
+    runs = [len(list(g)) for _, g in itertools.groupby(calls)]
+    assert runs[:-1] == [8] * (len(runs) - 1)  # 8 steps of each chunk, the last one cut by the episode's end
+    for d in (1, 2, 3):  # the default is s = action horizon - d: today's async, unchanged
+        assert _run("async", d, steps=40, s=8 - d) == _run("async", d, steps=40)
+
+
+def test_the_execution_horizon_must_fit_in_the_chunk_and_goes_with_async():
+    with pytest.raises(BCBenchError, match=r"needs 17 actions of a chunk of 16 \(s <= H - d"):
+        _run("async", 3, s=14)
+    with pytest.raises(BCBenchError, match="goes with --execution async"):
+        EvalConfig(execution="blocking", execution_horizon=8)
 
 
 def test_blocking_holds_the_last_target_while_computing():

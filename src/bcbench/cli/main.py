@@ -144,7 +144,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
     cfg = EvalConfig(episodes=args.episodes, seed_start=args.seed_start, max_steps=args.max_steps,
                      action_horizon=args.action_horizon, workers=args.workers, video=args.video,
-                     execution=args.execution, latency=args.latency, latency_ms=args.latency_ms)
+                     execution=args.execution, latency=args.latency, latency_ms=args.latency_ms,
+                     execution_horizon=args.execution_horizon)
     policy, default_out = _load_eval_policy(args)
     out = Path(args.out) if args.out else default_out
     result = evaluate(policy, cfg, out, progress=not args.quiet)
@@ -277,8 +278,11 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     args.no_ema = False
     policy, default_out = _load_eval_policy(args)
     out = Path(args.out) if args.out else default_out.with_name(default_out.name.replace("eval-", "realtime-"))
+    from bcbench.evaluation.config import EvalConfig
+
+    EvalConfig(execution="async", execution_horizon=args.execution_horizon)  # checked before any episode
     results = sweep(policy, args.delays, args.execution, args.episodes, args.profile or [], args.measured,
-                    progress=not args.quiet, max_steps=args.max_steps)
+                    progress=not args.quiet, max_steps=args.max_steps, execution_horizon=args.execution_horizon)
     print(f"{policy.name}: score under real-time execution ({args.episodes} episodes each)")
     for name, r in results.items():
         write_json(out / f"{name}.json", r)

@@ -205,6 +205,7 @@ def _add_study_commands(sub: Any) -> None:
     _add_backend_args(p)
     _field(p, "--episodes", EvalConfig, type=_positive_int, default=100)  # a sweep's settings: 100 test seeds
     _field(p, "--max-steps", EvalConfig, type=_positive_int)
+    _field(p, "--execution-horizon", EvalConfig, type=_positive_int, metavar="S")
     p.add_argument("--out", metavar="DIR", help="output folder (its realtime-sweep.json is what a report reads: "
                    "put it inside a study's folder to add this sweep to the study's report)")
     p.add_argument("--label", help="the sweep's name in reports (default: the policy and its inference mode)")
@@ -286,6 +287,7 @@ def _add_eval_command(sub: Any) -> None:
     _field(p, "--execution", EvalConfig, choices=EXECUTIONS)
     _field(p, "--latency-ms", EvalConfig, type=float, metavar="MS")
     _field(p, "--latency", EvalConfig, metavar="SOURCE")
+    _field(p, "--execution-horizon", EvalConfig, type=_positive_int, metavar="S")
     p.add_argument("--out", metavar="DIR", help="output folder (default runs/eval-POLICY-TIME)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func="cmd_eval")

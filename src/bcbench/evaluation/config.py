@@ -47,6 +47,9 @@ class EvalConfig:
     """where a call's latency comes from: 'measured' or 'profile:NAME' (or latency_ms)"""
     latency_ms: float | None = None
     """a fixed latency per call in milliseconds"""
+    execution_horizon: int | None = None
+    """async: actions of each chunk executed before the next one replaces it (s; Real-Time Chunking's execution
+    horizon, Diffusion Policy's latency experiment uses 8); default: the action horizon minus the delay"""
 
     def __post_init__(self) -> None:
         if self.episodes < 1:
@@ -64,4 +67,7 @@ class EvalConfig:
 
         if self.execution not in EXECUTIONS:
             raise BCBenchError(f"--execution must be one of {', '.join(EXECUTIONS)}, got '{self.execution}'")
+        if self.execution_horizon is not None and (self.execution_horizon < 1 or self.execution != "async"):
+            raise BCBenchError("--execution-horizon goes with --execution async and must be >= 1, got "
+                               f"{self.execution_horizon} with {self.execution}")
         check_latency_options(self.latency, self.latency_ms)

@@ -12,7 +12,11 @@ Execution under latency (`execution`): a call whose latency is d control steps (
 - `async`: the next chunk is asked for when the queue falls to d actions (the threshold; a chunk arrives
   just in time), computed from the observation of that moment, while the agent runs the queue's last
   actions; on arrival its first d actions, now in the past, are skipped and it replaces the queue. If the
-  queue runs dry first, the agent holds its last target.
+  queue runs dry first, the agent holds its last target. How many actions of each chunk run before the next
+  one replaces it is the execution horizon s (Real-Time Chunking's, Black et al. 2025, Sec. 3): by default
+  the action horizon minus d (the chunk's actions up to its action horizon, the first d skipped); with
+  `execution_horizon` s, the chunk supplies s actions from index chunk_start + d, so requests come every s
+  steps (Diffusion Policy's latency experiment, its Fig. 6: first d dropped, 8 executed, is s = 8).
 With d = 0 both give exactly the sync result. The controller counts the d of every call (`delays`).
 
 Each environment also owns its noise stream: a torch.Generator seeded from (the policy's noise seed, the
@@ -56,7 +60,7 @@ class ChunkedController:
     """Observation history and action queues for a set of environments keyed by id."""
 
     def __init__(self, policy: ChunkPolicy, action_horizon: int | None = None, execution: str = "sync",
-                 delay: Callable[[int], int] | None = None) -> None:
+                 delay: Callable[[int], int] | None = None, execution_horizon: int | None = None) -> None:
         if execution not in EXECUTIONS:
             raise BCBenchError(f"--execution must be one of {', '.join(EXECUTIONS)}, got '{execution}'")
         self.policy, self.execution = policy, execution
@@ -72,6 +76,9 @@ class ChunkedController:
                 f"action_horizon {self.action_horizon} from chunk index {self.chunk_start} exceeds the "
                 f"policy's pred_horizon {self.pred_horizon}"
             )
+        self.execution_horizon = execution_horizon  # async only (s); None: action_horizon - d
+        if execution_horizon is not None and (execution != "async" or execution_horizon < 1):
+            raise BCBenchError("an execution horizon goes with async execution and must be >= 1")
         self._history: dict[int, deque[dict[str, np.ndarray]]] = {}
         self._queue: dict[int, deque[np.ndarray]] = {}
         self._noise: dict[int, torch.Generator] = {}
@@ -117,6 +124,10 @@ class ChunkedController:
         if self.execution == "async" and self.chunk_start + d >= self.pred_horizon:
             raise BCBenchError(f"async execution with a delay of {d} steps: the chunk of {self.pred_horizon} actions "
                                f"(the current one at index {self.chunk_start}) would be entirely in the past")
+        s = self.execution_horizon
+        if self.execution == "async" and s is not None and self.chunk_start + d + s > self.pred_horizon:
+            raise BCBenchError(f"execution horizon {s} after a delay of {d} steps needs {self.chunk_start + d + s} "
+                               f"actions of a chunk of {self.pred_horizon} (s <= H - d, as Real-Time Chunking)")
         return d
 
     def _plan(self, env_ids: list[int]) -> np.ndarray:
@@ -168,7 +179,8 @@ class ChunkedController:
             d = self._checked_delay(i)
         else:  # async: the first d actions are in the past when the chunk arrives
             d, self._next_delay[i] = self._next_delay[i], self._checked_delay(i)
-            start, end = start + d, max(end, start + d + 1)
+            s = self.execution_horizon
+            start, end = start + d, (max(end, start + d + 1) if s is None else start + d + s)
         self.delays.append(d)
         actions = list(chunk[start:end])
         if d == 0:

@@ -166,7 +166,7 @@ def run_episodes(policy: ChunkPolicy, cfg: EvalConfig, out_dir: Path | None = No
     source = LatencySource.parse(cfg.latency, cfg.latency_ms)
     source.resolve(policy)  # measured: timed now, before any simulator runs beside it
     controller = ChunkedController(policy, cfg.action_horizon, cfg.execution,
-                                   source.delay_fn({i: r.seed for i, r in results.items()}))
+                                   source.delay_fn({i: r.seed for i, r in results.items()}), cfg.execution_horizon)
     video_dir = (out_dir / "videos") if out_dir is not None else Path("videos")
     pool = _WorkerPool(n_workers, cfg.video_size)
     policy_time, env_steps, t0 = 0.0, 0, time.perf_counter()

@@ -33,11 +33,13 @@ def sweep_settings(delays: list[int], executions: list[str], profiles: list[str]
 def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episodes: int, profiles: list[str],
           measured: bool, progress: bool = True, max_steps: int = 300, seed_start: int = 100_000,
           skip_missing_profiles: bool = False, done: dict[str, dict[str, Any]] | None = None,
-          on_setting: Callable[[dict[str, dict[str, Any]]], None] | None = None) -> dict[str, dict[str, Any]]:
+          on_setting: Callable[[dict[str, dict[str, Any]]], None] | None = None,
+          execution_horizon: int | None = None) -> dict[str, dict[str, Any]]:
     """Score against delay d for each execution mode (sync as the d = 0 reference), plus the policy's score at
     its measured latency on this machine and under each hardware profile: evaluation results by setting.
     `done`: settings finished by an interrupted sweep (kept, not rerun); `on_setting(results so far)` is called
-    after each setting, so a caller can save them (a sweep is 13 evaluations of 100 episodes in a study)."""
+    after each setting, so a caller can save them (a sweep is 13 evaluations of 100 episodes in a study).
+    `execution_horizon`: s of the async settings (see bcbench.evaluation.controller)."""
     usable = []
     for p in profiles:  # fail before hours of episodes, not after (or, in a study, leave that profile out)
         try:
@@ -52,7 +54,7 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
         if name in out:
             continue
         cfg = EvalConfig(episodes=episodes, execution=execution, max_steps=max_steps, seed_start=seed_start,
-                         **latency)
+                         execution_horizon=execution_horizon if execution == "async" else None, **latency)
         out[name] = evaluate(policy, cfg, None, progress=progress, extra={"realtime": {"setting": name}})
         if on_setting is not None:
             on_setting(out)
