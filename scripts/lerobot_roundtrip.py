@@ -23,8 +23,8 @@ import numpy as np
 from bcbench.data import load_replay_buffer, resolve_dataset
 from bcbench.data.lerobot_format import export_lerobot
 from bcbench.data.lerobot_import import import_lerobot
-from bcbench.data.replay_buffer import write_replay_buffer_atomic
-from bcbench.utils.io import write_json
+from bcbench.data.replay_buffer import write_replay_buffer
+from bcbench.utils.io import atomic_dir, write_json
 from bcbench.utils.system import provenance
 
 KEYS = ("state", "action", "keypoint", "n_contacts", "images", "episode_ends")
@@ -71,7 +71,8 @@ def main() -> None:
             rec["frames"] = {"mean_abs_error": float(diff.mean()), "max_abs_error": int(diff.max()),
                              "psnr_db": float(10 * np.log10(255**2 / mse))}
         else:
-            write_replay_buffer_atomic(work / "imported.zarr", back, force=True)
+            with atomic_dir(work / "imported.zarr", force=True) as staged:
+                write_replay_buffer(staged, back)
         out[name] = rec
         print(name, json.dumps(rec))
     a = _losses(src, work / "run-zarr", args.steps)

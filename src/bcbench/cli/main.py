@@ -62,10 +62,12 @@ def cmd_data_export(args: argparse.Namespace) -> int:
 
 def cmd_data_import(args: argparse.Namespace) -> int:
     from bcbench.data.lerobot_import import import_lerobot
-    from bcbench.data.replay_buffer import write_replay_buffer_atomic
+    from bcbench.data.replay_buffer import write_replay_buffer
+    from bcbench.utils.io import atomic_dir
 
     buf = import_lerobot(args.source)
-    write_replay_buffer_atomic(args.out, buf, force=args.force)
+    with atomic_dir(args.out, force=args.force) as staged:
+        write_replay_buffer(staged, buf)
     _print_summary({**buf.summary(), "path": args.out})
     if buf.missing:
         print(f"  note: the dataset has no {', '.join('bcbench.' + m for m in buf.missing)}: zeros stand in (training "
@@ -278,9 +280,6 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     args.no_ema = False
     policy, default_out = _load_eval_policy(args)
     out = Path(args.out) if args.out else default_out.with_name(default_out.name.replace("eval-", "realtime-"))
-    from bcbench.evaluation.config import EvalConfig
-
-    EvalConfig(execution="async", execution_horizon=args.execution_horizon)  # checked before any episode
     results = sweep(policy, args.delays, args.execution, args.episodes, args.profile or [], args.measured,
                     progress=not args.quiet, max_steps=args.max_steps, execution_horizon=args.execution_horizon)
     print(f"{policy.name}: score under real-time execution ({args.episodes} episodes each)")

@@ -32,8 +32,6 @@ from __future__ import annotations
 import io
 import json
 import os
-import shutil
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +39,7 @@ import numpy as np
 
 from bcbench.data.replay_buffer import ReplayBuffer
 from bcbench.errors import DatasetError
+from bcbench.utils.io import atomic_dir
 
 CODEBASE_VERSION = "v3.0"
 FPS = 10  # Push-T's control rate
@@ -138,7 +137,7 @@ def _features(video: bool) -> dict[str, Any]:
             "index": vec(1, dtype="int64"), "task_index": vec(1, dtype="int64")}
 
 
-def _hf_metadata(features: dict[str, Any], video: bool) -> bytes:
+def _hf_metadata(features: dict[str, Any]) -> bytes:
     """The `huggingface` schema metadata LeRobot's loader (Hugging Face datasets) reads the columns' types from."""
     hf: dict[str, Any] = {}
     for key, ft in features.items():
@@ -154,33 +153,37 @@ def _hf_metadata(features: dict[str, Any], video: bool) -> bytes:
     return json.dumps({"info": {"features": hf}}).encode()
 
 
-def _frame_table(buf: ReplayBuffer, video: bool, pa: Any) -> Any:
-    n, starts = buf.n_steps, buf.episode_starts
+def _frame_columns(buf: ReplayBuffer) -> dict[str, np.ndarray]:
+    """Every per-frame column but the image, as arrays (N,) or (N, D): what the data table holds and what
+    stats.json summarises."""
+    assert buf.keypoint is not None and buf.n_contacts is not None
+    n = buf.n_steps
     episode = np.repeat(np.arange(buf.n_episodes), buf.episode_lengths)
-    frame = np.arange(n) - starts[episode]
+    frame = np.arange(n) - buf.episode_starts[episode]
     done = np.zeros(n, dtype=bool)
     done[buf.episode_ends - 1] = True
-    assert buf.keypoint is not None and buf.n_contacts is not None and buf.images is not None
+    return {"observation.state": buf.state[:, :2], "action": buf.action, "bcbench.block_pose": buf.state[:, 2:5],
+            "bcbench.keypoint": buf.keypoint.reshape(n, 18), "bcbench.n_contacts": buf.n_contacts[:, 0],
+            "next.done": done, "timestamp": (frame / FPS).astype(np.float32), "frame_index": frame.astype(np.int64),
+            "episode_index": episode.astype(np.int64), "index": np.arange(n, dtype=np.int64),
+            "task_index": np.zeros(n, dtype=np.int64)}
 
-    def fixed(a: np.ndarray) -> Any:
+
+def _frame_table(buf: ReplayBuffer, columns: dict[str, np.ndarray], video: bool, pa: Any) -> Any:
+    def arrow(a: np.ndarray) -> Any:  # (N,) a plain column; (N, D) a fixed-size list of float32
+        if a.ndim == 1:
+            return pa.array(a)
         a = np.ascontiguousarray(a, dtype=np.float32)
         return pa.FixedSizeListArray.from_arrays(pa.array(a.ravel()), a.shape[1])
 
     cols: dict[str, Any] = {}
     if not video:
+        assert buf.images is not None
         cols[IMAGE_KEY] = pa.StructArray.from_arrays(
             [pa.array([_png(img) for img in buf.images], pa.binary()),
-             pa.array([f"frame-{f:06d}.png" for f in frame], pa.string())], names=["bytes", "path"])
-    cols.update({"observation.state": fixed(buf.state[:, :2]), "action": fixed(buf.action),
-                 "bcbench.block_pose": fixed(buf.state[:, 2:5]),
-                 "bcbench.keypoint": fixed(buf.keypoint.reshape(n, 18)),
-                 "bcbench.n_contacts": pa.array(buf.n_contacts[:, 0].astype(np.float32)), "next.done": pa.array(done),
-                 "timestamp": pa.array((frame / FPS).astype(np.float32)),
-                 "frame_index": pa.array(frame.astype(np.int64)),
-                 "episode_index": pa.array(episode.astype(np.int64)), "index": pa.array(np.arange(n, dtype=np.int64)),
-                 "task_index": pa.array(np.zeros(n, dtype=np.int64))})
-    table = pa.table(cols)
-    return table.replace_schema_metadata({b"huggingface": _hf_metadata(_features(video), video)})
+             pa.array([f"frame-{f:06d}.png" for f in columns["frame_index"]], pa.string())], names=["bytes", "path"])
+    cols.update({k: arrow(v) for k, v in columns.items()})
+    return pa.table(cols).replace_schema_metadata({b"huggingface": _hf_metadata(_features(video))})
 
 
 def _episode_table(buf: ReplayBuffer, video: bool, pa: Any) -> Any:
@@ -218,40 +221,25 @@ def export_lerobot(buf: ReplayBuffer, out: str | Path, *, video: bool = False, f
     if buf.images is None or buf.keypoint is None or buf.n_contacts is None:
         raise DatasetError("export needs the full replay buffer (images, keypoints, contacts)")
     out = Path(out)
-    if out.exists() and not force:
-        raise DatasetError(f"{out} already exists; pass --force to replace it")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    features = _features(video)
-    with tempfile.TemporaryDirectory(prefix=".bcbench-export-", dir=out.parent) as tmp_str:
-        tmp = Path(tmp_str) / "dataset"
-        tables = {DATA_FILE: _frame_table(buf, video, pa), EPISODES_FILE: _episode_table(buf, video, pa),
+    columns = _frame_columns(buf)
+    with atomic_dir(out, force) as tmp:
+        tables = {DATA_FILE: _frame_table(buf, columns, video, pa), EPISODES_FILE: _episode_table(buf, video, pa),
                   "meta/tasks.parquet": _tasks_table(pa)}
         for rel, table in tables.items():
             (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
             pq.write_table(table, tmp / rel)
         if video:
             _write_video(tmp / VIDEO_FILE, buf.images, av)
-        n = buf.n_steps
-        columns = {"observation.state": buf.state[:, :2], "action": buf.action,
-                   "bcbench.block_pose": buf.state[:, 2:5],
-                   "bcbench.keypoint": buf.keypoint.reshape(n, 18), "bcbench.n_contacts": buf.n_contacts}
-        stats = {IMAGE_KEY: _image_stats(buf.images), **{k: _numeric_stats(v) for k, v in columns.items()}}
-        episode = np.repeat(np.arange(buf.n_episodes), buf.episode_lengths)
-        frame = np.arange(n) - buf.episode_starts[episode]
-        for key, values in (("frame_index", frame), ("episode_index", episode), ("index", np.arange(n)),
-                            ("timestamp", frame / FPS), ("task_index", np.zeros(n))):
-            stats[key] = _numeric_stats(values[:, None])
-        info = {"codebase_version": CODEBASE_VERSION, "fps": FPS, "features": features,
-                "total_episodes": buf.n_episodes, "total_frames": n, "total_tasks": 1, "chunks_size": 1000,
-                "data_files_size_in_mb": 100, "video_files_size_in_mb": 200,
+        numeric = {k: v if v.ndim == 2 else v[:, None] for k, v in columns.items() if k != "next.done"}
+        stats = {IMAGE_KEY: _image_stats(buf.images), **{k: _numeric_stats(v) for k, v in numeric.items()}}
+        info = {"codebase_version": CODEBASE_VERSION, "fps": FPS, "features": _features(video),
+                "total_episodes": buf.n_episodes, "total_frames": buf.n_steps, "total_tasks": 1,
+                "chunks_size": 1000, "data_files_size_in_mb": 100, "video_files_size_in_mb": 200,
                 "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
                 "video_path": ("videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
                                if video else None),
                 "robot_type": None, "splits": {"train": f"0:{buf.n_episodes}"}}
         (tmp / "meta/info.json").write_text(json.dumps(info, indent=4))
         (tmp / "meta/stats.json").write_text(json.dumps(stats, indent=4))
-        if out.exists():
-            shutil.rmtree(out)
-        tmp.rename(out)
     return {"path": str(out), "episodes": buf.n_episodes, "frames": buf.n_steps,
             "frames_stored_as": "AV1 video (lossy)" if video else "PNG in parquet (lossless)"}

@@ -119,7 +119,17 @@ def _decode_video(path: Path) -> tuple[np.ndarray, list[np.ndarray]]:
         raise DatasetError(f"{path}: cannot decode video ({type(e).__name__}: {e})") from None
     if not frames or frames[0].shape != (96, 96, 3):
         raise DatasetError(f"{path}: no 96x96 RGB frames")
-    return np.asarray(times), frames
+    order = np.argsort(times, kind="stable")  # presentation order, whatever order the decoder gave them in
+    return np.asarray(times)[order], [frames[i] for i in order]
+
+
+def _nearest(times: np.ndarray, want: np.ndarray) -> np.ndarray:
+    """Index of the frame time nearest each wanted time; `times` ascending (a video's presentation order)."""
+    if len(times) == 1:
+        return np.zeros(len(want), dtype=np.int64)
+    right = np.clip(np.searchsorted(times, want), 1, len(times) - 1)
+    left = right - 1
+    return np.where(np.abs(times[left] - want) <= np.abs(times[right] - want), left, right)
 
 
 def _video_frames(src: Path, info: dict[str, Any], episodes: dict[str, np.ndarray], order: np.ndarray,
@@ -145,7 +155,7 @@ def _video_frames(src: Path, info: dict[str, Any], episodes: dict[str, np.ndarra
         times, frames = cache[path]
         n = int(episodes["length"][e])
         want = episodes[prefix + "from_timestamp"][e] + timestamps[row:row + n]
-        nearest = np.abs(want[:, None] - times[None, :]).argmin(1)
+        nearest = _nearest(times, want)
         off = np.abs(times[nearest] - want)
         if off.max() >= TOLERANCE_S:
             raise DatasetError(f"{path}: episode {int(episodes['episode_index'][e])} has no frame within "

@@ -185,23 +185,6 @@ def write_replay_buffer(path: str | Path, buf: ReplayBuffer, chunk: int = 161) -
     return Path(path)
 
 
-def write_replay_buffer_atomic(path: str | Path, buf: ReplayBuffer, force: bool = False) -> Path:
-    """`write_replay_buffer` into a temporary folder beside `path`, renamed into place when complete."""
-    import shutil
-    import tempfile
-
-    path = Path(path)
-    if path.exists() and not force:
-        raise DatasetError(f"{path} already exists; pass --force to replace it")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix=".bcbench-write-", dir=path.parent) as tmp:
-        staged = write_replay_buffer(Path(tmp) / "buffer.zarr", buf)
-        if path.exists():
-            shutil.rmtree(path)
-        staged.rename(path)
-    return path
-
-
 def subset(buf: ReplayBuffer, episodes: list[int] | np.ndarray) -> ReplayBuffer:
     """A new buffer holding only the given episodes, in the given order."""
     idx = np.concatenate([np.arange(buf.episode_starts[e], buf.episode_ends[e]) for e in episodes])

@@ -40,6 +40,8 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
     `done`: settings finished by an interrupted sweep (kept, not rerun); `on_setting(results so far)` is called
     after each setting, so a caller can save them (a sweep is 13 evaluations of 100 episodes in a study).
     `execution_horizon`: s of the async settings (see bcbench.evaluation.controller)."""
+    if execution_horizon is not None:  # checked before hours of episodes
+        EvalConfig(execution="async", execution_horizon=execution_horizon)
     usable = []
     for p in profiles:  # fail before hours of episodes, not after (or, in a study, leave that profile out)
         try:

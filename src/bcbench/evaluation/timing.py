@@ -118,8 +118,9 @@ def measure_runner(runner: ChunkPolicy, cfg: TimingConfig, rate_hz: float = 10.0
     if np.asarray(out).shape != (1, runner.pred_horizon, 2):
         raise BCBenchError(f"{runner.name} returned {np.asarray(out).shape}, expected (1, {runner.pred_horizon}, 2)")
     cuda = getattr(runner, "device", torch.device("cpu")).type == "cuda"
-    stats = time_calls(lambda: runner.predict_action_chunk(obs), cfg, cuda, self_clock(runner))
-    if self_clock(runner) is not None:  # what the pipe adds, for the record (not in the latency)
+    clock = self_clock(runner)
+    stats = time_calls(lambda: runner.predict_action_chunk(obs), cfg, cuda, clock)
+    if clock is not None:  # what the pipe adds, for the record (not in the latency)
         wall = time_calls(lambda: runner.predict_action_chunk(obs), TimingConfig(warmup=0, min_calls=20,
                                                                                 min_seconds=0.0, max_calls=20))
         stats["timed_as"] = "compute time reported by the policy's process (pipe excluded)"

@@ -140,8 +140,3 @@ class LeRobotPolicy:
         with contextlib.suppress(Exception):
             self.close()
 
-
-def make_policy(path: str, steps: int | None = None, threads: int | None = None, python: str | None = None,
-                worker: str | None = None, seed: int = 0) -> LeRobotPolicy:
-    """The `lerobot` plug-in's factory (`--policy lerobot --policy-arg path=FOLDER`)."""
-    return LeRobotPolicy(path, steps=steps, threads=threads, python=python, worker=worker, seed=seed)

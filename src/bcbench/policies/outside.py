@@ -5,10 +5,10 @@ Three ways to name a policy wherever bcbench takes one (`eval`, `latency`, `real
 - a registered name (`scripted`, or a trained run through `--checkpoint`);
 - `my_pkg.my_module:make_policy`: a factory (function or class) that returns a `bcbench.ChunkPolicy`, called
   with the keyword arguments of `--policy-arg KEY=VALUE` (values are JSON where they parse, else strings);
-- `lerobot:FOLDER`: a LeRobot Diffusion Policy or ACT folder, run in the LeRobot sidecar
-  (`bcbench.policies.lerobot_policy`; the built-in plug-in `lerobot` with `--policy-arg path=FOLDER`);
 - the name of a plug-in: an installed package that declares an entry point in the group `bcbench.policies`
-  (`knn = "bcbench_knn:make_policy"` in its pyproject.toml); `bcbench policies` lists them.
+  (`knn = "bcbench_knn:make_policy"` in its pyproject.toml); `bcbench policies` lists them. `PLUGIN:ARG` passes
+  ARG as the factory's first argument: bcbench's own plug-in `lerobot` takes a LeRobot policy folder so
+  (`lerobot:FOLDER`, run in the LeRobot sidecar: `bcbench.policies.lerobot_policy`).
 
 Before any episode runs, `check_contract` calls the policy once on a random batch and checks what bcbench
 relies on; a violation is one line naming what is wrong (the CLI prints it and exits 2, writing nothing).
@@ -28,14 +28,14 @@ from bcbench.errors import BCBenchError
 from bcbench.interface import ChunkPolicy, example_observation
 
 ENTRY_POINT_GROUP = "bcbench.policies"
-LEROBOT_PREFIX = "lerobot:"  # a LeRobot policy folder, through the built-in `lerobot` plug-in
 REQUIRED = ("name", "obs_horizon", "pred_horizon", "action_horizon", "chunk_start", "predict_action_chunk",
             "describe")
 
 
 def is_factory_path(name: str) -> bool:
-    """'pkg.module:attr' names a factory; a plain name is a registered policy or a plug-in."""
-    return ":" in name and not name.startswith(LEROBOT_PREFIX)
+    """'pkg.module:attr' names a factory; a plain name is a registered policy or a plug-in, and 'PLUGIN:ARG' a
+    plug-in with its first argument (`lerobot:FOLDER`)."""
+    return ":" in name and name.partition(":")[0] not in plugins()
 
 
 def plugins() -> dict[str, metadata.EntryPoint]:
@@ -85,11 +85,13 @@ def load_factory(name: str) -> Callable[..., Any]:
 
 def outside_policy(name: str, kwargs: dict[str, Any] | None = None) -> ChunkPolicy:
     """Build an outside policy and check its contract; every failure is one BCBenchError line."""
-    if name.startswith(LEROBOT_PREFIX):  # `lerobot:FOLDER`: LeRobot's package cannot be imported here anyway
-        kwargs, name = {"path": name.removeprefix(LEROBOT_PREFIX), **(kwargs or {})}, "lerobot"
+    args: tuple[str, ...] = ()
+    if ":" in name and not is_factory_path(name):  # PLUGIN:ARG, e.g. lerobot:FOLDER
+        name, arg = name.split(":", 1)
+        args = (arg,)
     factory = load_factory(name)
     try:
-        policy = factory(**(kwargs or {}))
+        policy = factory(*args, **(kwargs or {}))
     except BCBenchError:
         raise
     except Exception as e:

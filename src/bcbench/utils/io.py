@@ -5,12 +5,15 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from bcbench.errors import BCBenchError
 
 
 def _json_default(obj: Any) -> Any:
@@ -42,6 +45,22 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         os.replace(tmp_path, path)
     finally:
         tmp_path.unlink(missing_ok=True)
+
+
+@contextlib.contextmanager
+def atomic_dir(path: str | Path, force: bool = False) -> Iterator[Path]:
+    """Yield a folder path to create inside a temporary folder beside `path`; it takes `path`'s place only if
+    the block succeeds (an existing `path` needs `force`, and is replaced only then)."""
+    path = Path(path)
+    if path.exists() and not force:
+        raise BCBenchError(f"{path} already exists; pass --force to replace it")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=f".{path.name}.", dir=path.parent) as tmp:
+        staged = Path(tmp) / path.name
+        yield staged
+        if path.exists():
+            shutil.rmtree(path)
+        staged.rename(path)
 
 
 def write_json(path: str | Path, data: Any) -> Path:
