@@ -26,7 +26,7 @@ max_steps = 8
 latency = true
 latency_min_calls = 2
 latency_min_seconds = 0.0
-realtime = {{ delays = [1], execution = ["async"], measured = false }}
+realtime = {{ delays = [1], execution = ["async"], measured = false, strategies = ["naive", "ensemble"] }}
 
 [[run]]
 policy = "random"
@@ -58,6 +58,7 @@ eval = [{{ sampler = "ddpm", steps = [2] }}, {{ sampler = "ddim", steps = [2] }}
     ("[[run]]\npolicy = 'cnn_mlp'\nset = {'optim.nope' = 1}", "unknown config field"),
     ("[[run]]\npolicy = 'cnn_mlp'\ncolour = 'red'", "unknown key(s) colour"),
     ("[study]\nepisodes = 0\n[[run]]\npolicy = 'random'", "study.episodes"),
+    ("[study]\nrealtime = {strategies = ['smooth']}\n[[run]]\npolicy = 'random'", "study.realtime.strategies"),
     # the seed protocol: an explore study (where choices are made) never reads the test seeds 100000-100099
     ("[study]\npurpose = 'explore'\nepisodes = 50\n[[run]]\npolicy = 'random'", "validation seeds"),
     ("[study]\npurpose = 'explore'\nseed_start = 99990\nepisodes = 50\n[[run]]\npolicy = 'random'",
@@ -140,13 +141,15 @@ def test_study_killed_then_rerun_resumes_without_redoing(synthetic_zarr, tmp_pat
     for f, mtime in first_files.items():
         assert (out / f).stat().st_mtime_ns == mtime  # finished stages were not redone
     index = [json.loads(x) for x in (out / "index.jsonl").read_text().splitlines()]
-    assert len(index) == 3 + 3 + 5  # random: eval, latency, realtime; cnn: train, eval, latency; dp: train, 2+2
+    # random: eval, latency, realtime naive and ensemble; cnn: train, eval, latency; dp: train, 2+2
+    assert len(index) == 4 + 3 + 5
     assert not list(out.rglob(".realtime-*.partial.json"))  # a finished sweep leaves no partial file behind
     report = out / "report" / "report.md"
     assert report.exists() and (out / "report" / "report.html").exists()
     text = report.read_text()
     assert "The study's findings" in text and "DDPM2" in text
     assert "## Under real-time execution" in text and "async-d1" in text and (out / "report" / "realtime.png").exists()
+    assert "## Execution strategies under latency" in text and "| random (quick) | ensemble |" in text
     assert main(cmd) == 0
     assert "0 stage(s) run" in capsys.readouterr().out
 

@@ -17,7 +17,10 @@ Optional parts, each its own protocol, so that code asks `isinstance` instead of
 - `SeededPolicy`: `noise_seed`, combined with each episode's seed into that episode's noise stream;
 - `GenerativePolicy`: samplers and a step count (`set_sampler`), as Diffusion Policy and flow matching have;
 - `SelfTimedPolicy`: a policy in another process reports its own compute time (latency excludes the pipe);
-- `FilmSplittable`: the exact FiLM split of the denoising U-Net that the fast inference form switches on.
+- `FilmSplittable`: the exact FiLM split of the denoising U-Net that the fast inference form switches on;
+- `GuidedPolicy`: samples a chunk inpainted towards the executing one (Real-Time Chunking, `--strategy rtc`);
+- `CandidatePolicy`: samples n chunks per observation in one call (Bidirectional Decoding's candidates; without
+  it the controller repeats the observation rows, which costs n encodings).
 """
 
 from __future__ import annotations
@@ -82,6 +85,30 @@ class SelfTimedPolicy(Protocol):
     call, and latency records use that, so the pipe between the processes is not counted."""
 
     last_compute_s: float
+
+
+@runtime_checkable
+class GuidedPolicy(Protocol):
+    """Real-Time Chunking's guided inpainting inside the policy's sampler (bcbench.policies.guidance)."""
+
+    def guidance_unavailable(self) -> str | None:
+        """None when guided sampling can run (in the current inference mode), else the reason, in one line."""
+        ...
+
+    def predict_guided_chunk(self, obs: Observation, target: np.ndarray, weights: np.ndarray,
+                             max_guidance: float) -> np.ndarray:
+        """(B, Tp, 2) pixels, guided towards target (B, Tp, 2) pixels with soft mask weights (B, Tp) in [0, 1]."""
+        ...
+
+
+@runtime_checkable
+class CandidatePolicy(Protocol):
+    """Several sampled chunks per observation in one call (Bidirectional Decoding)."""
+
+    def predict_candidates(self, obs: Observation, n: int) -> np.ndarray:
+        """(B, n, Tp, 2) pixels; row r's candidates draw their noise in turn from row r's stream (n = 1: the chunk
+        predict_action_chunk returns)."""
+        ...
 
 
 def example_observation(batch: int = 1, obs_horizon: int = 2, seed: int = 0) -> Observation:

@@ -35,8 +35,8 @@ def _sweep_of(run_label: str, realtime: dict[str, dict[str, Any]]) -> tuple[str,
     return None
 
 
-def _setting_row(rows: list[Row], sweep_label: str | None) -> Row:
-    if sweep_label and sweep_label != rows[0].run_label:
+def _setting_row(rows: list[Row], sweep_label: str | None, run_label: str) -> Row:
+    if sweep_label and sweep_label != run_label:  # the sweep names its sampler setting: "... DDIM10"
         variant = sweep_label.rsplit(" ", 1)[1].lower()
         for r in rows:
             if r.variant == variant:
@@ -72,7 +72,7 @@ def control_loop_rows(rows: list[Row], realtime: dict[str, dict[str, Any]], marg
     out = []
     for run_label, group in runs.items():
         sweep = _sweep_of(run_label, realtime)
-        row = _setting_row(group, sweep[0] if sweep else None)
+        row = _setting_row(group, sweep[0] if sweep else None, run_label)
         fast = fastest_exact(row)
         setting = row.variant.upper() if row.variant != "default" else (row.preset or "-")
         out.append([run_label, setting, fmt_estimate(row.summary["mean_score"]),

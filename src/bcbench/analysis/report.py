@@ -23,6 +23,7 @@ from bcbench.analysis.figures import figure3, figure4, figure5, figure5_realtime
 from bcbench.analysis.findings import DEFAULT_MARGIN, judge, points_from_rows
 from bcbench.analysis.realtime import delay_vs_sync, highest_safe_rate, largest_safe_delay
 from bcbench.analysis.results import Row, file_commits, load_realtime, load_rows, study_time
+from bcbench.analysis.strategies import load_strategy_sweeps, strategy_figure, strategy_lines
 from bcbench.protocol import CONTROL_DT_S
 from bcbench.reference import CPU_DEVIATIONS, STUDY_REFERENCE
 from bcbench.stats import fmt_estimate, fmt_share
@@ -317,10 +318,11 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
             "Figure 3: generative policies against sampling steps": figure3(rows, out / "fig3_denoising_steps.png"),
             "Figure 4: DDPM-cosine, DDIM-cosine, DDIM-linear": figure4(rows, out / "fig4_samplers.png"),
             "Learning curves": learning_curves(rows, out / "learning_curves.png")}
-    realtime = load_realtime(results)
+    realtime, strategies = load_realtime(results), load_strategy_sweeps(results)
     if realtime:
         figs["Score under real-time execution"] = realtime_figure(realtime, out / "realtime.png")
         figs["Figure 5, real time"] = figure5_realtime(realtime, out / "fig5_realtime.png")
+        figs["Execution strategies: score against delay"] = strategy_figure(strategies, out / "strategies.png")
     paired = load_paired(results)  # latency timed in interleaved rounds, when the study's folder has it
     findings = judge(points_from_rows(rows), margin, paired and paired.get("ratios"))
     table = table_rows(rows)
@@ -341,7 +343,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
            *convergence_lines(rows), "", *check_lines(checks, strict, margin), *deviation_lines(rows),
            *fewstep_lines(points_from_rows(rows, "fast"), margin, paired=paired),
            *time_lines(results),
-           *realtime_lines(realtime, margin)]
+           *realtime_lines(realtime, margin), *strategy_lines(strategies, margin)]
     for title, path in figs.items():
         if path:
             md += [f"## {title}", "", f"![{title}]({path.name})", ""]

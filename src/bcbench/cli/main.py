@@ -141,16 +141,43 @@ def _load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
     return policy, Path("runs") / f"eval-{safe_name(policy.name)}-{stamp}"
 
 
+def _strategy(args: argparse.Namespace, kind: str, several: bool = False) -> Any:
+    """The StrategyConfig of the command line's strategy options, for strategy `kind` (`several`: one of a sweep's
+    strategies, where --bid-weak belongs to bid alone)."""
+    from bcbench.evaluation.config import StrategyConfig
+
+    return StrategyConfig(kind, args.rtc_max_guidance, args.bid_samples, args.bid_modes,
+                          args.bid_weak if kind == "bid" or not several else None, args.ensemble_decay)
+
+
+def _load_weak(args: argparse.Namespace, policy: Any) -> Any:
+    """BID's weaker policy (--bid-weak RUN_DIR), run as the policy is: same sampler, seed and inference mode."""
+    if not args.bid_weak:
+        return None
+    if not args.checkpoint:
+        raise BCBenchError("--bid-weak goes with a trained --checkpoint")
+    from bcbench.evaluation.backends import apply_mode
+    from bcbench.modes import mode_name
+    from bcbench.policies.checkpoint import configure_runner, load_runner
+
+    weak = load_runner(args.bid_weak, use_ema=not args.no_ema, device=args.device)
+    if weak.name != policy.name:
+        raise BCBenchError(f"--bid-weak is a {weak.name} run; the policy is {policy.name}")
+    configure_runner(weak, args.sampler, args.steps, args.seed, args.spacing)
+    apply_mode(weak, mode_name(args.backend, args.precision, args.reference))
+    return weak
+
+
 def cmd_eval(args: argparse.Namespace) -> int:
     from bcbench.evaluation.evaluate import EvalConfig, evaluate
 
     cfg = EvalConfig(episodes=args.episodes, seed_start=args.seed_start, max_steps=args.max_steps,
                      action_horizon=args.action_horizon, workers=args.workers, video=args.video,
                      execution=args.execution, latency=args.latency, latency_ms=args.latency_ms,
-                     execution_horizon=args.execution_horizon)
+                     execution_horizon=args.execution_horizon, strategy=_strategy(args, args.strategy))
     policy, default_out = _load_eval_policy(args)
     out = Path(args.out) if args.out else default_out
-    result = evaluate(policy, cfg, out, progress=not args.quiet)
+    result = evaluate(policy, cfg, out, progress=not args.quiet, weak=_load_weak(args, policy))
     s = result["summary"]
     print(f"{policy.name}: {s['n']} episodes from seed {cfg.seed_start}")
     n = s["n"]  # shares with Wilson intervals (a bootstrap gives [0, 0] at 0%)
@@ -278,27 +305,46 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     from bcbench.policies.learned import PolicyRunner
 
     args.no_ema = False
+    strategies = list(dict.fromkeys(args.strategy))
+    configs = [_strategy(args, k, several=True) for k in strategies]  # every strategy's options checked before any episode
     policy, default_out = _load_eval_policy(args)
+    weak = _load_weak(args, policy) if "bid" in strategies else None
+    from bcbench.evaluation.strategies import Strategy
+
+    for c in configs:  # each strategy can run on this policy: checked before hours of episodes
+        Strategy(c, policy, weak if c.strategy == "bid" else None)
     out = Path(args.out) if args.out else default_out.with_name(default_out.name.replace("eval-", "realtime-"))
-    results = sweep(policy, args.delays, args.execution, args.episodes, args.profile or [], args.measured,
-                    progress=not args.quiet, max_steps=args.max_steps, execution_horizon=args.execution_horizon)
-    print(f"{policy.name}: score under real-time execution ({args.episodes} episodes each)")
-    for name, r in results.items():
-        write_json(out / f"{name}.json", r)
-        s = r["summary"]
-        d = ", ".join(f"d={k}: {v}" for k, v in s["delay_steps"].items()) or "d=0"
-        print(f"  {name:<28} {fmt_estimate(s['mean_score'])}   ({d} calls)")
-    realtime_figure({policy.name: results}, out / "realtime.png")
-    if figure5_realtime({policy.name: results}, out / "fig5_realtime.png") is None:
-        (out / "fig5_realtime.png").unlink(missing_ok=True)  # no measured setting this time: no stale figure
-    print(f"  {safe_delay_sentence(results, DEFAULT_MARGIN)}")
-    # One record of the whole sweep, the form a study's report reads: inside a study's folder (e.g. beside a
-    # run's own sweep, with another --backend), `bcbench report` shows it under its label.
     mode = policy.info.mode if isinstance(policy, PolicyRunner) else None  # what apply_mode set; baselines: none
-    label = args.label or (f"{policy.name} ({mode})" if mode else policy.name)
+    base = args.label or (f"{policy.name} ({mode})" if mode else policy.name)
     variant = {"sampler": args.sampler, "steps": args.steps, "spacing": args.spacing}
-    write_json(out / "realtime-sweep.json", realtime_record(results, "bcbench realtime", label, variant,
-                                                            DEFAULT_MARGIN, args.device))
+    for kind, strategy in zip(strategies, configs, strict=True):
+        # naive alone writes to --out itself (as before strategies); several: one folder each
+        where = out if strategies == ["naive"] else out / kind
+        results = sweep(policy, args.delays, args.execution, args.episodes, args.profile or [], args.measured,
+                        progress=not args.quiet, max_steps=args.max_steps, seed_start=args.seed_start,
+                        execution_horizon=args.execution_horizon, strategy=strategy,
+                        weak=weak if kind == "bid" else None)
+        print(f"{policy.name}, strategy {kind}: score under real-time execution ({args.episodes} episodes each)")
+        for name, r in results.items():
+            write_json(where / f"{name}.json", r)
+            s = r["summary"]
+            d = ", ".join(f"d={k}: {v}" for k, v in s["delay_steps"].items()) or "d=0"
+            print(f"  {name:<28} {fmt_estimate(s['mean_score'])}   ({d} calls)")
+        realtime_figure({policy.name: results}, where / "realtime.png")
+        if figure5_realtime({policy.name: results}, where / "fig5_realtime.png") is None:
+            (where / "fig5_realtime.png").unlink(missing_ok=True)  # no measured setting this time: no stale figure
+        print(f"  {safe_delay_sentence(results, DEFAULT_MARGIN)}")
+        # One record of the whole sweep, the form a study's report reads: inside a study's folder (e.g. beside a
+        # run's own sweep, with another --backend), `bcbench report` shows it under its label.
+        label = base if kind == "naive" else f"{base} + {kind}"
+        write_json(where / "realtime-sweep.json", realtime_record(
+            results, "bcbench realtime", label, {**variant, "strategy": kind}, DEFAULT_MARGIN, args.device))
+    if len(strategies) > 1:
+        from bcbench.analysis.strategies import load_strategy_sweeps, strategy_figure, strategy_table
+
+        sweeps = load_strategy_sweeps(out)
+        strategy_figure(sweeps, out / "strategies.png")
+        print("\n".join(strategy_table(sweeps, DEFAULT_MARGIN)))
     print(f"  results and plots: {out}")
     return 0
 

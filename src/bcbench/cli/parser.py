@@ -11,7 +11,7 @@ import argparse
 from typing import Any
 
 from bcbench import __version__
-from bcbench.evaluation.config import EXECUTIONS, EvalConfig
+from bcbench.evaluation.config import EXECUTIONS, STRATEGIES, EvalConfig, StrategyConfig
 from bcbench.modes import AUTO, BACKENDS, MODES
 from bcbench.training.options import TrainOptions
 from bcbench.utils.fields import field_default, field_docs
@@ -204,8 +204,10 @@ def _add_study_commands(sub: Any) -> None:
                    help="also at this policy's measured latency on this machine (in the --backend it runs on)")
     _add_backend_args(p)
     _field(p, "--episodes", EvalConfig, type=_positive_int, default=100)  # a sweep's settings: 100 test seeds
+    _field(p, "--seed-start", EvalConfig, type=_nonneg_int)  # validation seeds (200000+) for choices
     _field(p, "--max-steps", EvalConfig, type=_positive_int)
     _field(p, "--execution-horizon", EvalConfig, type=_positive_int, metavar="S")
+    _add_strategy_args(p, sweep=True)
     p.add_argument("--out", metavar="DIR", help="output folder (its realtime-sweep.json is what a report reads: "
                    "put it inside a study's folder to add this sweep to the study's report)")
     p.add_argument("--label", help="the sweep's name in reports (default: the policy and its inference mode)")
@@ -259,6 +261,21 @@ def _add_backend_args(p: Any) -> None:
                    help="torch's reference form (Diffusion Policy: the plain U-Net every step; same chunks)")
 
 
+def _add_strategy_args(p: argparse.ArgumentParser, sweep: bool = False) -> None:
+    """--strategy (several for a sweep: one sweep each, compared with naive) and each strategy's parameters."""
+    if sweep:
+        p.add_argument("--strategy", nargs="+", default=["naive"], choices=STRATEGIES, metavar="STRATEGY",
+                       help=field_docs(StrategyConfig)["strategy"] + "; several: one sweep each, the report pairs "
+                       "each with naive (default naive)")
+    else:
+        _field(p, "--strategy", StrategyConfig, choices=STRATEGIES)
+    _field(p, "--rtc-max-guidance", StrategyConfig, type=_number(float, 0), metavar="BETA")
+    _field(p, "--bid-samples", StrategyConfig, type=_positive_int, metavar="N")
+    _field(p, "--bid-modes", StrategyConfig, type=_positive_int, metavar="K")
+    _field(p, "--bid-weak", StrategyConfig, metavar="RUN_DIR")
+    _field(p, "--ensemble-decay", StrategyConfig, type=_number(float, 0), metavar="M")
+
+
 def _add_eval_command(sub: Any) -> None:
     p = sub.add_parser("eval", help="evaluate a policy over seeded Push-T episodes (JSON result, videos)")
     p.add_argument("--policy", metavar="NAME", help="policy to evaluate: a baseline (random, scripted), a plug-in, "
@@ -288,6 +305,7 @@ def _add_eval_command(sub: Any) -> None:
     _field(p, "--latency-ms", EvalConfig, type=float, metavar="MS")
     _field(p, "--latency", EvalConfig, metavar="SOURCE")
     _field(p, "--execution-horizon", EvalConfig, type=_positive_int, metavar="S")
+    _add_strategy_args(p)
     p.add_argument("--out", metavar="DIR", help="output folder (default runs/eval-POLICY-TIME)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func="cmd_eval")

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from bcbench.errors import BCBenchError
 from bcbench.protocol import TEST_SEED_START
 
 EXECUTIONS = ("sync", "blocking", "async")  # how the world moves while the policy computes (see the controller)
+STRATEGIES = ("naive", "rtc", "bid", "ensemble")  # what is done with chunks across re-plans (see the controller)
 PROFILES = ("a100",)  # hardware latency profiles (bcbench.evaluation.latency_sources holds their times)
 
 
@@ -23,6 +24,37 @@ def check_latency_options(latency: str | None, latency_ms: float | None) -> None
         raise BCBenchError(f"--latency must be 'measured' or 'profile:NAME', got '{latency}'")
     if latency.split(":", 1)[1] not in PROFILES:
         raise BCBenchError(f"unknown latency profile '{latency.split(':', 1)[1]}' (known: {', '.join(PROFILES)})")
+
+
+@dataclass
+class StrategyConfig:
+    """How consecutive chunks are joined (bcbench.evaluation.strategies), orthogonal to the execution mode."""
+
+    strategy: str = "naive"
+    """naive (each chunk on its own), rtc (Real-Time Chunking: guided inpainting of the new chunk towards the one
+    executing; flow and Diffusion Policy under torch), bid (Bidirectional Decoding: the best of N sampled chunks)
+    or ensemble (ACT's temporal ensembling of every chunk's action for the step)"""
+    rtc_max_guidance: float = 5.0
+    """RTC: the guidance weight's clip beta (Black et al. 2025, Sec. 4.2; their default 5; 0 = no guidance)"""
+    bid_samples: int = 16
+    """BID: chunks sampled per call, N (Liu et al. 2024)"""
+    bid_modes: int = 3
+    """BID: the backward criterion keeps the N / modes most coherent chunks for the forward one (their K = 3)"""
+    bid_weak: str | None = None
+    """BID: a weaker checkpoint (e.g. an early one of the same run) for the forward contrast's negatives; none:
+    forward term of the positives only"""
+    ensemble_decay: float = 0.01
+    """ensemble: w_i = exp(-m i) over the chunks predicting a step, i = 0 the oldest (ACT's m, Zhao et al. 2023)"""
+
+    def __post_init__(self) -> None:
+        if self.strategy not in STRATEGIES:
+            raise BCBenchError(f"--strategy must be one of {', '.join(STRATEGIES)}, got '{self.strategy}'")
+        if self.rtc_max_guidance < 0 or self.ensemble_decay < 0:
+            raise BCBenchError("--rtc-max-guidance and --ensemble-decay must be >= 0")
+        if self.bid_samples < 1 or self.bid_modes < 1:
+            raise BCBenchError(f"--bid-samples and --bid-modes must be >= 1, got {self.bid_samples}, {self.bid_modes}")
+        if self.bid_weak is not None and self.strategy != "bid":
+            raise BCBenchError("--bid-weak goes with --strategy bid")
 
 
 @dataclass
@@ -50,6 +82,8 @@ class EvalConfig:
     execution_horizon: int | None = None
     """async: actions of each chunk executed before the next one replaces it (s; Real-Time Chunking's execution
     horizon, Diffusion Policy's latency experiment uses 8); default: the action horizon minus the delay"""
+    strategy: StrategyConfig = field(default_factory=StrategyConfig)
+    """how consecutive chunks are joined (naive, rtc, bid, ensemble) and the strategy's parameters"""
 
     def __post_init__(self) -> None:
         if self.episodes < 1:
@@ -71,3 +105,5 @@ class EvalConfig:
             raise BCBenchError("--execution-horizon goes with --execution async and must be >= 1, got "
                                f"{self.execution_horizon} with {self.execution}")
         check_latency_options(self.latency, self.latency_ms)
+        if isinstance(self.strategy, dict):  # from a result file or a study spec
+            self.strategy = StrategyConfig(**self.strategy)

@@ -19,6 +19,13 @@ Execution under latency (`execution`): a call whose latency is d control steps (
   steps (Diffusion Policy's latency experiment, its Fig. 6: first d dropped, 8 executed, is s = 8).
 With d = 0 both give exactly the sync result. The controller counts the d of every call (`delays`).
 
+Strategies (`strategy`, bcbench.evaluation.strategies) decide what is done with consecutive chunks, in every
+execution mode. Each received chunk keeps its origin (the step at which its index chunk_start executes: the
+request's step, or its arrival under blocking). At a request the chunk executing is aligned to the new chunk's
+indices (the target) with Real-Time Chunking's soft mask: 1 for the actions that execute before the new chunk
+arrives (the past ones and the d of the delay: the frozen prefix), decaying over the rest of the overlap. RTC
+and BID read them; ensembling averages, at each step, every received chunk's action for it.
+
 Each environment also owns its noise stream: a torch.Generator seeded from (the policy's noise seed, the
 episode's seed), handed to the policy with the batch (`obs["generators"]`, one per row). A stochastic
 policy draws row i's noise from it, so an episode's actions depend on its own seed only, never on which
@@ -36,7 +43,8 @@ import numpy as np
 import torch
 
 from bcbench.errors import BCBenchError
-from bcbench.evaluation.config import EXECUTIONS
+from bcbench.evaluation.config import EXECUTIONS, StrategyConfig
+from bcbench.evaluation.strategies import Strategy, ensemble_action, prefix_weights
 from bcbench.interface import ChunkPolicy, SeededPolicy
 
 
@@ -46,21 +54,25 @@ def episode_generator(policy_seed: int, episode_seed: int) -> torch.Generator:
     return torch.Generator().manual_seed(seed)
 
 
+WEAK_STREAM = 1  # BID's weak policy draws from its own streams, so the strong policy's are those of naive
 
 
 @dataclass
-class _Pending:
-    """A chunk being computed: it reaches the agent at step `arrival`."""
+class _Chunk:
+    """A chunk the agent received (or will, at `arrival`): index chunk_start executes at step `origin`."""
 
+    origin: int
     arrival: int
-    actions: list[np.ndarray]
+    chunk: np.ndarray  # (Tp, 2) pixels
+    actions: list[np.ndarray]  # what it puts in the queue
 
 
 class ChunkedController:
     """Observation history and action queues for a set of environments keyed by id."""
 
     def __init__(self, policy: ChunkPolicy, action_horizon: int | None = None, execution: str = "sync",
-                 delay: Callable[[int], int] | None = None, execution_horizon: int | None = None) -> None:
+                 delay: Callable[[int], int] | None = None, execution_horizon: int | None = None,
+                 strategy: Strategy | None = None) -> None:
         if execution not in EXECUTIONS:
             raise BCBenchError(f"--execution must be one of {', '.join(EXECUTIONS)}, got '{execution}'")
         self.policy, self.execution = policy, execution
@@ -82,7 +94,10 @@ class ChunkedController:
         self._history: dict[int, deque[dict[str, np.ndarray]]] = {}
         self._queue: dict[int, deque[np.ndarray]] = {}
         self._noise: dict[int, torch.Generator] = {}
-        self._pending: dict[int, _Pending | None] = {}
+        self.strategy = strategy or Strategy(StrategyConfig(), policy)
+        self._weak_noise: dict[int, torch.Generator] = {}
+        self._pending: dict[int, _Chunk | None] = {}
+        self._received: dict[int, list[_Chunk]] = {}  # chunks that still predict a step to come, oldest first
         self._next_delay: dict[int, int] = {}  # async: the d of the env's next call, drawn in advance
         self._step: dict[int, int] = {}
         self._last: dict[int, np.ndarray] = {}  # the last commanded target (held while waiting)
@@ -96,7 +111,8 @@ class ChunkedController:
         self._queue[env_id] = deque()
         policy_seed = self.policy.noise_seed if isinstance(self.policy, SeededPolicy) else 0
         self._noise[env_id] = episode_generator(policy_seed, env_id if seed is None else seed)
-        self._pending[env_id], self._step[env_id] = None, 0
+        self._weak_noise[env_id] = episode_generator(policy_seed + WEAK_STREAM, env_id if seed is None else seed)
+        self._pending[env_id], self._step[env_id], self._received[env_id] = None, 0, []
         self._last[env_id] = np.asarray(obs["agent_pos"], dtype=np.float32)  # before any command: stay put
         if self.execution == "async":
             self._next_delay[env_id] = self._checked_delay(env_id)
@@ -107,7 +123,8 @@ class ChunkedController:
     def drop(self, env_id: int) -> None:
         self._history.pop(env_id, None)
         self._queue.pop(env_id, None)
-        for d in (self._noise, self._pending, self._next_delay, self._step, self._last):
+        for d in (self._noise, self._weak_noise, self._pending, self._next_delay, self._step, self._last,
+                  self._received):
             d.pop(env_id, None)
 
     def stacked_obs(self, env_ids: list[int]) -> dict[str, Any]:
@@ -130,9 +147,36 @@ class ChunkedController:
                                f"actions of a chunk of {self.pred_horizon} (s <= H - d, as Real-Time Chunking)")
         return d
 
-    def _plan(self, env_ids: list[int]) -> np.ndarray:
-        """One batched policy call for these environments: (B, Tp, 2) chunks."""
-        chunks = np.asarray(self.policy.predict_action_chunk(self.stacked_obs(env_ids)))  # (B, Tp, 2)
+    def _target(self, i: int, origin: int, frozen_end: int) -> tuple[np.ndarray, np.ndarray]:
+        """The chunk executing, aligned to a new chunk of this origin (Tp, 2), and RTC's soft mask over it (Tp,)."""
+        tp = self.pred_horizon
+        target, weights = np.zeros((tp, 2), np.float32), np.zeros(tp, np.float32)
+        if self._received[i]:
+            prev = self._received[i][-1]
+            shift = origin - prev.origin  # new index k is the previous chunk's k + shift
+            if 0 <= shift < tp:
+                target[: tp - shift] = prev.chunk[shift:]
+                weights = prefix_weights(tp, frozen_end, tp - shift)
+        # The frozen prefix is what the agent will execute before the new chunk arrives: the queue's actions and,
+        # should it run dry first (s < d), its last target held (RTC's s >= d avoids that; bcbench allows it).
+        queued = list(self._queue[i]) or [self._last[i]]
+        for j, k in enumerate(range(self.chunk_start, frozen_end)):
+            target[k] = queued[min(j, len(queued) - 1)]
+            weights[k] = 1.0
+        return target, weights
+
+    def _plan(self, env_ids: list[int], delays: list[int]) -> np.ndarray:
+        """One batched request for these environments under the strategy: (B, Tp, 2) chunks."""
+        obs = self.stacked_obs(env_ids)
+        target = weights = weak = None
+        if self.strategy.uses_target:
+            pairs = []
+            for i, d in zip(env_ids, delays, strict=True):
+                t, origin = self._step[i], self._origin(i, d)
+                pairs.append(self._target(i, origin, self.chunk_start + t + d - origin))
+            target, weights = np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs])
+            weak = [self._weak_noise[i] for i in env_ids]
+        chunks = self.strategy.request(obs, target, weights, weak)  # (B, Tp, 2)
         if chunks.shape != (len(env_ids), self.pred_horizon, 2):
             raise BCBenchError(
                 f"policy returned a chunk of shape {chunks.shape}, expected ({len(env_ids)}, {self.pred_horizon}, 2)")
@@ -141,6 +185,16 @@ class ChunkedController:
         self.n_calls += 1
         self.n_plans += len(env_ids)
         return chunks
+
+    def _origin(self, i: int, d: int) -> int:
+        """The step at which a chunk requested now with delay d executes its index chunk_start."""
+        return self._step[i] + (d if self.execution == "blocking" else 0)
+
+    def _delay_now(self, i: int) -> int:
+        """d of the call that env i makes now (async drew it in advance, when its previous chunk was planned)."""
+        if self.execution == "sync":
+            return 0
+        return self._next_delay[i] if self.execution == "async" else self._checked_delay(i)
 
     def _wants_plan(self, i: int) -> bool:
         if self.execution == "sync":
@@ -158,32 +212,42 @@ class ChunkedController:
             p = self._pending[i]
             if p is not None and self._step[i] >= p.arrival:
                 self._queue[i], self._pending[i] = deque(p.actions), None
+                self._received[i].append(p)
         need = [i for i in env_ids if self._wants_plan(i)]
         if need:
-            for i, chunk in zip(need, self._plan(need), strict=True):
-                self._receive(i, chunk)
+            delays = [self._delay_now(i) for i in need]
+            for i, d, chunk in zip(need, delays, self._plan(need, delays), strict=True):
+                self._receive(i, chunk, d)
         out = {}
         for i in env_ids:
             if self._queue[i]:
                 self._last[i] = self._queue[i].popleft()
+                if self.strategy.kind == "ensemble":
+                    self._last[i] = self._ensembled(i)
             out[i] = self._last[i]  # an empty queue (waiting for a chunk) holds the last target
             self._step[i] += 1
         return out
 
-    def _receive(self, i: int, chunk: np.ndarray) -> None:
+    def _ensembled(self, i: int) -> np.ndarray:
+        """ACT's temporal ensemble of every received chunk's action for this step (the queue's chunk among them)."""
+        t, cs, tp = self._step[i], self.chunk_start, self.pred_horizon
+        self._received[i] = [c for c in self._received[i] if t - c.origin + cs < tp]  # forget finished chunks
+        preds = [c.chunk[t - c.origin + cs] for c in self._received[i] if c.arrival <= t and t - c.origin + cs >= 0]
+        return ensemble_action(preds, self.strategy.cfg.ensemble_decay)
+
+    def _receive(self, i: int, chunk: np.ndarray, d: int) -> None:
         """Queue a planned chunk now (d = 0) or when its computation ends, as the execution mode says."""
         start, end = self.chunk_start, self.chunk_start + self.action_horizon
-        if self.execution == "sync":
-            d = 0
-        elif self.execution == "blocking":
-            d = self._checked_delay(i)
-        else:  # async: the first d actions are in the past when the chunk arrives
-            d, self._next_delay[i] = self._next_delay[i], self._checked_delay(i)
+        if self.execution == "async":  # the first d actions are in the past when the chunk arrives
+            self._next_delay[i] = self._checked_delay(i)
             s = self.execution_horizon
             start, end = start + d, (max(end, start + d + 1) if s is None else start + d + s)
         self.delays.append(d)
-        actions = list(chunk[start:end])
+        planned = _Chunk(self._origin(i, d), self._step[i] + d, chunk, list(chunk[start:end]))
         if d == 0:
-            self._queue[i] = deque(actions)
+            self._queue[i] = deque(planned.actions)
+            self._received[i].append(planned)
         else:
-            self._pending[i] = _Pending(self._step[i] + d, actions)
+            self._pending[i] = planned
+        if self.strategy.kind != "ensemble":
+            self._received[i] = self._received[i][-1:]  # only the executing chunk is ever read

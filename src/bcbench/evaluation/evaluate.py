@@ -29,6 +29,7 @@ from bcbench.errors import BCBenchError
 from bcbench.evaluation.config import EvalConfig
 from bcbench.evaluation.controller import ChunkedController
 from bcbench.evaluation.latency_sources import LatencySource
+from bcbench.evaluation.strategies import Strategy
 from bcbench.interface import ChunkPolicy
 from bcbench.stats import score_summary
 from bcbench.utils.io import write_json
@@ -158,15 +159,18 @@ def _split(items: dict[int, Any] | list[Any], n: int, key=lambda x: x) -> list[A
     return groups
 
 
-def run_episodes(policy: ChunkPolicy, cfg: EvalConfig, out_dir: Path | None = None, progress: bool = True
-                 ) -> tuple[list[EpisodeResult], dict[str, float]]:
-    """Run cfg.episodes closed-loop episodes; returns per-episode results and timing counters."""
+def run_episodes(policy: ChunkPolicy, cfg: EvalConfig, out_dir: Path | None = None, progress: bool = True,
+                 weak: ChunkPolicy | None = None) -> tuple[list[EpisodeResult], dict[str, Any]]:
+    """Run cfg.episodes closed-loop episodes; returns per-episode results and timing counters. `weak`: BID's
+    weaker policy (cfg.strategy.bid_weak, loaded by the caller)."""
     n_workers = max(1, min(cfg.workers or os.cpu_count() or 1, cfg.episodes))
     results = {i: EpisodeResult(episode=i, seed=cfg.seed_start + i) for i in range(cfg.episodes)}
     source = LatencySource.parse(cfg.latency, cfg.latency_ms)
-    source.resolve(policy)  # measured: timed now, before any simulator runs beside it
+    strategy = Strategy(cfg.strategy, policy, weak)  # checked before any simulator starts
+    source.resolve(policy, strategy)  # measured: timed now, before any simulator runs beside it
     controller = ChunkedController(policy, cfg.action_horizon, cfg.execution,
-                                   source.delay_fn({i: r.seed for i, r in results.items()}), cfg.execution_horizon)
+                                   source.delay_fn({i: r.seed for i, r in results.items()}), cfg.execution_horizon,
+                                   strategy)
     video_dir = (out_dir / "videos") if out_dir is not None else Path("videos")
     pool = _WorkerPool(n_workers, cfg.video_size)
     policy_time, env_steps, t0 = 0.0, 0, time.perf_counter()
@@ -217,6 +221,7 @@ def run_episodes(policy: ChunkPolicy, cfg: EvalConfig, out_dir: Path | None = No
         "wall_time_s": wall, "env_steps": env_steps, "env_steps_per_s": env_steps / wall if wall > 0 else 0.0,
         "policy_calls": controller.n_calls, "chunks_planned": controller.n_plans, "policy_time_s": policy_time,
         "workers": n_workers, "execution": cfg.execution, "latency_source": source.describe(),
+        "strategy": strategy.describe(),
         "delay_steps": {str(d): int(n) for d, n in zip(*np.unique(controller.delays, return_counts=True),
                                                           strict=True)},
     }
@@ -224,10 +229,10 @@ def run_episodes(policy: ChunkPolicy, cfg: EvalConfig, out_dir: Path | None = No
 
 
 def evaluate(policy: ChunkPolicy, cfg: EvalConfig, out_dir: str | Path | None = None, progress: bool = True,
-             extra: dict[str, Any] | None = None) -> dict[str, Any]:
+             extra: dict[str, Any] | None = None, weak: ChunkPolicy | None = None) -> dict[str, Any]:
     """Evaluate and (if out_dir) write `eval.json` there atomically; returns the result dict."""
     out = Path(out_dir) if out_dir is not None else None
-    episodes, timing = run_episodes(policy, cfg, out, progress)
+    episodes, timing = run_episodes(policy, cfg, out, progress, weak)
     summary = score_summary(
         np.array([e.score for e in episodes]), np.array([e.success for e in episodes]),
         np.array([e.final_coverage for e in episodes]),

@@ -4,7 +4,8 @@ The control loop runs at 10 Hz (0.1 s per environment step), so a call that take
 d = ceil(L / 0.1) steps (`steps_for`). L comes from one of:
 - a fixed number of milliseconds (`--latency-ms 250`, d = 3);
 - `measured`: the policy's own call times on this machine, timed before the episodes with the backend in
-  use, one drawn per call (each episode draws from its own stream, seeded by its seed);
+  use and through the execution strategy (RTC's backward passes, BID's N samples and selection count), one
+  drawn per call (each episode draws from its own stream, seeded by its seed);
 - `profile:NAME`: a named hardware profile; `a100` holds the study's A100 inference times.
 How the world moves meanwhile (sync, blocking, async) is the controller's business
 (`bcbench.evaluation.controller`).
@@ -22,6 +23,7 @@ import numpy as np
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.config import PROFILES as PROFILE_NAMES
 from bcbench.evaluation.config import check_latency_options
+from bcbench.evaluation.strategies import Strategy, prefix_weights
 from bcbench.evaluation.timing import TimingConfig, self_clock, time_calls
 from bcbench.interface import ChunkPolicy, example_observation, is_generative
 from bcbench.protocol import CONTROL_DT_S
@@ -89,14 +91,23 @@ class LatencySource:
             out.update(calls=int(ms.size), median_ms=float(np.median(ms)), max_ms=float(ms.max()))
         return out
 
-    def resolve(self, runner: ChunkPolicy) -> None:
-        """Fill in what depends on the policy: its profile time, or its measured call times on this machine."""
+    def resolve(self, runner: ChunkPolicy, strategy: Strategy | None = None) -> None:
+        """Fill in what depends on the policy: its profile time, or its measured call times on this machine (a
+        request as `strategy` makes it, with a previous chunk to follow, so the strategy's own compute counts)."""
         if self.kind == "profile":
             self.ms = profile_ms(self.name, runner.name, sampler_steps(runner))
         elif self.kind == "measured" and not self.samples_ms:
             obs = example_observation(1, runner.obs_horizon)
-            self.samples_ms = time_calls(lambda: runner.predict_action_chunk(obs), TimingConfig(),
-                                         clock=self_clock(runner))["samples_ms"]
+            if strategy is None:
+                self.samples_ms = time_calls(lambda: runner.predict_action_chunk(obs), TimingConfig(),
+                                             clock=self_clock(runner))["samples_ms"]
+                return
+            # the executing chunk: one the policy made, followed over an overlap of half the chunk
+            target = np.asarray(runner.predict_action_chunk(obs), dtype=np.float32)
+            tp, cs = runner.pred_horizon, runner.chunk_start
+            weights = prefix_weights(tp, cs + 1, tp - runner.action_horizon)[None]
+            self.samples_ms = time_calls(lambda: strategy.request(obs, target, weights, None), TimingConfig(),
+                                         clock=lambda: strategy.last_compute_s)["samples_ms"]
 
     def delay_fn(self, seeds: dict[int, int]) -> Callable[[int], int]:
         """env id -> d for its next call; measured draws come from each episode's own stream."""

@@ -8,6 +8,7 @@ from collections.abc import Callable
 from typing import Any
 
 from bcbench.errors import BCBenchError
+from bcbench.evaluation.config import StrategyConfig
 from bcbench.evaluation.evaluate import EvalConfig, evaluate
 from bcbench.evaluation.latency_sources import profile_ms, sampler_steps
 from bcbench.interface import ChunkPolicy
@@ -34,12 +35,14 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
           measured: bool, progress: bool = True, max_steps: int = 300, seed_start: int = 100_000,
           skip_missing_profiles: bool = False, done: dict[str, dict[str, Any]] | None = None,
           on_setting: Callable[[dict[str, dict[str, Any]]], None] | None = None,
-          execution_horizon: int | None = None) -> dict[str, dict[str, Any]]:
+          execution_horizon: int | None = None, strategy: StrategyConfig | None = None,
+          weak: ChunkPolicy | None = None) -> dict[str, dict[str, Any]]:
     """Score against delay d for each execution mode (sync as the d = 0 reference), plus the policy's score at
     its measured latency on this machine and under each hardware profile: evaluation results by setting.
     `done`: settings finished by an interrupted sweep (kept, not rerun); `on_setting(results so far)` is called
     after each setting, so a caller can save them (a sweep is 13 evaluations of 100 episodes in a study).
-    `execution_horizon`: s of the async settings (see bcbench.evaluation.controller)."""
+    `execution_horizon`: s of the async settings (see bcbench.evaluation.controller); `strategy` (and BID's
+    `weak` policy): how consecutive chunks are joined, in every setting, sync included."""
     if execution_horizon is not None:  # checked before hours of episodes
         EvalConfig(execution="async", execution_horizon=execution_horizon)
     usable = []
@@ -56,8 +59,9 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
         if name in out:
             continue
         cfg = EvalConfig(episodes=episodes, execution=execution, max_steps=max_steps, seed_start=seed_start,
-                         execution_horizon=execution_horizon if execution == "async" else None, **latency)
-        out[name] = evaluate(policy, cfg, None, progress=progress, extra={"realtime": {"setting": name}})
+                         execution_horizon=execution_horizon if execution == "async" else None,
+                         strategy=strategy or StrategyConfig(), **latency)
+        out[name] = evaluate(policy, cfg, None, progress=progress, extra={"realtime": {"setting": name}}, weak=weak)
         if on_setting is not None:
             on_setting(out)
     return out

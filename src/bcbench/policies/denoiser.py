@@ -69,6 +69,8 @@ class DenoiserPolicy(BCPolicy):
     graphs = ("obs_film", "denoise")
     loop_graphs = ("denoise",)
     split_film = True  # False: the reference form (plain U-Net per step); see the module docstring
+    guidable = True  # Real-Time Chunking's guided sampling (bcbench.policies.guidance)
+    encodes_once = True  # obs["samples"] = n: BID's candidates share one encoding of their observation
 
     def __init__(self, config: DenoiserNetConfig) -> None:
         super().__init__()
@@ -101,10 +103,11 @@ class DenoiserPolicy(BCPolicy):
                  ) -> tuple[Callable[[torch.Tensor, float], torch.Tensor], int, torch.device]:
         """model(x, t) for every time t in `times` (the U-Net's step scale), the batch size and device."""
         image, pos = obs["image"], obs["agent_pos"]
+        n = int(obs.get("samples", 1))  # samples per observation row (rows repeated in place)
         if not self.split_film:
-            cond = self.encode(image, pos)  # (B, G), once per call
+            cond = self.encode(image, pos).repeat_interleave(n, 0)  # (B n, G), once per call
             return (lambda x, t: self.unet(x, torch.tensor(t, device=x.device), cond)), cond.shape[0], cond.device
-        film = self.call_graph("obs_film", image, pos)  # (B, F), once per call
+        film = self.call_graph("obs_film", image, pos).repeat_interleave(n, 0)  # (B n, F), once per call
         visited = list(dict.fromkeys(times))
         steps = self._step_films(visited, film.device)  # (K, F), for the whole batch
         row = {t: i for i, t in enumerate(visited)}

@@ -19,6 +19,7 @@ import torch.nn.functional as F
 from bcbench.errors import BCBenchError
 from bcbench.policies.config import OptimConfig, cpu_profile, pick_preset
 from bcbench.policies.denoiser import DenoiserNetConfig, DenoiserPolicy
+from bcbench.policies.guidance import Guide, guided_noise
 from bcbench.policies.samplers import DEFAULT_SPACING, check_spacing, make_train_scheduler, plan, run_plan
 
 
@@ -92,7 +93,15 @@ class DiffusionPolicy(DenoiserPolicy):
         noisy = self.sqrt_ac[t, None, None] * action + self.sqrt_1m_ac[t, None, None] * noise
         return F.mse_loss(self.unet(noisy, t, cond), noise)
 
-    def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+    def predict_action_chunk(self, obs: dict[str, torch.Tensor], guide: Guide | None = None) -> torch.Tensor:
+        """Denoise from pure noise; with `guide`, every noise prediction is Real-Time Chunking's guided one, carried
+        over to epsilon prediction through the clean estimate x0 (bcbench.policies.guidance)."""
         model, b, device = self.denoiser(obs, self.plan.timesteps)  # the observation is encoded once
+        if guide is not None:
+            plain, ac = model, self.noise_scheduler.alphas_cumprod
+
+            def model(x: torch.Tensor, t: int) -> torch.Tensor:
+                return guided_noise(lambda x_in: plain(x_in, t), x, float(ac[t]), guide)
+
         x = self.randn(obs, (b, self.config.pred_horizon, 2), device)  # (B, Tp, 2) pure noise
         return run_plan(self.plan, model, x, lambda shape: self.randn(obs, shape, device))

@@ -24,6 +24,7 @@ import torch.nn.functional as F
 from bcbench.errors import BCBenchError
 from bcbench.policies.denoiser import DenoiserNetConfig, DenoiserPolicy
 from bcbench.policies.diffusion import DiffusionConfig
+from bcbench.policies.guidance import Guide, guided_velocity
 
 INTEGRATORS = ("euler", "midpoint")
 TIME_SCALE = 100.0  # t in [0, 1] enters the U-Net's sinusoidal step embedding as 100 t
@@ -92,15 +93,22 @@ class FlowPolicy(DenoiserPolicy):
         x_t = (1 - t)[:, None, None] * noise + t[:, None, None] * action
         return F.mse_loss(self.velocity(x_t, t, cond), action - noise)
 
-    def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+    def predict_action_chunk(self, obs: dict[str, torch.Tensor], guide: Guide | None = None) -> torch.Tensor:
+        """Integrate from noise; with `guide`, every velocity is Real-Time Chunking's guided one (policies.guidance)."""
         h = 1.0 / self.sampler_steps
         starts = [i * h for i in range(self.sampler_steps)]
         times = starts + ([t + 0.5 * h for t in starts] if self.sampler_kind == "midpoint" else [])
         model, b, device = self.denoiser(obs, [t * TIME_SCALE for t in times])  # the observation encoded once
+
+        def v(x: torch.Tensor, t: float) -> torch.Tensor:
+            if guide is None:
+                return model(x, t * TIME_SCALE)
+            return guided_velocity(lambda x_in: model(x_in, t * TIME_SCALE), x, t, guide)
+
         x = self.randn(obs, (b, self.config.pred_horizon, 2), device)  # (B, Tp, 2) noise at t = 0
         for t in starts:
-            v = model(x, t * TIME_SCALE)
+            vel = v(x, t)
             if self.sampler_kind == "midpoint":
-                v = model(x + 0.5 * h * v, (t + 0.5 * h) * TIME_SCALE)
-            x = x + h * v
+                vel = v(x + 0.5 * h * vel, t + 0.5 * h)
+            x = x + h * vel
         return x.clamp(-1.0, 1.0)

@@ -27,9 +27,11 @@ import torch
 from torch import nn
 
 from bcbench.data.normalizer import MinMaxNormalizer
+from bcbench.errors import BCBenchError
 from bcbench.interface import Observation, RunInfo
 from bcbench.policies.config import config_to_dict
 from bcbench.policies.encoders import count_parameters
+from bcbench.policies.guidance import Guide
 
 
 class BCPolicy(nn.Module):
@@ -45,6 +47,8 @@ class BCPolicy(nn.Module):
     loop_graphs: tuple[str, ...] = ()  # those it calls many times per call (a sampler's loop)
     deployed: dict[str, Any] | None = None  # name -> compiled graph (set by bcbench.evaluation.backends), None = torch
     deployment: dict[str, Any] | None = None  # what runs the graphs (backend, precision), for the records
+    guidable = False  # predict_action_chunk(obs, guide=...) samples towards a target (Real-Time Chunking)
+    encodes_once = False  # obs["samples"] = n: n samples per observation row, the observation encoded once
 
     def call_graph(self, name: str, *args: torch.Tensor) -> Any:
         """Run one inference graph: the deployed (compiled) one if a backend is set, else this module's method."""
@@ -180,6 +184,46 @@ class PolicyRunner:
     def predict_action_chunk(self, obs: Observation) -> np.ndarray:
         chunk = self.model.predict_action_chunk(self.prepare(obs))  # (B, Tp, 2) normalised
         return self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()
+
+    def guidance_unavailable(self) -> str | None:
+        """Why Real-Time Chunking's guided sampling cannot run here, or None when it can."""
+        if not self.model.guidable:
+            return f"{self.name} does not sample its chunk (guided inpainting needs flow or Diffusion Policy)"
+        if self.model.deployed is not None:
+            return ("guided inpainting needs a vector-Jacobian product through the network, which the exported "
+                    f"{(self.model.deployment or {}).get('backend', 'runtime')} graph does not compute: use the torch "
+                    "modes (fast or reference)")
+        return None
+
+    @torch.no_grad()  # not inference mode: the guidance runs a backward pass through the network
+    def predict_guided_chunk(self, obs: Observation, target: np.ndarray, weights: np.ndarray,
+                             max_guidance: float) -> np.ndarray:
+        """Real-Time Chunking: a chunk inpainted towards `target` (B, Tp, 2) pixels with soft mask `weights` (B, Tp)."""
+        reason = self.guidance_unavailable()
+        if reason:
+            raise BCBenchError(reason)
+        target_t = torch.as_tensor(np.array(target, dtype=np.float32), device=self.device)
+        guide = Guide(self.normalizer.normalize("action", target_t),
+                      torch.as_tensor(np.array(weights, dtype=np.float32), device=self.device), float(max_guidance))
+        chunk = self.model.predict_action_chunk(self.prepare(obs), guide=guide)  # (B, Tp, 2) normalised
+        return self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()
+
+    @torch.inference_mode()
+    def predict_candidates(self, obs: Observation, n: int) -> np.ndarray:
+        """n chunks per observation row (B, n, Tp, 2), for Bidirectional Decoding. Row r's candidates draw their noise
+        one after the other from row r's stream, so n = 1 is exactly predict_action_chunk."""
+        prepared = self.prepare(obs)
+        rows = prepared["agent_pos"].shape[0]
+        if prepared.get("generators") is not None:
+            prepared["generators"] = [g for g in prepared["generators"] for _ in range(n)]
+        if self.model.encodes_once:
+            prepared["samples"] = n  # each observation encoded once, its condition repeated
+        else:
+            prepared["image"] = prepared["image"].repeat_interleave(n, 0)
+            prepared["agent_pos"] = prepared["agent_pos"].repeat_interleave(n, 0)
+        chunk = self.model.predict_action_chunk(prepared)  # (B n, Tp, 2) normalised
+        out = self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()
+        return out.reshape(rows, n, *out.shape[1:])
 
     def describe(self) -> dict[str, Any]:
         return {"name": self.name, "parameters": self.model.num_parameters(),

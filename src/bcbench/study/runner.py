@@ -17,7 +17,7 @@ import hashlib
 import json
 import platform
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -26,6 +26,7 @@ import torch
 from tqdm import tqdm
 
 from bcbench.evaluation.backends import apply_mode
+from bcbench.evaluation.config import StrategyConfig
 from bcbench.evaluation.evaluate import EvalConfig, evaluate
 from bcbench.evaluation.realtime import realtime_record, sweep
 from bcbench.evaluation.timing import TimingConfig, latency_record
@@ -69,8 +70,10 @@ class StudyRunner:
             out += [("eval", run, v) for v in run.variants]
         if self.spec.latency:
             out += [("latency", run, v) for run in self.spec.runs for v in run.variants]
-        if self.spec.realtime:  # last: its 'measured' setting times the policy too
-            out += [("realtime", run, v) for run in self.spec.runs for v in run.realtime]
+        if self.spec.realtime:  # last: its 'measured' setting times the policy too; one sweep per strategy
+            kinds = self.spec.realtime.get("strategies", ["naive"])
+            out += [("realtime", run, replace(v, strategy=None if k == "naive" else k))
+                    for run in self.spec.runs for v in run.realtime for k in kinds]
         return out
 
     def result_file(self, stage: str, run: RunSpec, variant: Variant | None) -> Path:
@@ -132,13 +135,16 @@ class StudyRunner:
     def _realtime(self, run: RunSpec, variant: Variant) -> dict[str, Any]:
         rt = self.spec.realtime or {}
         partial = self.partial_file(run, variant)
+        kind = variant.strategy or "naive"
         settings = sweep(self._policy(run, variant), rt["delays"], rt["executions"], self.spec.episodes,
                          rt["profiles"], rt["measured"], self.progress, self.spec.max_steps, self.spec.seed_start,
                          skip_missing_profiles=True,  # e.g. the study gives no A100 time for BeT
                          done=read_json(partial) if partial.exists() else None,
-                         on_setting=lambda results: write_json(partial, results))
-        return realtime_record(settings, self.spec.name, run.label, asdict(variant), self.spec.margin, self.device,
-                               run.policy if run.outside else None)
+                         on_setting=lambda results: write_json(partial, results),
+                         execution_horizon=rt.get("execution_horizon"), strategy=StrategyConfig(kind))
+        label = run.label if kind == "naive" else f"{run.label} + {kind}"
+        return realtime_record(settings, self.spec.name, label, {**asdict(variant), "strategy": kind}, self.spec.margin,
+                               self.device, run.policy if run.outside else None)
 
     def after_stage(self) -> None:
         """Called after each executed stage (not after a skipped one); does nothing. The extension point for

@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from bcbench.errors import BCBenchError
+from bcbench.evaluation.config import STRATEGIES
 from bcbench.evaluation.latency_sources import PROFILES
 from bcbench.modes import MODES, mode_name
 from bcbench.policies import REGISTRY, is_learned, make_config, sampler_kinds
@@ -52,7 +53,7 @@ STUDY_KEYS = {"name", "episodes", "seed_start", "val_fraction", "latency", "thre
               "backend", "precision", "latency_modes", "resources", "purpose"}
 RUN_KEYS = {"policy", "preset", "config", "steps", "max_minutes", "seeds", "set", "eval", "label", "eval_every",
             "realtime", "args", "doubles"}
-REALTIME_KEYS = {"delays", "execution", "profiles", "measured"}
+REALTIME_KEYS = {"delays", "execution", "profiles", "measured", "strategies", "execution_horizon"}
 
 
 @dataclass(frozen=True)
@@ -62,12 +63,14 @@ class Variant:
     sampler: str | None = None
     steps: int | None = None
     spacing: str | None = None
+    strategy: str | None = None  # real-time sweeps only: the execution strategy (None: naive)
 
     @property
     def key(self) -> str:
+        tail = "" if self.strategy in (None, "naive") else f"-{self.strategy}"
         if self.sampler is None:
-            return "default"
-        return f"{self.sampler}{self.steps}" + ("" if self.spacing in (None, "trailing") else f"-{self.spacing}")
+            return "default" + tail
+        return f"{self.sampler}{self.steps}" + ("" if self.spacing in (None, "trailing") else f"-{self.spacing}") + tail
 
 
 @dataclass
@@ -259,7 +262,13 @@ def _realtime_table(rt: Any) -> dict[str, Any]:
     if not isinstance(rt, dict) or set(rt) - REALTIME_KEYS:
         raise BCBenchError(f"study.realtime must be a table with keys {', '.join(sorted(REALTIME_KEYS))}")
     out = {"delays": rt.get("delays", [1, 2, 4, 8]), "executions": rt.get("execution", ["blocking", "async"]),
-           "profiles": rt.get("profiles", []), "measured": rt.get("measured", True)}
+           "profiles": rt.get("profiles", []), "measured": rt.get("measured", True),
+           "strategies": rt.get("strategies", ["naive"]), "execution_horizon": rt.get("execution_horizon")}
+    if not out["strategies"] or any(k not in STRATEGIES for k in out["strategies"]):
+        raise BCBenchError(f"study.realtime.strategies must list some of {', '.join(STRATEGIES)}")
+    s = out["execution_horizon"]
+    if s is not None and (not isinstance(s, int) or isinstance(s, bool) or s < 1):
+        raise BCBenchError("study.realtime.execution_horizon must be a whole number of actions >= 1")
     if not all(isinstance(d, int) and not isinstance(d, bool) and d >= 0 for d in out["delays"]):
         raise BCBenchError("study.realtime.delays must be whole numbers of control steps >= 0")
     if not set(out["executions"]) <= {"blocking", "async"} or not out["executions"]:

@@ -1,0 +1,137 @@
+"""Execution strategies compared (issue 31): score against delay, one line per strategy, each paired with naive
+async on the same episode seeds, their latency cost, and the highest control rate at which each keeps the policy's
+sync score. Reads real-time sweep records only (no torch): one record per (policy, strategy), as
+`bcbench realtime --strategy ...` and a study's real-time stage write them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+
+from bcbench.analysis.realtime import delay_curve, highest_safe_rate, largest_safe_delay
+from bcbench.stats import paired_bootstrap
+from bcbench.utils.io import atomic_path, read_json
+
+STYLE = {"naive": ("k", "o", "--"), "rtc": ("C3", "s", "-"), "bid": ("C2", "^", "-"), "ensemble": ("C0", "D", "-")}
+TABLE_DELAYS = (0, 1, 2, 4, 6, 8)
+
+
+def load_strategy_sweeps(results: str | Path) -> dict[str, dict[str, dict[str, Any]]]:
+    """{policy label: {strategy: settings}} from every real-time record under `results` (strategy: naive when the
+    record predates strategies); only policies swept with more than one strategy."""
+    out: dict[str, dict[str, dict[str, Any]]] = {}
+    for f in sorted(Path(results).rglob("realtime-*.json")):
+        data = read_json(f)
+        if data.get("type") != "realtime":
+            continue
+        study = data.get("study", {})
+        variant = study.get("variant") or {}
+        kind = variant.get("strategy") or "naive"
+        base = study.get("label", f.parent.name).removesuffix(f" + {kind}")
+        if variant.get("sampler"):
+            base += f" {variant['sampler'].upper()}{variant['steps']}"
+        out.setdefault(base, {})[kind] = data["settings"]
+    return {k: v for k, v in out.items() if len(v) > 1 and "naive" in v}
+
+
+def _scores(r: dict[str, Any]) -> dict[int, float]:
+    return {e["seed"]: e["score"] for e in r["episodes"]}
+
+
+def setting_name(execution: str, d: int) -> str:
+    return "realtime-sync" if d == 0 else f"realtime-{execution}-d{d}"
+
+
+def versus_naive(sweeps: dict[str, dict[str, Any]], kind: str, name: str) -> tuple[float, float, float, int] | None:
+    """A strategy's score minus naive's in the same setting, paired over shared episode seeds, 95% interval."""
+    a, b = sweeps[kind].get(name), sweeps["naive"].get(name)
+    return paired_bootstrap(_scores(a), [_scores(b)]) if a and b else None
+
+
+def measured_ms(settings: dict[str, Any], execution: str = "async") -> float | None:
+    """The median measured call time of a sweep's measured setting (the strategy's compute included)."""
+    src = settings.get(f"realtime-{execution}-measured", {}).get("summary", {}).get("latency_source", {})
+    return src.get("median_ms")
+
+
+def keeps_sync_rate(sweeps: dict[str, dict[str, Any]], kind: str, margin: float, execution: str = "async"
+                    ) -> tuple[int | None, float | None]:
+    """(largest safe d, highest control rate in Hz) at which the strategy stays within the margin of the policy's
+    plain sync score (naive's d = 0), given its own measured latency."""
+    settings = {**sweeps[kind], "realtime-sync": sweeps["naive"]["realtime-sync"]}
+    safe = largest_safe_delay(settings, execution, margin)
+    ms = measured_ms(sweeps[kind], execution)
+    return safe, (highest_safe_rate(safe, ms) if ms else None)
+
+
+def strategy_table(by_policy: dict[str, dict[str, dict[str, Any]]], margin: float, execution: str = "async"
+                   ) -> list[str]:
+    """Markdown: policy x strategy rows, score [95%] at d = 0, 1, 2, 4, 6, 8 with the paired difference to naive,
+    the measured ms per call and the highest control rate that keeps the sync score."""
+    head = ["policy", "strategy", *[f"d = {d}" for d in TABLE_DELAYS], "ms / call (measured)", "keeps sync up to"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for label, sweeps in by_policy.items():
+        for kind in sorted(sweeps, key=lambda k: (k != "naive", k)):
+            cells = []
+            for d in TABLE_DELAYS:
+                r = sweeps[kind].get(setting_name(execution, d))
+                if r is None:
+                    cells.append("")
+                    continue
+                e = r["summary"]["mean_score"]
+                cell = f"{e['value']:.3f} [{e['ci95'][0]:.2f}, {e['ci95'][1]:.2f}]"
+                vs = versus_naive(sweeps, kind, setting_name(execution, d)) if kind != "naive" else None
+                cells.append(cell + (f"<br>{vs[0]:+.3f} [{vs[1]:+.2f}, {vs[2]:+.2f}]" if vs else ""))
+            ms = measured_ms(sweeps[kind], execution)
+            safe, rate = keeps_sync_rate(sweeps, kind, margin, execution)
+            keeps = "" if safe is None else f"d = {safe}" + (f", {rate:.1f} Hz" if rate is not None else "")
+            lines.append(f"| {label} | {kind} | " + " | ".join(cells) + f" | {'' if ms is None else f'{ms:.0f}'} | "
+                         f"{keeps} |")
+    return lines
+
+
+def strategy_figure(by_policy: dict[str, dict[str, dict[str, Any]]] | str | Path, path: Path,
+                    execution: str = "async") -> Path | None:
+    """Score against delay, one panel per policy, one line per strategy (95% intervals); None: nothing to draw."""
+    if not isinstance(by_policy, dict):
+        by_policy = load_strategy_sweeps(by_policy)
+    if not by_policy:
+        return None
+    fig, axes = plt.subplots(1, len(by_policy), figsize=(5.5 * len(by_policy) + 2.5, 4.2), squeeze=False)
+    for ax, (label, sweeps) in zip(axes[0], by_policy.items(), strict=True):
+        for kind, settings in sweeps.items():
+            pts = delay_curve(settings, execution)
+            colour, marker, ls = STYLE.get(kind, ("C7", "x", "-"))
+            err = [[e["value"] - e["ci95"][0] for _, e in pts], [e["ci95"][1] - e["value"] for _, e in pts]]
+            ax.errorbar([d for d, _ in pts], [e["value"] for _, e in pts], yerr=err, capsize=3, marker=marker,
+                        ls=ls, color=colour, label=kind)
+        ax.set_title(label, fontsize=9)
+        ax.set_xlabel(f"delay d ({execution}; control steps of 0.1 s)")
+        ax.set_ylim(0, 1)
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("mean score (95% interval)")
+    axes[0][-1].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, title="strategy")
+    fig.suptitle("Execution strategies under latency: score against delay", fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def strategy_lines(by_policy: dict[str, dict[str, dict[str, Any]]], margin: float) -> list[str]:
+    """The report's section: what the table shows and how to read it."""
+    if not by_policy:
+        return []
+    return ["## Execution strategies under latency", "",
+            "Async execution at delay d (d = 0: sync, every strategy included), 95% intervals; under each score "
+            "the strategy's difference to naive async in the same setting, paired over episode seeds. "
+            f"'Keeps sync up to': the largest d (and, at the strategy's measured call time, the highest control "
+            f"rate) whose score stays within {margin} of the policy's plain sync score (paired).", "",
+            *strategy_table(by_policy, margin), ""]

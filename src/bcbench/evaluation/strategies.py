@@ -1,0 +1,159 @@
+"""Execution strategies: what is done with consecutive action chunks, orthogonal to the execution mode (sync,
+blocking, async) and to where the latency comes from. The controller aligns the chunk that is executing to the
+new chunk's indices (`target`) and builds the soft mask over the overlap (`prefix_weights`); a `Strategy` makes
+the request and times it, so a strategy's own extra compute is part of a measured latency.
+
+- naive: each chunk on its own (bcbench's behaviour before strategies).
+- rtc: Real-Time Chunking (Black, Galliker, Levine 2025): the new chunk is sampled inpainted towards the
+  executing one, inside the policy's sampler (bcbench.policies.guidance); flow and Diffusion Policy, torch modes.
+- bid: Bidirectional Decoding (Liu et al. 2024): N chunks sampled per call (one batched call, the policy's
+  `predict_candidates`); the chosen one minimises backward coherence (weighted distance to the executing chunk)
+  plus forward contrast (distance to the other strong candidates minus distance to a weaker policy's).
+- ensemble: temporal ensembling (ACT, Zhao et al. 2023, Sec. 3.3): each executed action is the average of every
+  received chunk's prediction for that step, weights exp(-m i) with i = 0 the oldest; in the controller.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from bcbench.errors import BCBenchError
+from bcbench.evaluation.config import StrategyConfig
+from bcbench.interface import CandidatePolicy, ChunkPolicy, GuidedPolicy, Observation, SelfTimedPolicy
+
+
+def prefix_weights(pred_horizon: int, frozen_end: int, cover_end: int) -> np.ndarray:
+    """Real-Time Chunking's soft mask W over the new chunk's indices (its eq. 5, exponential schedule):
+    1 for k < frozen_end (actions that execute before the new chunk arrives: the frozen prefix, d of them in the
+    paper's indexing), c_k (e^c_k - 1) / (e - 1) with c_k = (cover_end - k) / (cover_end - frozen_end + 1) over the
+    rest of the overlap, 0 from cover_end on (where the executing chunk has no action; H - s in the paper)."""
+    k = np.arange(pred_horizon, dtype=np.float64)
+    cover_end = max(0, min(cover_end, pred_horizon))
+    frozen_end = max(0, min(frozen_end, cover_end))
+    c = np.clip((cover_end - k) / (cover_end - frozen_end + 1), 0.0, 1.0)
+    w = c * np.expm1(c) / (math.e - 1)
+    w[k < frozen_end] = 1.0
+    w[k >= cover_end] = 0.0
+    return w.astype(np.float32)
+
+
+def _chunk_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Mean over steps of the Euclidean distance in pixels; broadcasts over leading axes: (..., T, 2) -> (...)."""
+    return np.linalg.norm(a - b, axis=-1).mean(axis=-1)
+
+
+def _nearest_mean(dist: np.ndarray, k: int) -> np.ndarray:
+    """Each row's mean of its k smallest entries (0 when k = 0)."""
+    return np.sort(dist, axis=-1)[:, :k].mean(axis=-1) if k > 0 else np.zeros(dist.shape[0])
+
+
+def bid_select(candidates: np.ndarray, target: np.ndarray, weights: np.ndarray, modes: int,
+               weak: np.ndarray | None = None, start: int = 0) -> np.ndarray:
+    """Bidirectional Decoding's choice among one observation's N candidates (N, Tp, 2) -> (Tp, 2).
+
+    Backward coherence: sum_k W_k |a_k - target_k| / sum_k W_k (no term when W is all zero: the first call of an
+    episode); the N / modes most coherent candidates (and as many of the weak policy's) go on. Forward contrast
+    over the chunk from `start` (the current step): the mean distance to the nearest half of the other kept
+    candidates, minus that to the nearest half of the kept weak samples. The smallest sum wins (the official
+    implementation's form). N = 1 returns the one candidate.
+    """
+    n = candidates.shape[0]
+    if n == 1:
+        return candidates[0]
+    mass = float(weights.sum())
+    has_prev = mass > 0
+    back = (np.linalg.norm(candidates - target, axis=-1) * weights).sum(-1) / mass if has_prev else np.zeros(n)
+    keep = np.argsort(back, kind="stable")[:max(1, n // modes)] if has_prev else np.arange(n)
+    strong = candidates[keep][:, start:]
+    m = len(keep)
+    pos = _chunk_distance(strong[:, None], strong[None, :])  # (m, m)
+    np.fill_diagonal(pos, np.inf)  # not itself
+    score = back[keep] + (_nearest_mean(pos, m // 2) if m > 1 else 0.0)
+    if weak is not None:
+        wb = (np.linalg.norm(weak - target, axis=-1) * weights).sum(-1) / mass if has_prev else np.zeros(len(weak))
+        kept_weak = weak[np.argsort(wb, kind="stable")[:m]][:, start:]
+        score = score - _nearest_mean(_chunk_distance(strong[:, None], kept_weak[None, :]), max(1, m // 2))
+    return candidates[keep[int(np.argmin(score))]]
+
+
+def ensemble_action(predictions: list[np.ndarray], decay: float) -> np.ndarray:
+    """ACT's temporal ensemble of one step's predictions, oldest first: sum_i w_i a_i / sum_i w_i, w_i = exp(-m i)."""
+    w = np.exp(-decay * np.arange(len(predictions)))
+    return (np.tensordot(w, np.stack(predictions), axes=1) / w.sum()).astype(np.float32)
+
+
+class Strategy:
+    """Makes each request under a strategy and records its compute time (`last_compute_s`), for measured latency."""
+
+    def __init__(self, cfg: StrategyConfig, policy: ChunkPolicy, weak: ChunkPolicy | None = None) -> None:
+        self.cfg, self.kind, self.policy, self.weak = cfg, cfg.strategy, policy, weak
+        if self.kind == "rtc":
+            if not isinstance(policy, GuidedPolicy):
+                raise BCBenchError(f"--strategy rtc: {policy.name} has no guided sampler (flow and Diffusion Policy "
+                                   "do, under the torch modes)")
+            reason = policy.guidance_unavailable()
+            if reason:
+                raise BCBenchError(f"--strategy rtc: {reason}")
+        if weak is not None and (self.kind != "bid" or (weak.pred_horizon, weak.chunk_start)
+                                 != (policy.pred_horizon, policy.chunk_start)):
+            raise BCBenchError("a weak policy goes with --strategy bid and must predict the same chunks as the policy")
+        self.last_compute_s = self._compute = self._calls_wall = 0.0
+
+    @property
+    def uses_target(self) -> bool:
+        """Whether requests need the executing chunk aligned to the new one (RTC, BID)."""
+        return self.kind in ("rtc", "bid")
+
+    def describe(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"strategy": self.kind}
+        if self.kind == "rtc":
+            out["max_guidance"] = self.cfg.rtc_max_guidance
+        if self.kind == "bid":
+            out.update(samples=self.cfg.bid_samples, modes=self.cfg.bid_modes, weak=self.cfg.bid_weak)
+        if self.kind == "ensemble":
+            out["decay"] = self.cfg.ensemble_decay
+        return out
+
+    def _timed(self, policy: ChunkPolicy, call: Any) -> Any:
+        """Run one policy call; add its compute time (the policy's own report when it times itself)."""
+        t = time.perf_counter()
+        out = call()
+        wall = time.perf_counter() - t
+        self._compute += policy.last_compute_s if isinstance(policy, SelfTimedPolicy) else wall
+        self._calls_wall += wall
+        return out
+
+    def _candidates(self, policy: ChunkPolicy, obs: Observation, n: int) -> np.ndarray:
+        """(B, n, Tp, 2): the policy's own batched sampler, else its observation rows repeated n times."""
+        if isinstance(policy, CandidatePolicy):
+            return np.asarray(self._timed(policy, lambda: policy.predict_candidates(obs, n)))
+        gens = obs.get("generators")
+        rep = {"image": np.repeat(obs["image"], n, 0), "agent_pos": np.repeat(obs["agent_pos"], n, 0),
+               **({"generators": [g for g in gens for _ in range(n)]} if gens is not None else {})}
+        out = np.asarray(self._timed(policy, lambda: policy.predict_action_chunk(rep)))
+        return out.reshape(len(obs["agent_pos"]), n, *out.shape[1:])
+
+    def request(self, obs: Observation, target: np.ndarray | None = None, weights: np.ndarray | None = None,
+                weak_generators: list[Any] | None = None) -> np.ndarray:
+        """(B, Tp, 2) chunks for a batch of observations; target (B, Tp, 2) and weights (B, Tp) for rtc and bid."""
+        self._compute, self._calls_wall, t0 = 0.0, 0.0, time.perf_counter()
+        if self.kind == "rtc":
+            chunks = self._timed(self.policy, lambda: self.policy.predict_guided_chunk(
+                obs, target, weights, self.cfg.rtc_max_guidance))
+        elif self.kind == "bid":
+            cands = self._candidates(self.policy, obs, self.cfg.bid_samples)
+            weak = None
+            if self.weak is not None:
+                weak = self._candidates(self.weak, {**obs, "generators": weak_generators}, self.cfg.bid_samples)
+            start = self.policy.chunk_start
+            chunks = np.stack([bid_select(c, target[b], weights[b], self.cfg.bid_modes,
+                                          None if weak is None else weak[b], start) for b, c in enumerate(cands)])
+        else:
+            chunks = self._timed(self.policy, lambda: self.policy.predict_action_chunk(obs))
+        # the strategy's own work (selection) counts too: the wall time outside the policy calls
+        self.last_compute_s = self._compute + (time.perf_counter() - t0 - self._calls_wall)
+        return np.asarray(chunks)

@@ -1,0 +1,96 @@
+"""Real-Time Chunking's guided inpainting (Black, Galliker, Levine 2025, "Real-Time Execution of Action Chunking
+Flow Policies"), inside the sampling loop of flow matching and Diffusion Policy.
+
+The controller gives the chunk that is executing, aligned to the new chunk's indices (`target`, normalised),
+and a soft mask `weights` W over them (bcbench.evaluation.strategies.prefix_weights, the paper's eq. 5): 1 on
+the frozen prefix (actions that execute before the new chunk arrives), decaying over the rest of the overlap,
+0 where the old chunk has no action. At every network evaluation the velocity is corrected towards the target
+with the pseudo-inverse guidance of PiGDM (Song et al. 2023) that the paper uses (its eq. 2-4):
+
+    A1_hat = A_tau + (1 - tau) v(A_tau, o, tau)                    the clean-chunk estimate
+    g      = (target - A1_hat)^T diag(W) dA1_hat / dA_tau           a vector-Jacobian product (one backward pass)
+    v'     = v + min(beta, (1 - tau) / tau * 1 / r_tau^2) g,  r_tau^2 = (1 - tau)^2 / (tau^2 + (1 - tau)^2)
+
+(tau = 0 is noise, 1 the data, as in bcbench's flow). The weight's clip beta is the paper's Sec. 4.2 choice
+(default 5). Diffusion Policy is carried over through the flow coordinates of its state: x_t / (sqrt(abar) +
+sqrt(1 - abar)) is a rectified-flow state at tau = sqrt(abar) / (sqrt(abar) + sqrt(1 - abar)) with the same
+clean estimate x0_hat, and the same correction of the velocity there is, for the noise prediction,
+eps' = eps - sqrt(abar) * min(beta, ...) * g with g taken through x0_hat (derivation in docs/realtime.md).
+
+The vector-Jacobian product needs autograd through the U-Net: guidance runs under the torch modes only, not in an
+exported OpenVINO or ONNX Runtime graph (which computes forward passes only).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+
+
+@dataclass
+class Guide:
+    """What the new chunk is inpainted towards: target (B, Tp, 2) normalised, weights (B, Tp) in [0, 1]."""
+
+    target: torch.Tensor
+    weights: torch.Tensor
+    max_guidance: float  # beta
+
+    def repeat(self, n: int) -> Guide:
+        """The same guide for n candidates of every row (rows repeated in place: r0, r0, ..., r1, ...)."""
+        return Guide(self.target.repeat_interleave(n, 0), self.weights.repeat_interleave(n, 0), self.max_guidance)
+
+
+def guidance_weight(tau: float, max_guidance: float) -> float:
+    """min(beta, (1 - tau) / tau / r_tau^2) (the paper's eq. 4, with its clip); beta at tau = 0 or 1."""
+    if tau <= 0.0 or tau >= 1.0:
+        return max_guidance
+    return min(max_guidance, (tau ** 2 + (1 - tau) ** 2) / (tau * (1 - tau)))
+
+
+def correction(clean: Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]], x: torch.Tensor, guide: Guide
+               ) -> tuple[torch.Tensor, torch.Tensor]:
+    """(the network's output at x, g = (target - clean)^T diag(W) d clean / dx), one forward and one backward pass.
+
+    `clean(x)` returns (network output, clean-chunk estimate). The error is a constant of the product (PiGDM).
+    """
+    with torch.inference_mode(False), torch.enable_grad():
+        x_in = x.detach().clone().requires_grad_(True)
+        out, estimate = clean(x_in)
+        error = (guide.target - estimate.detach()) * guide.weights[..., None]  # (B, Tp, 2)
+        (g,) = torch.autograd.grad(estimate, x_in, grad_outputs=error)
+    return out.detach(), g
+
+
+def guided_velocity(velocity: Callable[[torch.Tensor], torch.Tensor], x: torch.Tensor, tau: float, guide: Guide
+                    ) -> torch.Tensor:
+    """Flow: v'(x, tau) = v + w(tau) g, with the clean estimate x + (1 - tau) v."""
+    w = guidance_weight(tau, guide.max_guidance)
+    if w == 0.0:
+        return velocity(x)  # no guidance: exactly the unguided step (and no backward pass)
+
+    def clean(x_in: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        v = velocity(x_in)
+        return v, x_in + (1 - tau) * v
+
+    v, g = correction(clean, x, guide)
+    return v + w * g
+
+
+def guided_noise(predict: Callable[[torch.Tensor], torch.Tensor], x: torch.Tensor, alpha_bar: float, guide: Guide
+                 ) -> torch.Tensor:
+    """Diffusion (epsilon prediction): eps' = eps - sqrt(abar) w(tau) g, g through x0_hat = (x - sqrt(1 - abar) eps)
+    / sqrt(abar), tau the flow time of the state (module docstring)."""
+    a, s = math.sqrt(alpha_bar), math.sqrt(1 - alpha_bar)
+    w = guidance_weight(a / (a + s), guide.max_guidance)
+    if w == 0.0:
+        return predict(x)
+
+    def clean(x_in: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        eps = predict(x_in)
+        return eps, (x_in - s * eps) / a  # unclipped: the clip's zero gradient would switch guidance off
+
+    eps, g = correction(clean, x, guide)
+    return eps - a * w * g

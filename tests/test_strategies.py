@@ -1,0 +1,316 @@
+"""Execution strategies (naive, rtc, bid, ensemble): the acceptance checks of issue 31, on fakes whose chunks say
+what they were planned for and on tiny flow and Diffusion Policy networks."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from bcbench.data.normalizer import MinMaxNormalizer
+from bcbench.errors import BCBenchError
+from bcbench.evaluation.config import STRATEGIES, EvalConfig, StrategyConfig
+from bcbench.evaluation.controller import ChunkedController, episode_generator
+from bcbench.evaluation.latency_sources import LatencySource, steps_for
+from bcbench.evaluation.strategies import Strategy, bid_select, prefix_weights
+from bcbench.interface import example_observation
+from bcbench.policies import make_policy
+from bcbench.policies.learned import PolicyRunner
+from bcbench.utils.io import read_json
+from tests.tiny import tiny_overrides
+
+
+def _runner(name: str) -> PolicyRunner:
+    torch.manual_seed(0)
+    world = np.array([[0.0, 0.0], [512.0, 512.0]], np.float32)
+    model = make_policy(name, "quick", **tiny_overrides(name))
+    return PolicyRunner(model, MinMaxNormalizer.fit({"agent_pos": world, "action": world}))
+
+
+def _obs(t: int) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(t)
+    return {"pixels": rng.integers(0, 256, (96, 96, 3), dtype=np.uint8), "agent_pos": np.array([t * 7.0, 300.0 - t])}
+
+
+def _drive(policy, strategy: str = "naive", execution: str = "sync", d: int = 0, steps: int = 30, seed: int = 0,
+           s: int | None = None, **params) -> list[np.ndarray]:
+    """The actions of one episode of `steps` steps (observations a fixed function of the step)."""
+    cfg = StrategyConfig(strategy, **params)
+    ctl = ChunkedController(policy, execution=execution, delay=lambda env_id: d, execution_horizon=s,
+                            strategy=Strategy(cfg, policy))
+    ctl.reset(0, _obs(0), seed=seed)
+    out = []
+    for t in range(steps):
+        out.append(np.array(ctl.act([0])[0]))
+        ctl.observe(0, _obs(t + 1))
+    return out
+
+
+def _same(a: list[np.ndarray], b: list[np.ndarray]) -> bool:
+    return all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
+
+
+def test_prefix_weights_are_the_papers_soft_mask():
+    """RTC eq. 5 (exponential schedule): the example of the official code, start 2, end 6, horizon 10."""
+    f = lambda c: c * math.expm1(c) / (math.e - 1)  # noqa: E731
+    expected = [1, 1, f(4 / 5), f(3 / 5), f(2 / 5), f(1 / 5), 0, 0, 0, 0]
+    np.testing.assert_allclose(prefix_weights(10, 2, 6), expected, rtol=1e-6)
+    assert prefix_weights(10, 0, 0).sum() == 0  # no overlap: no guidance
+    np.testing.assert_array_equal(prefix_weights(8, 8, 8), np.ones(8))  # everything frozen
+
+
+@pytest.mark.parametrize("strategy", STRATEGIES)
+@pytest.mark.parametrize("execution", ["async", "blocking"])
+def test_at_zero_delay_every_strategy_equals_sync_per_seed(strategy, execution):
+    runner = _runner("flow")
+    params = {"bid_samples": 3} if strategy == "bid" else {}
+    for seed in (100000, 100001):
+        sync = _drive(runner, strategy, "sync", seed=seed, **params)
+        assert _same(_drive(runner, strategy, execution, 0, seed=seed, **params), sync)
+    if strategy == "naive":  # and the naive strategy is bcbench's execution as it was
+        ctl = ChunkedController(runner)
+        ctl.reset(0, _obs(0), seed=100000)
+        plain = []
+        for t in range(30):
+            plain.append(np.array(ctl.act([0])[0]))
+            ctl.observe(0, _obs(t + 1))
+        assert _same(plain, _drive(runner, seed=100000))
+
+
+@pytest.mark.parametrize("name", ["flow", "diffusion"])
+def test_rtc_with_guidance_weight_zero_is_naive_async(name):
+    runner = _runner(name)
+    for d in (1, 3):
+        naive = _drive(runner, "naive", "async", d, seed=7)
+        assert _same(_drive(runner, "rtc", "async", d, seed=7, rtc_max_guidance=0.0), naive)
+        assert not _same(_drive(runner, "rtc", "async", d, seed=7), naive)  # beta 5: guidance acts
+
+
+@pytest.mark.parametrize("name", ["flow", "diffusion"])
+def test_guided_sampling_moves_the_chunk_towards_the_target(name):
+    runner = _runner(name)
+    obs = example_observation(4, 2, seed=1)
+    plain = runner.predict_action_chunk({**obs, "generators": [episode_generator(0, i) for i in range(4)]})
+    target = np.full((4, 16, 2), 256.0, np.float32) + np.linspace(-50, 50, 16)[None, :, None]
+    weights = np.broadcast_to(prefix_weights(16, 4, 12), (4, 16))
+    guided = runner.predict_guided_chunk({**obs, "generators": [episode_generator(0, i) for i in range(4)]},
+                                         target, weights, 5.0)
+
+    def err(chunk):
+        return float((np.linalg.norm(chunk - target, axis=-1) * weights).sum())
+    assert err(guided) < 0.5 * err(plain)
+
+
+class Recorder:
+    """A guided 'policy' whose chunk entry j of a call at step t is (t + j, call index); it records what the
+    controller asks it to follow."""
+
+    name = "recorder"
+    obs_horizon, pred_horizon, action_horizon, chunk_start = 2, 16, 8, 1
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[int, np.ndarray, np.ndarray]] = []
+
+    def guidance_unavailable(self):
+        return None
+
+    def predict_action_chunk(self, obs):
+        t = obs["agent_pos"][:, -1, 0] / 7.0  # the newest observation's step (see _obs)
+        k = np.arange(16) - self.chunk_start  # index chunk_start is the current step
+        chunk = np.stack([t[:, None] + k, np.full((len(t), 16), float(len(self.calls)))], axis=-1)
+        return chunk.astype(np.float32)
+
+    def predict_guided_chunk(self, obs, target, weights, max_guidance):
+        chunk = self.predict_action_chunk(obs)
+        self.calls.append((round(float(obs["agent_pos"][0, -1, 0]) / 7.0), target[0].copy(), weights[0].copy()))
+        return chunk
+
+    def describe(self):
+        return {"name": self.name}
+
+
+@pytest.mark.parametrize(("d", "s"), [(1, None), (3, None), (3, 8), (5, 8), (6, None)])
+def test_the_frozen_prefix_is_executed_exactly_as_the_previous_chunks_actions(d, s):
+    rec = Recorder()
+    acts = _drive(rec, "rtc", "async", d, steps=60, s=s)
+    assert len(rec.calls) > 4
+    for t, target, weights in rec.calls[1:]:
+        if t + d > len(acts):
+            continue  # it would arrive after the episode
+        frozen = np.flatnonzero(weights == 1.0)
+        assert list(frozen) == list(range(rec.chunk_start + d))  # the past action and the d of the delay
+        for j in range(d):  # what runs while the new chunk computes is the target's frozen part, exactly
+            np.testing.assert_array_equal(acts[t + j], target[rec.chunk_start + j])
+            if (s or 8 - d) >= d:  # the previous chunk's action planned for that step (s < d: its last one, held)
+                assert acts[t + j][0] == t + j
+        assert 0 < weights[rec.chunk_start + d] < 1  # then the soft part of the overlap
+
+
+def test_bid_with_one_sample_is_naive_and_candidates_share_one_encoding():
+    runner = _runner("flow")
+    for d in (0, 2):
+        assert _same(_drive(runner, "bid", "async", d, seed=3, bid_samples=1), _drive(runner, "naive", "async", d,
+                                                                                      seed=3))
+    obs = {**example_observation(2, 2, seed=4)}
+
+    class Rows:  # the same runner without its batched sampler: the controller repeats the rows
+        name, obs_horizon, pred_horizon, action_horizon, chunk_start = "rows", 2, 16, 8, 1
+        predict_action_chunk = staticmethod(runner.predict_action_chunk)
+
+    strat = Strategy(StrategyConfig("bid", bid_samples=4), runner)
+    a = strat._candidates(runner, {**obs, "generators": [episode_generator(0, i) for i in range(2)]}, 4)
+    b = strat._candidates(Rows(), {**obs, "generators": [episode_generator(0, i) for i in range(2)]}, 4)
+    assert a.shape == (2, 4, 16, 2)
+    np.testing.assert_allclose(a, b, atol=1e-3)  # pixels: float rounding of other batch shapes
+    assert not np.allclose(a[:, 0], a[:, 1])  # different noise per candidate
+
+
+def test_bid_selects_coherent_candidates_and_contrasts_against_the_weak_policy():
+    rng = np.random.default_rng(0)
+    cands = rng.normal(0, 10, (6, 16, 2)).astype(np.float32)
+    weights = prefix_weights(16, 2, 10)
+    assert np.array_equal(bid_select(cands, cands[4], weights, modes=6), cands[4])  # backward: the coherent one
+    # forward contrast, no previous chunk: two modes of three candidates each; alone, the first mode's centre wins
+    # (ties go to the first); when the weak policy's samples sit on the first mode, a candidate of the second wins
+    base = np.zeros((16, 2), np.float32)
+    cands = np.stack([base, base + 1, base + 2, base + 40, base + 41, base + 42])
+    weak = np.stack([base, base + 1, base + 1, base, base + 2, base])
+    none = np.zeros(16, np.float32)
+    assert np.array_equal(bid_select(cands, base, none, modes=1), cands[1])
+    assert bid_select(cands, base, none, modes=1, weak=weak)[0, 0] >= 40
+
+
+class Planned:
+    """Chunk entry j of a call at step t is (t + j, call index)."""
+
+    name = "planned"
+    obs_horizon, pred_horizon, action_horizon, chunk_start = 2, 16, 8, 0
+
+    def __init__(self) -> None:
+        self.n = 0
+
+    def predict_action_chunk(self, obs):
+        t = obs["agent_pos"][:, -1, 0] / 7.0
+        out = np.stack([t[:, None] + np.arange(16), np.full((len(t), 16), float(self.n))], axis=-1)
+        self.n += 1
+        return out.astype(np.float32)
+
+    def describe(self):
+        return {"name": self.name}
+
+
+def test_ensembling_averages_every_chunks_action_for_the_step():
+    m = 0.5
+    acts = _drive(Planned(), "ensemble", "sync", steps=24, ensemble_decay=m)
+    w = np.exp(-m * np.arange(2))
+    for t in range(24):
+        assert acts[t][0] == pytest.approx(t)  # every chunk means the same step
+        # step t is predicted by call t // 8 and, from the second chunk on, by the call before (its entries 8-15)
+        calls = [t // 8 - 1, t // 8] if t >= 8 else [0]
+        expected = float(np.dot(w[:len(calls)], calls) / w[:len(calls)].sum())
+        assert acts[t][1] == pytest.approx(expected)
+
+
+class Clocked:
+    """Reports a compute time proportional to the rows it sampled (a SelfTimedPolicy), 30 ms per chunk."""
+
+    name = "clocked"
+    obs_horizon, pred_horizon, action_horizon, chunk_start = 2, 16, 8, 1
+    last_compute_s = 0.0
+
+    def predict_action_chunk(self, obs):
+        self.last_compute_s = 0.03 * len(obs["agent_pos"])
+        return np.zeros((len(obs["agent_pos"]), 16, 2), np.float32)
+
+    def guidance_unavailable(self):
+        return None
+
+    def predict_guided_chunk(self, obs, target, weights, max_guidance):
+        out = self.predict_action_chunk(obs)
+        self.last_compute_s *= 3  # a forward and a backward pass per step
+        return out
+
+    def describe(self):
+        return {"name": self.name}
+
+
+def test_a_strategys_extra_compute_is_in_the_measured_latency():
+    def measured(strategy: StrategyConfig) -> float:
+        src = LatencySource("measured")
+        policy = Clocked()
+        src.resolve(policy, Strategy(strategy, policy))
+        return float(np.median(src.samples_ms))
+
+    naive = measured(StrategyConfig())
+    assert naive == pytest.approx(30.0, abs=1.0) and steps_for(naive / 1e3) == 1
+    bid = measured(StrategyConfig("bid", bid_samples=4))  # four chunks per call, and the selection
+    assert bid >= 120.0 and steps_for(bid / 1e3) == 2
+    assert measured(StrategyConfig("rtc")) == pytest.approx(90.0, abs=1.0)
+
+
+def test_strategies_that_cannot_run_say_why_in_one_line():
+    with pytest.raises(BCBenchError, match="bct does not sample its chunk"):
+        Strategy(StrategyConfig("rtc"), _runner("bct"))
+    runner = _runner("flow")
+    runner.model.deployed, runner.model.deployment = {}, {"backend": "openvino"}  # as an exported graph would be
+    with pytest.raises(BCBenchError, match=r"vector-Jacobian product .* exported openvino graph"):
+        Strategy(StrategyConfig("rtc"), runner)
+    with pytest.raises(BCBenchError, match="--strategy must be one of"):
+        StrategyConfig("smooth")
+    with pytest.raises(BCBenchError, match="--bid-weak goes with --strategy bid"):
+        StrategyConfig("rtc", bid_weak="runs/x")
+    assert EvalConfig(strategy={"strategy": "bid", "bid_samples": 4}).strategy.bid_samples == 4  # from a record
+
+
+def test_realtime_sweeps_each_strategy_and_the_report_pairs_them_with_naive(tmp_path, capsys):
+    from bcbench.analysis.report import write_report
+    from bcbench.analysis.strategies import load_strategy_sweeps
+    from bcbench.cli.main import main
+
+    out = tmp_path / "rt"
+    assert main(["realtime", "--policy", "scripted", "--episodes", "2", "--delays", "0", "2", "--execution", "async",
+                 "--strategy", "naive", "ensemble", "--ensemble-decay", "0.5", "--out", str(out), "--max-steps", "30",
+                 "--quiet"]) == 0
+    for kind in ("naive", "ensemble"):
+        assert sorted(p.name for p in (out / kind).glob("realtime-*.json")) == [
+            "realtime-async-d2.json", "realtime-sweep.json", "realtime-sync.json"]
+    rec = read_json(out / "ensemble" / "realtime-async-d2.json")
+    assert rec["eval_config"]["strategy"]["strategy"] == "ensemble" and rec["summary"]["strategy"]["decay"] == 0.5
+    assert (out / "strategies.png").stat().st_size > 1000
+    printed = capsys.readouterr().out
+    assert "| scripted | ensemble |" in printed  # the table, paired with naive
+    sweeps = load_strategy_sweeps(out)
+    assert list(sweeps) == ["scripted"] and sorted(sweeps["scripted"]) == ["ensemble", "naive"]
+    assert main(["eval", "--policy", "scripted", "--episodes", "2", "--max-steps", "30", "--out", str(out / "eval"),
+                 "--quiet"]) == 0  # a report needs an evaluation beside the sweeps
+    paths = write_report(out)
+    text = Path(paths["markdown"]).read_text()
+    assert "## Execution strategies under latency" in text and "strategies.png" in text
+    # a strategy that cannot run on the policy fails before any episode, in one line
+    assert main(["realtime", "--policy", "scripted", "--episodes", "2", "--delays", "2", "--strategy", "naive", "rtc",
+                 "--out", str(tmp_path / "no"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--strategy rtc: scripted has no guided sampler" in err[0]
+    assert not (tmp_path / "no").exists()
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--strategy", "bid", "--bid-weak", "runs/x"], "--bid-weak goes with a trained --checkpoint"),
+    (["--strategy", "rtc", "--bid-weak", "runs/x"], "--bid-weak goes with --strategy bid"),
+    (["--strategy", "smooth"], "invalid choice: 'smooth'"),
+    (["--strategy", "bid", "--bid-samples", "0"], "expected a number >= 1"),
+    (["--strategy", "rtc"], "--strategy rtc: scripted has no guided sampler"),
+])
+def test_bad_strategy_input_is_one_line_exit_2(args, message, capsys):
+    from bcbench.cli.main import main
+
+    try:
+        rc = main(["eval", "--policy", "scripted", "--episodes", "1", "--max-steps", "5", "--quiet", *args])
+    except SystemExit as e:  # argparse's own check of the value
+        rc = e.code
+    assert rc == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
