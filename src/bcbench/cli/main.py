@@ -306,7 +306,7 @@ def cmd_realtime(args: argparse.Namespace) -> int:
 
     args.no_ema = False
     strategies = list(dict.fromkeys(args.strategy))
-    configs = [_strategy(args, k, several=True) for k in strategies]  # every strategy's options checked before any episode
+    configs = [_strategy(args, k, several=True) for k in strategies]  # options checked before any episode
     policy, default_out = _load_eval_policy(args)
     weak = _load_weak(args, policy) if "bid" in strategies else None
     from bcbench.evaluation.strategies import Strategy
