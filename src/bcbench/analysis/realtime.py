@@ -9,13 +9,13 @@ from typing import Any
 from bcbench.stats import paired_bootstrap
 
 
-def _seed_scores(r: dict[str, Any]) -> dict[int, float]:
+def seed_scores(r: dict[str, Any]) -> dict[int, float]:
     return {e["seed"]: e["score"] for e in r["episodes"]}
 
 
 def delay_vs_sync(results: dict[str, dict[str, Any]], setting: str) -> tuple[float, float, float, int]:
     """A setting's score minus sync over shared seeds, with its 95% paired-bootstrap interval and n seeds."""
-    return paired_bootstrap(_seed_scores(results[setting]), [_seed_scores(results["realtime-sync"])])
+    return paired_bootstrap(seed_scores(results[setting]), [seed_scores(results["realtime-sync"])])
 
 
 def largest_safe_delay(results: dict[str, dict[str, Any]], execution: str, margin: float) -> int | None:

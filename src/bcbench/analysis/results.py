@@ -162,13 +162,16 @@ def load_latency_files(dirs: list[str | Path]) -> list[dict[str, Any]]:
     return out
 
 
+def realtime_records(results: str | Path) -> list[tuple[Path, dict[str, Any]]]:
+    """Every real-time sweep record under `results` (runs/*/realtime-*.json of type realtime), with its file."""
+    found = ((f, read_json(f)) for f in sorted(Path(results).rglob("realtime-*.json")))
+    return [(f, data) for f, data in found if data.get("type") == "realtime"]
+
+
 def load_realtime(results: str | Path) -> dict[str, dict[str, Any]]:
     """Real-time sweeps of a study (runs/*/realtime-*.json): label -> {setting name: evaluation result}."""
     out: dict[str, dict[str, Any]] = {}
-    for f in sorted(Path(results).rglob("realtime-*.json")):
-        data = read_json(f)
-        if data.get("type") != "realtime":
-            continue
+    for f, data in realtime_records(results):
         study = data.get("study", {})
         v = study.get("variant") or {}
         label = study.get("label", f.parent.name) + (f" {v['sampler'].upper()}{v['steps']}" if v.get("sampler") else "")

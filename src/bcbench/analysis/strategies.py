@@ -13,9 +13,10 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
-from bcbench.analysis.realtime import delay_curve, highest_safe_rate, largest_safe_delay
+from bcbench.analysis.realtime import delay_curve, highest_safe_rate, largest_safe_delay, seed_scores
+from bcbench.analysis.results import realtime_records
 from bcbench.stats import paired_bootstrap
-from bcbench.utils.io import atomic_path, read_json
+from bcbench.utils.io import atomic_path
 
 STYLE = {"naive": ("k", "o", "--"), "rtc": ("C3", "s", "-"), "bid": ("C2", "^", "-"), "ensemble": ("C0", "D", "-")}
 TABLE_DELAYS = (0, 1, 2, 4, 6, 8)
@@ -25,10 +26,7 @@ def load_strategy_sweeps(results: str | Path) -> dict[str, dict[str, dict[str, A
     """{policy label: {strategy: settings}} from every real-time record under `results` (strategy: naive when the
     record predates strategies); only policies swept with more than one strategy."""
     out: dict[str, dict[str, dict[str, Any]]] = {}
-    for f in sorted(Path(results).rglob("realtime-*.json")):
-        data = read_json(f)
-        if data.get("type") != "realtime":
-            continue
+    for f, data in realtime_records(results):
         study = data.get("study", {})
         variant = study.get("variant") or {}
         kind = variant.get("strategy") or "naive"
@@ -39,10 +37,6 @@ def load_strategy_sweeps(results: str | Path) -> dict[str, dict[str, dict[str, A
     return {k: v for k, v in out.items() if len(v) > 1 and "naive" in v}
 
 
-def _scores(r: dict[str, Any]) -> dict[int, float]:
-    return {e["seed"]: e["score"] for e in r["episodes"]}
-
-
 def setting_name(execution: str, d: int) -> str:
     return "realtime-sync" if d == 0 else f"realtime-{execution}-d{d}"
 
@@ -50,7 +44,7 @@ def setting_name(execution: str, d: int) -> str:
 def versus_naive(sweeps: dict[str, dict[str, Any]], kind: str, name: str) -> tuple[float, float, float, int] | None:
     """A strategy's score minus naive's in the same setting, paired over shared episode seeds, 95% interval."""
     a, b = sweeps[kind].get(name), sweeps["naive"].get(name)
-    return paired_bootstrap(_scores(a), [_scores(b)]) if a and b else None
+    return paired_bootstrap(seed_scores(a), [seed_scores(b)]) if a and b else None
 
 
 def measured_ms(settings: dict[str, Any], execution: str = "async") -> float | None:
@@ -96,11 +90,9 @@ def strategy_table(by_policy: dict[str, dict[str, dict[str, Any]]], margin: floa
     return lines
 
 
-def strategy_figure(by_policy: dict[str, dict[str, dict[str, Any]]] | str | Path, path: Path,
-                    execution: str = "async") -> Path | None:
+def strategy_figure(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path, execution: str = "async"
+                    ) -> Path | None:
     """Score against delay, one panel per policy, one line per strategy (95% intervals); None: nothing to draw."""
-    if not isinstance(by_policy, dict):
-        by_policy = load_strategy_sweeps(by_policy)
     if not by_policy:
         return None
     fig, axes = plt.subplots(1, len(by_policy), figsize=(5.5 * len(by_policy) + 2.5, 4.2), squeeze=False)

@@ -111,7 +111,8 @@ class ChunkedController:
         self._queue[env_id] = deque()
         policy_seed = self.policy.noise_seed if isinstance(self.policy, SeededPolicy) else 0
         self._noise[env_id] = episode_generator(policy_seed, env_id if seed is None else seed)
-        self._weak_noise[env_id] = episode_generator(policy_seed + WEAK_STREAM, env_id if seed is None else seed)
+        if self.strategy.weak is not None:
+            self._weak_noise[env_id] = episode_generator(policy_seed + WEAK_STREAM, env_id if seed is None else seed)
         self._pending[env_id], self._step[env_id], self._received[env_id] = None, 0, []
         self._last[env_id] = np.asarray(obs["agent_pos"], dtype=np.float32)  # before any command: stay put
         if self.execution == "async":
@@ -175,7 +176,7 @@ class ChunkedController:
                 t, origin = self._step[i], self._origin(i, d)
                 pairs.append(self._target(i, origin, self.chunk_start + t + d - origin))
             target, weights = np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs])
-            weak = [self._weak_noise[i] for i in env_ids]
+            weak = [self._weak_noise[i] for i in env_ids] if self.strategy.weak is not None else None
         chunks = self.strategy.request(obs, target, weights, weak)  # (B, Tp, 2)
         if chunks.shape != (len(env_ids), self.pred_horizon, 2):
             raise BCBenchError(

@@ -24,7 +24,7 @@ from bcbench.errors import BCBenchError
 from bcbench.evaluation.config import PROFILES as PROFILE_NAMES
 from bcbench.evaluation.config import check_latency_options
 from bcbench.evaluation.strategies import Strategy, prefix_weights
-from bcbench.evaluation.timing import TimingConfig, self_clock, time_calls
+from bcbench.evaluation.timing import TimingConfig, time_calls
 from bcbench.interface import ChunkPolicy, example_observation, is_generative
 from bcbench.protocol import CONTROL_DT_S
 from bcbench.reference import A100_DP_MS, A100_MS
@@ -91,21 +91,18 @@ class LatencySource:
             out.update(calls=int(ms.size), median_ms=float(np.median(ms)), max_ms=float(ms.max()))
         return out
 
-    def resolve(self, runner: ChunkPolicy, strategy: Strategy | None = None) -> None:
+    def resolve(self, runner: ChunkPolicy, strategy: Strategy) -> None:
         """Fill in what depends on the policy: its profile time, or its measured call times on this machine (a
-        request as `strategy` makes it, with a previous chunk to follow, so the strategy's own compute counts)."""
+        request as `strategy` makes it, following a previous chunk where it reads one, so its compute counts)."""
         if self.kind == "profile":
             self.ms = profile_ms(self.name, runner.name, sampler_steps(runner))
         elif self.kind == "measured" and not self.samples_ms:
             obs = example_observation(1, runner.obs_horizon)
-            if strategy is None:
-                self.samples_ms = time_calls(lambda: runner.predict_action_chunk(obs), TimingConfig(),
-                                             clock=self_clock(runner))["samples_ms"]
-                return
-            # the executing chunk: one the policy made, followed over an overlap of half the chunk
-            target = np.asarray(runner.predict_action_chunk(obs), dtype=np.float32)
-            tp, cs = runner.pred_horizon, runner.chunk_start
-            weights = prefix_weights(tp, cs + 1, tp - runner.action_horizon)[None]
+            target = weights = None
+            if strategy.uses_target:  # the executing chunk: one the policy made, followed over half the chunk
+                target = np.asarray(runner.predict_action_chunk(obs), dtype=np.float32)
+                tp, cs = runner.pred_horizon, runner.chunk_start
+                weights = prefix_weights(tp, cs + 1, tp - runner.action_horizon)[None]
             self.samples_ms = time_calls(lambda: strategy.request(obs, target, weights, None), TimingConfig(),
                                          clock=lambda: strategy.last_compute_s)["samples_ms"]
 

@@ -65,17 +65,20 @@ def bid_select(candidates: np.ndarray, target: np.ndarray, weights: np.ndarray, 
     if n == 1:
         return candidates[0]
     mass = float(weights.sum())
-    has_prev = mass > 0
-    back = (np.linalg.norm(candidates - target, axis=-1) * weights).sum(-1) / mass if has_prev else np.zeros(n)
-    keep = np.argsort(back, kind="stable")[:max(1, n // modes)] if has_prev else np.arange(n)
+
+    def backward(chunks: np.ndarray) -> np.ndarray:  # (M, Tp, 2) -> (M,): 0 without a previous chunk
+        dist = (np.linalg.norm(chunks - target, axis=-1) * weights).sum(-1)
+        return dist / mass if mass > 0 else dist
+
+    back = backward(candidates)
+    keep = np.argsort(back, kind="stable")[:max(1, n // modes)] if mass > 0 else np.arange(n)
     strong = candidates[keep][:, start:]
     m = len(keep)
     pos = _chunk_distance(strong[:, None], strong[None, :])  # (m, m)
     np.fill_diagonal(pos, np.inf)  # not itself
     score = back[keep] + (_nearest_mean(pos, m // 2) if m > 1 else 0.0)
     if weak is not None:
-        wb = (np.linalg.norm(weak - target, axis=-1) * weights).sum(-1) / mass if has_prev else np.zeros(len(weak))
-        kept_weak = weak[np.argsort(wb, kind="stable")[:m]][:, start:]
+        kept_weak = weak[np.argsort(backward(weak), kind="stable")[:m]][:, start:]
         score = score - _nearest_mean(_chunk_distance(strong[:, None], kept_weak[None, :]), max(1, m // 2))
     return candidates[keep[int(np.argmin(score))]]
 

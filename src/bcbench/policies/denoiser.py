@@ -105,9 +105,11 @@ class DenoiserPolicy(BCPolicy):
         image, pos = obs["image"], obs["agent_pos"]
         n = int(obs.get("samples", 1))  # samples per observation row (rows repeated in place)
         if not self.split_film:
-            cond = self.encode(image, pos).repeat_interleave(n, 0)  # (B n, G), once per call
+            cond = self.encode(image, pos)  # (B, G), once per call
+            cond = cond.repeat_interleave(n, 0) if n > 1 else cond  # (B n, G)
             return (lambda x, t: self.unet(x, torch.tensor(t, device=x.device), cond)), cond.shape[0], cond.device
-        film = self.call_graph("obs_film", image, pos).repeat_interleave(n, 0)  # (B n, F), once per call
+        film = self.call_graph("obs_film", image, pos)  # (B, F), once per call
+        film = film.repeat_interleave(n, 0) if n > 1 else film  # (B n, F)
         visited = list(dict.fromkeys(times))
         steps = self._step_films(visited, film.device)  # (K, F), for the whole batch
         row = {t: i for i, t in enumerate(visited)}

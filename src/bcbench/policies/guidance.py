@@ -56,7 +56,7 @@ def correction(clean: Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]
 
     `clean(x)` returns (network output, clean-chunk estimate). The error is a constant of the product (PiGDM).
     """
-    with torch.inference_mode(False), torch.enable_grad():
+    with torch.enable_grad():  # the runner samples guided chunks under no_grad, not inference mode
         x_in = x.detach().clone().requires_grad_(True)
         out, estimate = clean(x_in)
         error = (guide.target - estimate.detach()) * guide.weights[..., None]  # (B, Tp, 2)
