@@ -10,7 +10,7 @@ import torch
 from bcbench.policies import make_policy
 from bcbench.policies.diffusion import DiffusionConfig
 from bcbench.policies.samplers import make_diffusers_sampler, make_train_scheduler, plan, run_diffusers, run_plan
-from bcbench.policies.unet1d import ConditionalResidualBlock1D, ConditionalUnet1D, Conv1d
+from bcbench.policies.unet1d import ConditionalResidualBlock1D, ConditionalUnet1D, Conv1d, UpConv1d
 from bcbench.reference import DIFFUSION_PARAMETERS as STUDY_PARAMETERS
 from tests.tiny import tiny_overrides
 
@@ -228,3 +228,38 @@ def test_conv1d_equals_the_convolution_with_gradients(cin, cout, k, stride, t):
     g_got = torch.autograd.grad(got, [x, conv.weight, conv.bias], grad)
     g_want = torch.autograd.grad(want, [x, conv.weight, conv.bias], grad)
     assert all(torch.allclose(a, b, atol=1e-3) for a, b in zip(g_got, g_want, strict=True))
+
+
+@pytest.mark.parametrize("cin,cout,k,stride,t", [(4, 6, 5, 1, 8), (3, 5, 3, 2, 8), (6, 2, 1, 1, 4), (5, 5, 3, 2, 7)])
+def test_conv1d_time_last_form_equals_the_convolution(cin, cout, k, stride, t):
+    """The channels-last matrix form the exporters trace gives the convolution's output."""
+    torch.manual_seed(0)
+    conv = Conv1d(cin, cout, k, stride, k // 2)
+    x = torch.randn(3, cin, t)
+    want = torch.nn.functional.conv1d(x, conv.weight, conv.bias, stride, k // 2)  # (B, Cout, T')
+    torch.testing.assert_close(conv.forward_time_last(x.transpose(1, 2)), want.transpose(1, 2), atol=1e-5, rtol=0)
+
+
+@pytest.mark.parametrize("t", [1, 4, 8])
+def test_upconv_time_last_form_equals_the_transposed_convolution(t):
+    torch.manual_seed(0)
+    up = UpConv1d(6)
+    x = torch.randn(2, 6, t)
+    want = torch.nn.functional.conv_transpose1d(x, up.weight, up.bias, 2, 1)  # (B, C, 2T)
+    torch.testing.assert_close(up.forward_time_last(x.transpose(1, 2)), want.transpose(1, 2), atol=1e-5, rtol=0)
+
+
+@pytest.mark.parametrize("batch", [1, 3])
+def test_unet_time_last_form_equals_channels_first(batch):
+    """forward_film's channels-last form (the exported graph) equals the torch form, GroupNorm's affine
+    parameters and every bias perturbed so a dropped term would show."""
+    torch.manual_seed(0)
+    unet = ConditionalUnet1D(2, 10, 16, (8, 16, 32), 5, 4).eval()
+    with torch.no_grad():
+        for p in unet.parameters():
+            p.add_(torch.randn_like(p) * 0.1)
+        x, film = torch.randn(batch, 16, 2), torch.randn(batch, unet.obs_film(torch.randn(1, 10)).shape[-1])
+        want = unet.forward_film(x, film)
+        got = unet.forward_film(x, film, time_last=True)
+    assert want.abs().max() > 0.1
+    torch.testing.assert_close(got, want, atol=1e-5, rtol=1e-5)

@@ -40,7 +40,7 @@ from bcbench.modes import AUTO, MODES
 from bcbench.policies.checkpoint import read_run
 from bcbench.policies.learned import BCPolicy, GraphModule, PolicyRunner
 
-GRAPH_FORMAT = 1  # bump when a policy's graphs change meaning: cached exports are then rebuilt
+GRAPH_FORMAT = 2  # bump when a policy's graphs change meaning: cached exports are then rebuilt
 
 
 def _openvino() -> Any:

@@ -42,6 +42,27 @@ def im2col(x: torch.Tensor, k: int, stride: int, pad: int) -> torch.Tensor:
     return u.transpose(1, 2).reshape(x.shape[0], u.shape[2], -1)
 
 
+def unfold_time(x: torch.Tensor, k: int, stride: int, pad: int) -> torch.Tensor:
+    """(B, T, C) -> (B, T', k * C): each output step's receptive field as one row, (tap, channel) order.
+
+    Built from k strided slices of the padded input (a concatenation, no gather): what an exporter turns into
+    cheap copies ahead of one fully connected layer."""
+    if k == 1 and stride == 1:
+        return x
+    xp = F.pad(x, (0, 0, pad, pad)) if pad else x
+    t_out = (x.shape[1] + 2 * pad - k) // stride + 1
+    return torch.cat([xp[:, j:j + stride * (t_out - 1) + 1:stride] for j in range(k)], dim=-1)
+
+
+def group_norm_time_last(gn: nn.GroupNorm, x: torch.Tensor) -> torch.Tensor:
+    """nn.GroupNorm on (B, T, C) (channels last): statistics over each group's channels and every step."""
+    b, t, c = x.shape
+    g = x.reshape(b, t, gn.num_groups, c // gn.num_groups)  # (B, T, G, C/G)
+    mean = g.mean(dim=(1, 3), keepdim=True)
+    var = (g - mean).pow(2).mean(dim=(1, 3), keepdim=True)  # biased, as GroupNorm's
+    return ((g - mean) / torch.sqrt(var + gn.eps)).reshape(b, t, c) * gn.weight + gn.bias
+
+
 class Conv1d(nn.Conv1d):
     """nn.Conv1d (same parameters and state dict) that on a CPU runs wide layers as one matrix product.
 
@@ -49,6 +70,7 @@ class Conv1d(nn.Conv1d):
     measured at batch 256 on 2 cores, forward + backward of a 512->512 kernel-5 layer takes 146 ms as a
     convolution and 39 ms as im2col + matmul in bf16 (103 vs 77 ms in fp32); narrow layers are as fast or
     faster as convolutions. Same arithmetic, summed in another order (equal to float tolerance).
+    `forward_time_last` is the channels-last form the exported graphs use (see ConditionalUnet1D.forward_film).
     """
 
     # Cin * k from which the matmul wins, under bf16 autocast (True) and in fp32 (False)
@@ -56,9 +78,7 @@ class Conv1d(nn.Conv1d):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:  # (B, Cin, T) -> (B, Cout, T')
         fan_in = self.in_channels * self.kernel_size[0]
-        # exported graphs (OpenVINO) keep the convolution: the runtime picks its own kernels for it
-        if x.device.type != "cpu" or fan_in < self.MATMUL_MIN_FAN_IN[torch.is_autocast_enabled("cpu")] or \
-                torch.jit.is_tracing():
+        if x.device.type != "cpu" or fan_in < self.MATMUL_MIN_FAN_IN[torch.is_autocast_enabled("cpu")]:
             return super().forward(x)
         out = im2col(x, self.kernel_size[0], self.stride[0], self.padding[0]) @ self.weight.reshape(
             self.out_channels, -1).t()  # (B, T', Cout)
@@ -66,12 +86,46 @@ class Conv1d(nn.Conv1d):
             out = out + self.bias
         return out.transpose(1, 2)
 
+    def forward_time_last(self, x: torch.Tensor) -> torch.Tensor:  # (B, T, Cin) -> (B, T', Cout)
+        k = self.kernel_size[0]
+        w = self.weight.permute(0, 2, 1).reshape(self.out_channels, k * self.in_channels)  # (tap, channel) order
+        return F.linear(unfold_time(x, k, self.stride[0], self.padding[0]), w, self.bias)
+
+
+class UpConv1d(nn.ConvTranspose1d):
+    """nn.ConvTranspose1d(C, C, 4, stride 2, padding 1) (same state dict) with a channels-last matrix form.
+
+    Output step o receives input step i through tap j = o - 2i + 1, so even steps 2m read taps 1 and 3 of
+    inputs m and m - 1, odd steps 2m + 1 taps 2 and 0 of inputs m and m + 1: two products over pairs of
+    neighbouring steps, interleaved. (OpenVINO's transposed convolution took 1.5 ms for 4 MB of weights at
+    batch 1 on an AMD EPYC with AVX2, several times its memory time.)
+    """
+
+    def __init__(self, channels: int) -> None:
+        super().__init__(channels, channels, 4, 2, 1)
+
+    def forward_time_last(self, x: torch.Tensor) -> torch.Tensor:  # (B, T, C) -> (B, 2T, C)
+        w, t = self.weight, x.shape[1]  # w (Cin, Cout, 4)
+        xp = F.pad(x, (0, 0, 1, 1))  # (B, T + 2, C): xp[m] = x[m - 1]
+        prev, cur, nxt = xp[:, :t], xp[:, 1:t + 1], xp[:, 2:]
+        even = F.linear(torch.cat([prev, cur], -1), torch.cat([w[:, :, 3], w[:, :, 1]]).T, self.bias)
+        odd = F.linear(torch.cat([cur, nxt], -1), torch.cat([w[:, :, 2], w[:, :, 0]]).T, self.bias)
+        return torch.stack([even, odd], dim=2).reshape(x.shape[0], 2 * t, -1)  # (B, T, 2, C) -> (B, 2T, C)
+
+
+def run_layer(layer: nn.Module, x: torch.Tensor, time_last: bool) -> torch.Tensor:
+    """A U-Net layer in either layout (an nn.Identity works on both)."""
+    return layer.forward_time_last(x) if time_last and not isinstance(layer, nn.Identity) else layer(x)
+
 
 class Conv1dBlock(nn.Sequential):
     """Conv1d -> GroupNorm -> Mish."""
 
     def __init__(self, cin: int, cout: int, kernel: int, groups: int) -> None:
         super().__init__(Conv1d(cin, cout, kernel, padding=kernel // 2), nn.GroupNorm(groups, cout), nn.Mish())
+
+    def forward_time_last(self, x: torch.Tensor) -> torch.Tensor:  # (B, T, Cin) -> (B, T, Cout)
+        return F.mish(group_norm_time_last(self[1], self[0].forward_time_last(x)))
 
 
 class ConditionalResidualBlock1D(nn.Module):
@@ -87,13 +141,14 @@ class ConditionalResidualBlock1D(nn.Module):
     def forward(self, x: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:  # x (B, Cin, T), cond (B, cond_dim)
         return self.forward_film(x, self.cond_encoder(cond))
 
-    def forward_film(self, x: torch.Tensor, film: torch.Tensor) -> torch.Tensor:
-        """The block given its FiLM parameters (B, 2 * Cout) already computed."""
-        out = self.blocks[0](x)  # (B, Cout, T)
-        film = film.view(-1, 2, self.out_channels, 1)  # (B, 2, Cout, 1)
+    def forward_film(self, x: torch.Tensor, film: torch.Tensor, time_last: bool = False) -> torch.Tensor:
+        """The block given its FiLM parameters (B, 2 * Cout) already computed; x (B, Cin, T), or (B, T, Cin)
+        when `time_last`."""
+        out = run_layer(self.blocks[0], x, time_last)  # (B, Cout, T)
+        film = film.view(-1, 2, 1, self.out_channels) if time_last else film.view(-1, 2, self.out_channels, 1)
         out = film[:, 0] * out + film[:, 1]  # FiLM: the condition rescales and shifts every channel
-        out = self.blocks[1](out)
-        return out + self.residual_conv(x)
+        out = run_layer(self.blocks[1], out, time_last)
+        return out + run_layer(self.residual_conv, x, time_last)
 
 
 class ConditionalUnet1D(nn.Module):
@@ -123,7 +178,7 @@ class ConditionalUnet1D(nn.Module):
         # One up level per down level but the first; each upsamples, undoing the down path's strides.
         for cin, cout in reversed(in_out[1:]):
             self.up_modules.append(nn.ModuleList([
-                block(cout * 2, cin), block(cin, cin), nn.ConvTranspose1d(cin, cin, 4, 2, 1)]))
+                block(cout * 2, cin), block(cin, cin), UpConv1d(cin)]))
         self.final_conv = nn.Sequential(Conv1dBlock(down_dims[0], down_dims[0], kernel, groups),
                                         Conv1d(down_dims[0], input_dim, 1))
 
@@ -150,20 +205,30 @@ class ConditionalUnet1D(nn.Module):
         s = self.step_embed_dim
         return torch.cat([emb @ b.cond_encoder[1].weight[:, :s].T for b in self.residual_blocks()], dim=-1)
 
-    def forward_film(self, sample: torch.Tensor, film: torch.Tensor) -> torch.Tensor:
-        """`forward` given the FiLM parameters of all blocks, obs_film + step_film: (B, Tp, Da), (B, F)."""
+    def forward_film(self, sample: torch.Tensor, film: torch.Tensor, time_last: bool = False) -> torch.Tensor:
+        """`forward` given the FiLM parameters of all blocks, obs_film + step_film: (B, Tp, Da), (B, F).
+
+        `time_last`: the same arithmetic on (B, T, C) activations, every convolution one fully connected
+        product over its unfolded input (no transposes, no convolution kernels). It is the form the exporters
+        trace: in OpenVINO fp32 on an AMD EPYC with AVX2 one paper-size step took 18.5 vs 27.3 ms at batch 1
+        and 383 vs 709 ms at batch 50 (benchmarks/unet_graph_form.py). In torch it would permute the weights
+        on every call, so the torch modes keep channels first.
+        """
         films = iter(film.split([2 * b.out_channels for b in self.residual_blocks()], dim=-1))
-        x = sample.transpose(1, 2)  # (B, Da, Tp)
+        x = sample if time_last else sample.transpose(1, 2)  # (B, Tp, Da) or (B, Da, Tp)
         skips = []
         for res1, res2, down in self.down_modules:
-            x = res2.forward_film(res1.forward_film(x, next(films)), next(films))
+            x = res2.forward_film(res1.forward_film(x, next(films), time_last), next(films), time_last)
             skips.append(x)
-            x = down(x)
+            x = run_layer(down, x, time_last)
         for res in self.mid_modules:
-            x = res.forward_film(x, next(films))
+            x = res.forward_film(x, next(films), time_last)
         for res1, res2, up in self.up_modules:
-            x = torch.cat([x, skips.pop()], dim=1)
-            x = up(res2.forward_film(res1.forward_film(x, next(films)), next(films)))
+            x = torch.cat([x, skips.pop()], dim=-1 if time_last else 1)
+            x = run_layer(up, res2.forward_film(res1.forward_film(x, next(films), time_last), next(films),
+                                                time_last), time_last)
+        if time_last:
+            return self.final_conv[1].forward_time_last(self.final_conv[0].forward_time_last(x))
         return self.final_conv(x).transpose(1, 2)
 
     def forward(self, sample: torch.Tensor, timestep: torch.Tensor, global_cond: torch.Tensor) -> torch.Tensor:
