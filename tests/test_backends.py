@@ -184,3 +184,18 @@ def test_backend_auto_chooses_an_exact_mode_records_why_and_caches(synthetic_zar
     assert again.info.deployment["auto"]["cached"] is True and again.info.mode == trial["chosen"]
     with pytest.raises(BCBenchError, match="auto picks among the exact"):
         mode_name("auto", "int8")
+
+
+@pytest.mark.parametrize("argv,want", [
+    (["realtime", "--checkpoint", "r", "--measured"], "auto"),  # the measured latency sets the delays
+    (["realtime", "--checkpoint", "r"], "torch"),
+    (["eval", "--checkpoint", "r", "--latency", "measured", "--execution", "async"], "auto"),
+    (["eval", "--checkpoint", "r"], "torch"),  # scores only: the reference runtime
+    (["eval", "--checkpoint", "r", "--latency", "measured", "--backend", "openvino"], "openvino"),
+    (["realtime", "--checkpoint", "r", "--measured", "--reference"], "torch"),
+])
+def test_the_default_backend_is_auto_where_measured_latency_sets_the_delays(argv, want):
+    from bcbench.cli.main import _backend
+    from bcbench.cli.parser import build_parser
+
+    assert _backend(build_parser().parse_args(argv)) == want

@@ -60,6 +60,18 @@ def test_latency_cli_writes_json_table_and_plot(tmp_path, capsys):
     assert (tmp_path / "latency.png").stat().st_size > 1000 and "speed-up" in (tmp_path / "latency.md").read_text()
 
 
+def test_latency_includes_auto_by_default(monkeypatch, tmp_path):
+    """Without --mode, every mode and `auto` (what a user gets: the fastest exact mode here) are timed."""
+    import bcbench.evaluation.benchmark as benchmark
+    from bcbench.modes import AUTO, MODES
+
+    seen = []
+    monkeypatch.setattr(benchmark, "_rows_for", lambda name, preset, modes, *a, **k: seen.append(modes) or [])
+    monkeypatch.setattr(benchmark, "machine_limits", lambda: None)
+    benchmark.run_latency_benchmark(policies=["cnn_mlp"], presets=["quick"], out=str(tmp_path))
+    assert seen == [[*MODES, AUTO]]
+
+
 def test_the_floor_counts_weights_per_use_and_flops():
     """A loop of K denoising steps reads the U-Net K times: 10 steps read more than 1, and the floor is the larger
     of the memory and compute times."""

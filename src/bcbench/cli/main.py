@@ -107,6 +107,15 @@ def cmd_data_replay(args: argparse.Namespace) -> int:
     return 0
 
 
+def _backend(args: argparse.Namespace) -> str:
+    """--backend, defaulted: auto (the fastest exact mode here) where a measured latency sets the delays, since
+    the mode then changes the result; else torch, the reference every score can be reproduced with."""
+    if args.backend is not None:
+        return args.backend
+    measured = getattr(args, "measured", False) or getattr(args, "latency", None) == "measured"
+    return "auto" if measured and args.precision == "fp32" and not args.reference else "torch"
+
+
 def _load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
     """The policy to evaluate and the default output folder."""
     from bcbench.policies import REGISTRY, is_learned, make_policy
@@ -120,13 +129,13 @@ def _load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
 
         runner = load_runner(args.checkpoint, use_ema=not args.no_ema, device=args.device)
         tag = configure_runner(runner, args.sampler, args.steps, args.seed, args.spacing)
-        mode = mode_name(args.backend, args.precision, args.reference)
+        mode = mode_name(_backend(args), args.precision, args.reference)
         apply_mode(runner, mode)
         tag += "" if mode == "fast" else f"{mode}-"
         return runner, Path(args.checkpoint) / f"eval-{tag}{args.episodes}ep-{stamp}"
     if not args.policy:
         raise BCBenchError("choose --policy NAME or --checkpoint RUN_DIR")
-    if args.backend != "torch" or args.precision != "fp32" or args.reference:
+    if args.backend not in (None, "torch") or args.precision != "fp32" or args.reference:
         raise BCBenchError("--backend/--precision/--reference apply to a trained --checkpoint")
     if args.sampler or args.steps or args.spacing:
         raise BCBenchError("--sampler/--steps/--spacing need a diffusion --checkpoint")
@@ -164,7 +173,7 @@ def _load_weak(args: argparse.Namespace, policy: Any) -> Any:
     if weak.name != policy.name:
         raise BCBenchError(f"--bid-weak is a {weak.name} run; the policy is {policy.name}")
     configure_runner(weak, args.sampler, args.steps, args.seed, args.spacing)
-    apply_mode(weak, mode_name(args.backend, args.precision, args.reference))
+    apply_mode(weak, policy.info.mode or mode_name(_backend(args), args.precision, args.reference))
     return weak
 
 

@@ -172,7 +172,7 @@ def _add_study_commands(sub: Any) -> None:
                    help="presets (default paper and quick; --config is the old name of this option)")
     p.add_argument("--mode", action="append", choices=[*MODES, AUTO],
                    help="inference modes (default all: torch reference and fast, OpenVINO fp32, bf16 and int8, ONNX "
-                        "Runtime fp32; auto: the fastest exact one on this machine, measured)")
+                        "Runtime fp32, and auto: the fastest exact one on this machine, measured, as a user gets it)")
     p.add_argument("--sampler", action="append", choices=["ddpm", "ddim", "euler", "midpoint"],
                    help="samplers of generative policies (default ddpm and ddim; flow: euler)")
     p.add_argument("--steps", type=_positive_int, action="append",
@@ -252,9 +252,10 @@ def _add_policy_arg(p: Any) -> None:
 
 
 def _add_backend_args(p: Any) -> None:
-    p.add_argument("--backend", default="torch", choices=list(BACKENDS),
-                   help="what runs a trained policy's networks (default torch; openvino and onnxruntime export "
-                        "them, cached beside the checkpoint)")
+    p.add_argument("--backend", choices=list(BACKENDS),
+                   help="what runs a trained policy's networks: torch, openvino or onnxruntime (these two export "
+                        "them, cached beside the checkpoint), auto (the fastest exact one here, measured). Default: "
+                        "auto where a measured latency sets the delays (--latency measured, --measured), else torch")
     p.add_argument("--precision", default="fp32", choices=["fp32", "bf16", "int8"],
                    help="with --backend openvino: fp32 (exact, default), bf16 or int8 (approximate)")
     p.add_argument("--reference", action="store_true",

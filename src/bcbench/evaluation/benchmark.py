@@ -18,9 +18,9 @@ from tqdm import tqdm
 from bcbench.data.normalizer import MinMaxNormalizer
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.backends import apply_mode
-from bcbench.evaluation.floor import call_work, floor_ms, machine_limits
+from bcbench.evaluation.floor import floor_ms, floor_of, machine_limits
 from bcbench.evaluation.timing import TimingConfig, measure_runner, verdicts
-from bcbench.modes import MODES
+from bcbench.modes import AUTO, MODES
 from bcbench.policies import REGISTRY, is_learned, make_policy
 from bcbench.policies.learned import PolicyRunner
 from bcbench.policies.outside import outside_policy
@@ -54,11 +54,8 @@ def _rows_for(name: str, preset: str, modes: list[str], samplers: list[str], ste
                 model.set_sampler(sampler, k)
             model.reset_noise(0)
             stats = measure_runner(runner, timing, rate_hz)
-            floor = {}
-            if limits and device.type == "cpu":  # what this call must read and compute, against this machine
-                work = call_work(runner)
-                floor = {**work, **floor_ms(work, limits)}
-                floor["x_floor"] = stats["median_ms"] / floor["floor_ms"] if floor["floor_ms"] > 0 else None
+            # what this call must read and compute, against this machine
+            floor = floor_of(runner, stats["median_ms"], limits) if limits and device.type == "cpu" else {}
             rows.append({"policy": name, "preset": preset, "mode": mode, "variant": f"{sampler}{k}" if sampler else
                          "default", "params": model.num_parameters(), "deployment": runner.info.deployment or
                          model.deployment, **stats, **floor})
@@ -118,7 +115,7 @@ def run_latency_benchmark(policies: list[str] | None = None, presets: list[str] 
     for name, preset in tqdm(jobs, desc="latency", unit="policy"):
         if name in outside or any(r["policy"] == name and r["preset"] == "-" for r in rows):
             continue  # baselines have no sizes
-        rows += _rows_for(name, preset, modes or list(MODES), samplers or ["ddpm", "ddim"],
+        rows += _rows_for(name, preset, modes or [*MODES, AUTO], samplers or ["ddpm", "ddim"],
                           list(steps or DEFAULT_STEPS), dev, timing, rate_hz, limits)
     out_dir = Path(out) if out else Path("runs") / f"latency-{datetime.now():%Y%m%d-%H%M%S}"
     record = {"type": "latency-benchmark", "device": str(dev), "rate_hz": rate_hz, "timing": timing.__dict__,

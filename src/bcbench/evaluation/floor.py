@@ -78,3 +78,10 @@ def floor_ms(work: dict[str, float], limits: dict[str, float]) -> dict[str, floa
     compute = work["flops"] / (limits["gemm_gflop_per_s"] * 1e9) * 1e3
     return {"floor_ms": max(mem, compute), "memory_ms": mem, "compute_ms": compute,
             "bound": "memory" if mem >= compute else "compute"}
+
+
+def floor_of(runner: PolicyRunner, median_ms: float, limits: dict[str, float]) -> dict[str, Any]:
+    """A timed call's floor on this machine: the work of the runner's call, the floor, and median / floor."""
+    work = call_work(runner)
+    floor = {**work, **floor_ms(work, limits)}
+    return {**floor, "x_floor": median_ms / floor["floor_ms"] if floor["floor_ms"] > 0 else None}

@@ -24,6 +24,7 @@ import torch
 
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.backends import apply_mode
+from bcbench.evaluation.floor import floor_of, machine_limits
 from bcbench.interface import ChunkPolicy, SelfTimedPolicy, example_observation
 from bcbench.policies.learned import PolicyRunner
 from bcbench.utils.system import provenance
@@ -138,13 +139,17 @@ def latency_record(policy: ChunkPolicy, cfg: TimingConfig, rate_hz: float = 10.0
     """Time a policy in each mode (baselines have one); a JSON-ready record with provenance."""
     out: dict[str, Any] = {"type": "latency", "created": datetime.now(UTC).isoformat(timespec="seconds"),
                            "policy": policy.describe(), "batch": 1, "timing": cfg.__dict__, "modes": {}}
+    device = str(getattr(policy, "device", "cpu"))
     if not isinstance(policy, PolicyRunner):
         out["modes"]["reference"] = measure_runner(policy, cfg, rate_hz)
     else:
+        # this machine's floor, measured in the same run (bcbench.evaluation.floor): each mode's ratio to it
+        limits = out["machine_limits"] = machine_limits() if device == "cpu" else None
         before = policy.info.mode or "fast"
         for mode in modes:  # the same runner in each form, one after the other
             apply_mode(policy, mode)
-            out["modes"][mode] = {**measure_runner(policy, cfg, rate_hz), "deployment": policy.model.deployment}
+            stats = measure_runner(policy, cfg, rate_hz)
+            floor = floor_of(policy, stats["median_ms"], limits) if limits else {}
+            out["modes"][mode] = {**stats, "deployment": policy.model.deployment, **floor}
         apply_mode(policy, before)
-    device = str(getattr(policy, "device", "cpu"))
     return {**out, **provenance(device)}
