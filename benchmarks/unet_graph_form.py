@@ -83,18 +83,27 @@ def onnxruntime_session(policy: Any, time_last: bool, inputs: tuple, threads: in
     return ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
 
 
-def op_profile(request: Any, fc_bytes: dict[str, int]) -> dict[str, Any]:
-    """OpenVINO's per-operation times of the last call, summed by operation type; FC time against weight bytes."""
+def runtime_versions() -> dict[str, str | None]:
+    import openvino
+
+    try:
+        import onnxruntime
+    except ImportError:
+        onnxruntime = None
+    return {"openvino": openvino.__version__, "onnxruntime": onnxruntime and onnxruntime.__version__}
+
+
+def op_profile(request: Any) -> dict[str, Any]:
+    """OpenVINO's per-operation times of the last call: summed by operation type, and each weight-reading node's
+    time (convolution or fully connected) in graph order, to set against its layer's weight bytes."""
     by_type: collections.Counter = collections.Counter()
-    fc_ms, fc_mb = 0.0, 0.0
+    nodes = []
     for p in request.get_profiling_info():
         ms = p.real_time.total_seconds() * 1e3
         by_type[p.node_type] += ms
-        if p.node_type == "FullyConnected":
-            fc_ms += ms
-            fc_mb += next((b for layer, b in fc_bytes.items() if f".{layer}/" in p.node_name), 0) / 1e6
-    return {"ms_by_op_type": {k: round(v, 3) for k, v in by_type.most_common()},
-            "fully_connected_ms": round(fc_ms, 3), "fully_connected_weight_mb": round(fc_mb, 2)}
+        if p.node_type in ("FullyConnected", "Convolution", "ConvolutionBackpropData"):
+            nodes.append({"node": p.node_name, "type": p.node_type, "ms": round(ms, 3)})
+    return {"ms_by_op_type": {k: round(v, 3) for k, v in by_type.most_common()}, "weight_nodes": nodes}
 
 
 def main() -> None:
@@ -143,9 +152,11 @@ def main() -> None:
     rows = {name: {"median_ms": float(np.median(t)), "p99_ms": float(np.percentile(t, 99)), "calls": len(t),
                    **({"x_floor": float(np.median(t)) / floor_ms} if name.endswith(" b1") else {})}
             for name, t in times.items()}
-    record = {"config": args.config, "threads": args.threads, "rounds": args.rounds, "machine": limits,
+    record = {"config": args.config, "layer_weight_mb": {n: b / 1e6 for n, b in layers.items()},
+              "threads": args.threads, "rounds": args.rounds, "machine": limits,
               "weight_mb_per_step": weight_bytes / 1e6, "floor_ms_per_step_batch1": floor_ms, "rows": rows,
-              "openvino_profile_batch1": {f: op_profile(r, layers) for f, r in requests.items()},
+              "openvino_profile_batch1": {f: op_profile(r) for f, r in requests.items()},
+              "runtimes": runtime_versions(),
               **provenance()}
     write_json(out / "graph-form.json", record)
     hw = record["hardware"]
