@@ -67,7 +67,6 @@ def test_latency_includes_auto_by_default(monkeypatch, tmp_path):
 
     seen = []
     monkeypatch.setattr(benchmark, "_rows_for", lambda name, preset, modes, *a, **k: seen.append(modes) or [])
-    monkeypatch.setattr(benchmark, "machine_limits", lambda: None)
     benchmark.run_latency_benchmark(policies=["cnn_mlp"], presets=["quick"], out=str(tmp_path))
     assert seen == [[*MODES, AUTO]]
 

@@ -143,13 +143,13 @@ def latency_record(policy: ChunkPolicy, cfg: TimingConfig, rate_hz: float = 10.0
     if not isinstance(policy, PolicyRunner):
         out["modes"]["reference"] = measure_runner(policy, cfg, rate_hz)
     else:
-        # this machine's floor, measured in the same run (bcbench.evaluation.floor): each mode's ratio to it
-        limits = out["machine_limits"] = machine_limits() if device == "cpu" else None
         before = policy.info.mode or "fast"
         for mode in modes:  # the same runner in each form, one after the other
             apply_mode(policy, mode)
+            # this machine's floor (bcbench.evaluation.floor), its limits measured right before the mode is timed
+            limits = machine_limits() if device == "cpu" else None
             stats = measure_runner(policy, cfg, rate_hz)
-            floor = floor_of(policy, stats["median_ms"], limits) if limits else {}
+            floor = {"machine_limits": limits, **floor_of(policy, stats["median_ms"], limits)} if limits else {}
             out["modes"][mode] = {**stats, "deployment": policy.model.deployment, **floor}
         apply_mode(policy, before)
     return {**out, **provenance(device)}
