@@ -11,8 +11,6 @@ costs one forward pass. Latency at batch 1 is the business of `bcbench latency`,
 
 from __future__ import annotations
 
-import contextlib
-import multiprocessing as mp
 import os
 import time
 from dataclasses import asdict, dataclass, field
@@ -23,9 +21,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from bcbench.env.pusht import dp_initial_state, make_env
-from bcbench.env.video import VideoWriter
-from bcbench.errors import BCBenchError
+from bcbench.env.workers import WorkerPool
 from bcbench.evaluation.config import EvalConfig
 from bcbench.evaluation.controller import ChunkedController
 from bcbench.evaluation.latency_sources import LatencySource
@@ -50,100 +46,6 @@ class EpisodeResult:
     video: str | None = None
 
 
-# ----------------------------------------------------------------------------- worker side
-
-
-def _worker(conn: Any, video_size: int) -> None:
-    """Own a set of environments; answer 'reset', 'step' and 'close' messages until 'stop'."""
-    envs: dict[int, Any] = {}
-    videos: dict[int, VideoWriter] = {}
-    try:
-        while True:
-            cmd, payload = conn.recv()
-            if cmd == "reset":  # payload: [(episode, seed, video_path | None)]
-                out = {}
-                for ep, seed, video_path in payload:
-                    env = make_env(video_size=video_size)
-                    state = dp_initial_state(seed)
-                    obs, _ = env.reset(options={"reset_to_state": state})
-                    envs[ep] = env
-                    if video_path:
-                        videos[ep] = VideoWriter(video_path, label=f"seed {seed}")
-                        videos[ep].add(env.render(), step=0, reward=0.0, score=0.0)
-                    out[ep] = (obs, env.coverage(), state.tolist())
-                conn.send(("ok", out))
-            elif cmd == "step":  # payload: {episode: (action, score_so_far)}
-                out = {}
-                for ep, (action, score) in payload.items():
-                    obs, reward, terminated, _, info = envs[ep].step(np.asarray(action, dtype=np.float64))
-                    if ep in videos:
-                        videos[ep].add(envs[ep].render(), step=None, reward=float(reward),
-                                       score=max(score, float(reward)))
-                    state = [*map(float, info["pos_agent"]), *map(float, info["block_pose"])]
-                    out[ep] = (obs, float(reward), bool(terminated), float(info["coverage"]), state)
-                conn.send(("ok", out))
-            elif cmd == "close":  # payload: [episode]
-                paths = {}
-                for ep in payload:
-                    if ep in videos:
-                        paths[ep] = videos.pop(ep).close()
-                    env = envs.pop(ep, None)
-                    if env is not None:
-                        env.close()
-                conn.send(("ok", paths))
-            elif cmd == "stop":
-                break
-    except Exception as exc:  # report, don't hang the parent
-        conn.send(("error", f"{type(exc).__name__}: {exc}"))
-    finally:
-        for v in videos.values():
-            v.close()
-        conn.close()
-
-
-class _WorkerPool:
-    """Simulator processes; episode e lives on worker e % n."""
-
-    def __init__(self, n: int, video_size: int) -> None:
-        ctx = mp.get_context("spawn")
-        self.conns, self.procs = [], []
-        for _ in range(n):
-            parent, child = ctx.Pipe()
-            proc = ctx.Process(target=_worker, args=(child, video_size), daemon=True)
-            proc.start()
-            child.close()
-            self.conns.append(parent)
-            self.procs.append(proc)
-
-    def call(self, cmd: str, per_worker: list[Any]) -> dict[int, Any]:
-        """Send each worker its payload (None = skip), gather and merge the answers."""
-        for conn, payload in zip(self.conns, per_worker, strict=True):
-            if payload is not None:
-                conn.send((cmd, payload))
-        merged: dict[int, Any] = {}
-        for conn, payload in zip(self.conns, per_worker, strict=True):
-            if payload is None:
-                continue
-            try:
-                status, out = conn.recv()
-            except EOFError:
-                raise BCBenchError("a simulator worker died unexpectedly") from None
-            if status != "ok":
-                raise BCBenchError(f"simulator worker failed: {out}")
-            merged.update(out)
-        return merged
-
-    def stop(self) -> None:
-        for conn in self.conns:
-            with contextlib.suppress(BrokenPipeError, OSError):
-                conn.send(("stop", None))
-        for proc in self.procs:
-            proc.join(timeout=5)
-            if proc.is_alive():
-                proc.terminate()
-
-
-# ----------------------------------------------------------------------------- driver side
 
 
 def _split(items: dict[int, Any] | list[Any], n: int, key=lambda x: x) -> list[Any]:
@@ -172,7 +74,7 @@ def run_episodes(policy: ChunkPolicy, cfg: EvalConfig, out_dir: Path | None = No
                                    source.delay_fn({i: r.seed for i, r in results.items()}), cfg.execution_horizon,
                                    strategy)
     video_dir = (out_dir / "videos") if out_dir is not None else Path("videos")
-    pool = _WorkerPool(n_workers, cfg.video_size)
+    pool = WorkerPool(n_workers, cfg.video_size)
     policy_time, env_steps, t0 = 0.0, 0, time.perf_counter()
     try:
         resets = [(i, r.seed, str(video_dir / f"episode_{i:03d}_seed_{r.seed}.mp4") if i < cfg.video else None)
