@@ -73,8 +73,7 @@ class _Session:
         opts.intra_op_num_threads, opts.inter_op_num_threads = threads, 1
         opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
         # no spin-waiting after a run: a policy has several sessions (encoder, denoiser), each with its own pool,
-        # and an idle pool spinning on a 2-core CPU takes a core from the next session (Diffusion Policy DDIM-10,
-        # paper size, AMD EPYC AVX2: 412 vs 468 and 352 vs 427 ms per call, alternating processes)
+        # and an idle pool spinning on a 2-core CPU takes a core from the next session
         opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
         # the bytes, not the path: an export to a temporary folder is deleted once the session exists
         self.session = ort.InferenceSession(path.read_bytes(), opts, providers=["CPUExecutionProvider"])

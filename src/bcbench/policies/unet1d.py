@@ -97,8 +97,8 @@ class UpConv1d(nn.ConvTranspose1d):
 
     Output step o receives input step i through tap j = o - 2i + 1, so even steps 2m read taps 1 and 3 of
     inputs m and m - 1, odd steps 2m + 1 taps 2 and 0 of inputs m and m + 1: two products over pairs of
-    neighbouring steps, interleaved. (OpenVINO's transposed convolution took 1.5 ms for 4 MB of weights at
-    batch 1 on an AMD EPYC with AVX2, several times its memory time.)
+    neighbouring steps, interleaved. (OpenVINO's transposed convolution took 2.95 ms for the two layers' 5.2 MB
+    at batch 1 on an AMD EPYC with AVX2, about ten times their read time: results/latency-graph-form.)
     """
 
     def __init__(self, channels: int) -> None:
@@ -210,9 +210,9 @@ class ConditionalUnet1D(nn.Module):
 
         `time_last`: the same arithmetic on (B, T, C) activations, every convolution one fully connected
         product over its unfolded input (no transposes, no convolution kernels). It is the form the exporters
-        trace: in OpenVINO fp32 on an AMD EPYC with AVX2 one paper-size step took 18.5 vs 27.3 ms at batch 1
-        and 383 vs 709 ms at batch 50 (benchmarks/unet_graph_form.py). In torch it would permute the weights
-        on every call, so the torch modes keep channels first.
+        trace: in OpenVINO fp32 on an AMD EPYC with AVX2 one paper-size step took 26.5 vs 31.4 ms at batch 1
+        and 431 vs 801 ms at batch 50, interleaved (results/latency-graph-form). In torch it would permute the
+        weights on every call, so the torch modes keep channels first.
         """
         films = iter(film.split([2 * b.out_channels for b in self.residual_blocks()], dim=-1))
         x = sample if time_last else sample.transpose(1, 2)  # (B, Tp, Da) or (B, Da, Tp)
