@@ -71,6 +71,21 @@ def test_latency_includes_auto_by_default(monkeypatch, tmp_path):
     assert seen == [[*MODES, AUTO]]
 
 
+def test_every_row_is_set_against_the_best_limits_the_run_measured():
+    """A slow moment while the limits were measured must not flatter a row: the floor uses the run's best."""
+    from bcbench.evaluation.floor import against_floor
+
+    work = {"weight_bytes": 1e9, "flops": 1e9, "median_ms": 100.0}
+    rows = [{**work, "machine_limits": {"read_gb_per_s": 10.0, "gemm_gflop_per_s": 50.0, "threads": 2}},
+            {**work, "machine_limits": {"read_gb_per_s": 20.0, "gemm_gflop_per_s": 20.0, "threads": 2}},
+            {"median_ms": 1.0}]  # a baseline: no limits, no floor
+    best = against_floor(rows)
+    assert best["read_gb_per_s"] == 20.0 and best["gemm_gflop_per_s"] == 50.0
+    assert all(r["floor_ms"] == pytest.approx(50.0) and r["bound"] == "memory" for r in rows[:2])  # 1 GB / 20 GB/s
+    assert rows[0]["x_floor"] == pytest.approx(2.0) and "x_floor" not in rows[2]
+    assert against_floor([{"median_ms": 1.0}]) is None
+
+
 def test_the_floor_counts_weights_per_use_and_flops():
     """A loop of K denoising steps reads the U-Net K times: 10 steps read more than 1, and the floor is the larger
     of the memory and compute times."""

@@ -18,7 +18,7 @@ from tqdm import tqdm
 from bcbench.data.normalizer import MinMaxNormalizer
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.backends import apply_mode
-from bcbench.evaluation.floor import floor_ms, floor_of, machine_limits
+from bcbench.evaluation.floor import against_floor, call_work, floor_ms, machine_limits
 from bcbench.evaluation.timing import TimingConfig, measure_runner, verdicts
 from bcbench.modes import AUTO, MODES
 from bcbench.policies import REGISTRY, is_learned, make_policy
@@ -56,8 +56,8 @@ def _rows_for(name: str, preset: str, modes: list[str], samplers: list[str], ste
             # this machine's limits right before the row is timed (a shared VM drifts by tens of percent in minutes)
             limits = machine_limits() if floor and device.type == "cpu" else None
             stats = measure_runner(runner, timing, rate_hz)
-            # what this call must read and compute, against this machine
-            against = {"machine_limits": limits, **floor_of(runner, stats["median_ms"], limits)} if limits else {}
+            # what this call must read and compute, and this machine's limits beside it (the floor: at the end)
+            against = {"machine_limits": limits, **call_work(runner)} if limits else {}
             rows.append({"policy": name, "preset": preset, "mode": mode, "variant": f"{sampler}{k}" if sampler else
                          "default", "params": model.num_parameters(), "deployment": runner.info.deployment or
                          model.deployment, **stats, **against})
@@ -118,9 +118,11 @@ def run_latency_benchmark(policies: list[str] | None = None, presets: list[str] 
             continue  # baselines have no sizes
         rows += _rows_for(name, preset, modes or [*MODES, AUTO], samplers or ["ddpm", "ddim"],
                           list(steps or DEFAULT_STEPS), dev, timing, rate_hz, floor=True)
+    best = against_floor(rows)  # every row against the best limits this run measured
     out_dir = Path(out) if out else Path("runs") / f"latency-{datetime.now():%Y%m%d-%H%M%S}"
     record = {"type": "latency-benchmark", "device": str(dev), "rate_hz": rate_hz, "timing": timing.__dict__,
-              "floor_rule": f"{floor_ms.__doc__} This machine's limits are measured right before each row is timed.",
+              "machine_limits": best, "floor_rule": f"{floor_ms.__doc__} The limits: the best of those measured "
+              "right before each row (bcbench.evaluation.floor).",
               "rows": rows, "verdict_rule": verdicts.__doc__, **provenance(str(dev))}
     write_json(out_dir / "latency.json", record)
     table = _table(rows)

@@ -24,7 +24,7 @@ import torch
 
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.backends import apply_mode
-from bcbench.evaluation.floor import floor_of, machine_limits
+from bcbench.evaluation.floor import against_floor, call_work, machine_limits
 from bcbench.interface import ChunkPolicy, SelfTimedPolicy, example_observation
 from bcbench.policies.learned import PolicyRunner
 from bcbench.utils.system import provenance
@@ -146,10 +146,11 @@ def latency_record(policy: ChunkPolicy, cfg: TimingConfig, rate_hz: float = 10.0
         before = policy.info.mode or "fast"
         for mode in modes:  # the same runner in each form, one after the other
             apply_mode(policy, mode)
-            # this machine's floor (bcbench.evaluation.floor), its limits measured right before the mode is timed
+            # this machine's floor (bcbench.evaluation.floor): its limits measured right before each mode
             limits = machine_limits() if device == "cpu" else None
             stats = measure_runner(policy, cfg, rate_hz)
-            floor = {"machine_limits": limits, **floor_of(policy, stats["median_ms"], limits)} if limits else {}
-            out["modes"][mode] = {**stats, "deployment": policy.model.deployment, **floor}
+            work = {"machine_limits": limits, **call_work(policy)} if limits else {}
+            out["modes"][mode] = {**stats, "deployment": policy.model.deployment, **work}
+        out["machine_limits"] = against_floor(list(out["modes"].values()))  # each mode against the best limits
         apply_mode(policy, before)
     return {**out, **provenance(device)}
