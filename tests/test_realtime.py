@@ -171,8 +171,10 @@ def test_realtime_report_states_the_largest_safe_delay_and_the_highest_safe_rate
              "realtime-blocking-d1": _setting(base), "realtime-blocking-d2": _setting(base - 0.3),
              "realtime-blocking-measured": _setting(base, median_ms=50.0)}
     backend = {"realtime-sync": _setting(base), "realtime-async-measured": _setting(base - 0.1, median_ms=20.0)}
-    lines = "\n".join(realtime_lines({"steady": steady, "fragile": fragile, "mixed": mixed, "backend": backend},
-                                     0.05))
+    no_d1 = {"realtime-sync": _setting(base), "realtime-async-d2": _setting(base - 0.2)}  # a sweep from d = 2
+    lines = "\n".join(realtime_lines({"steady": steady, "fragile": fragile, "mixed": mixed, "backend": backend,
+                                      "no_d1": no_d1}, 0.05))
+    assert "(d = 2 minus sync: async -0.200 [-0.200, -0.200])" in lines
     assert "At its measured latency, minus sync: async -0.100 [-0.100, -0.100]." in lines  # no delay settings
     m = float(base.mean())  # the table: one row per policy, "-" where a setting was not run
     assert f"| backend | {m:.3f} | - | - | - | - | - | - | - | - | {m - 0.1:.3f} (20 ms) | - | - |" in lines

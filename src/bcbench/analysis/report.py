@@ -135,9 +135,10 @@ def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float) -> s
         return f"At its measured latency, minus sync: {diffs}." if diffs else ""
     head = "Largest safe delay: " + ", ".join(f"{e} d = {d}" for e, d in safe.items())
     mode, best = max(safe.items(), key=lambda kv: kv[1])  # ties: async, listed first
-    if best == 0:
-        return (f"{head}: no delay is shown within the margin (d = 1 minus sync: {minus_sync(safe, 'd1')}), so no "
-                "real-time control rate is shown to keep its sync score.")
+    if best == 0:  # why: the smallest delay swept (d = 1 unless the sweep skipped it)
+        first = min(int(k.rsplit("-d", 1)[1]) for e in safe for k in settings if k.startswith(f"realtime-{e}-d"))
+        return (f"{head}: no delay is shown within the margin (d = {first} minus sync: "
+                f"{minus_sync(safe, f'd{first}')}), so no real-time control rate is shown to keep its sync score.")
     measured = settings.get(f"realtime-{mode}-measured", {}).get("summary", {}).get("latency_source", {})
     fits = ""
     if measured:
