@@ -195,7 +195,7 @@ def test_backend_auto_chooses_an_exact_mode_records_why_and_caches(synthetic_zar
     (["realtime", "--checkpoint", "r", "--measured", "--reference"], "torch"),
 ])
 def test_the_default_backend_is_auto_where_measured_latency_sets_the_delays(argv, want):
-    from bcbench.cli.main import _backend
     from bcbench.cli.parser import build_parser
+    from bcbench.cli.policies import backend
 
-    assert _backend(build_parser().parse_args(argv)) == want
+    assert backend(build_parser().parse_args(argv)) == want

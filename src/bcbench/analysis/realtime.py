@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from bcbench.protocol import CONTROL_DT_S
 from bcbench.stats import paired_bootstrap
 
 
@@ -52,3 +53,35 @@ def highest_safe_rate(safe_d: int | None, latency_ms: float) -> float | None:
     if safe_d is None:
         return None
     return safe_d / (latency_ms / 1e3) if latency_ms > 0 else math.inf
+
+
+def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float) -> str:
+    """One policy's largest safe delay per execution mode and, from the better mode's measured setting, its
+    highest safe control rate; where no delay is shown safe, the d = 1 differences that say why."""
+    if "realtime-sync" not in settings:
+        return ""
+    safe = {e: largest_safe_delay(settings, e, margin) for e in ("async", "blocking")
+            if any(k.startswith(f"realtime-{e}-d") for k in settings)}
+
+    def minus_sync(modes: Any, setting: str) -> str:  # "async -0.036 [-0.106, +0.031]; blocking ..."
+        keys = [(e, f"realtime-{e}-{setting}") for e in modes if f"realtime-{e}-{setting}" in settings]
+        return "; ".join(f"{e} {est:+.3f} [{lo:+.3f}, {hi:+.3f}]"
+                         for e, k in keys for est, lo, hi, _ in [delay_vs_sync(settings, k)])
+
+    if not safe:  # e.g. a backend's sweep: sync and measured only
+        diffs = minus_sync(("async", "blocking"), "measured")
+        return f"At its measured latency, minus sync: {diffs}." if diffs else ""
+    head = "Largest safe delay: " + ", ".join(f"{e} d = {d}" for e, d in safe.items())
+    mode, best = max(safe.items(), key=lambda kv: kv[1])  # ties: async, listed first
+    if best == 0:  # why: the smallest delay swept (d = 1 unless the sweep skipped it)
+        first = min(int(k.rsplit("-d", 1)[1]) for e in safe for k in settings if k.startswith(f"realtime-{e}-d"))
+        return (f"{head}: no delay is shown within the margin (d = {first} minus sync: "
+                f"{minus_sync(safe, f'd{first}')}), so no real-time control rate is shown to keep its sync score.")
+    measured = settings.get(f"realtime-{mode}-measured", {}).get("summary", {}).get("latency_source", {})
+    fits = ""
+    if measured:
+        med, slow = (highest_safe_rate(best, measured[k]) for k in ("median_ms", "max_ms"))
+        fits = (f"; its measured median call {measured['median_ms']:.0f} ms "
+                f"{'fits' if med >= 1 / CONTROL_DT_S else 'does not fit'} within {mode} d = {best} at 10 Hz; "
+                f"highest safe control rate {med:.1f} Hz ({slow:.1f} Hz at its slowest call), {mode}")
+    return f"{head}{fits}."

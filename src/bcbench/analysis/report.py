@@ -21,10 +21,9 @@ from bcbench.analysis.convergence import Check, apply_checks, doubling_checks
 from bcbench.analysis.fewstep import fewstep_lines, load_paired
 from bcbench.analysis.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
 from bcbench.analysis.findings import DEFAULT_MARGIN, judge, points_from_rows
-from bcbench.analysis.realtime import delay_vs_sync, highest_safe_rate, largest_safe_delay
+from bcbench.analysis.realtime import safe_delay_sentence
 from bcbench.analysis.results import Row, file_commits, load_realtime, load_rows, study_time
 from bcbench.analysis.strategies import load_strategy_sweeps, strategy_figure, strategy_lines
-from bcbench.protocol import CONTROL_DT_S
 from bcbench.reference import CPU_DEVIATIONS, STUDY_REFERENCE
 from bcbench.stats import fmt_estimate, fmt_share
 from bcbench.utils.io import atomic_path, read_json
@@ -115,38 +114,6 @@ def _spacing_note(rows: list[Row]) -> str:
     return ("Diffusion Policy timestep spacing: " + ", ".join(spacings) + " (trailing: every step count starts "
             "from pure noise at t = 99; leading: diffusers' and the study's default, which starts K = 1 at t = 0 "
             "and K = 40 at t = 78; variants marked -LEADING use it).")
-
-
-def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float) -> str:
-    """One policy's largest safe delay per execution mode and, from the better mode's measured setting, its
-    highest safe control rate; where no delay is shown safe, the d = 1 differences that say why."""
-    if "realtime-sync" not in settings:
-        return ""
-    safe = {e: largest_safe_delay(settings, e, margin) for e in ("async", "blocking")
-            if any(k.startswith(f"realtime-{e}-d") for k in settings)}
-
-    def minus_sync(modes: Any, setting: str) -> str:  # "async -0.036 [-0.106, +0.031]; blocking ..."
-        keys = [(e, f"realtime-{e}-{setting}") for e in modes if f"realtime-{e}-{setting}" in settings]
-        return "; ".join(f"{e} {est:+.3f} [{lo:+.3f}, {hi:+.3f}]"
-                         for e, k in keys for est, lo, hi, _ in [delay_vs_sync(settings, k)])
-
-    if not safe:  # e.g. a backend's sweep: sync and measured only
-        diffs = minus_sync(("async", "blocking"), "measured")
-        return f"At its measured latency, minus sync: {diffs}." if diffs else ""
-    head = "Largest safe delay: " + ", ".join(f"{e} d = {d}" for e, d in safe.items())
-    mode, best = max(safe.items(), key=lambda kv: kv[1])  # ties: async, listed first
-    if best == 0:  # why: the smallest delay swept (d = 1 unless the sweep skipped it)
-        first = min(int(k.rsplit("-d", 1)[1]) for e in safe for k in settings if k.startswith(f"realtime-{e}-d"))
-        return (f"{head}: no delay is shown within the margin (d = {first} minus sync: "
-                f"{minus_sync(safe, f'd{first}')}), so no real-time control rate is shown to keep its sync score.")
-    measured = settings.get(f"realtime-{mode}-measured", {}).get("summary", {}).get("latency_source", {})
-    fits = ""
-    if measured:
-        med, slow = (highest_safe_rate(best, measured[k]) for k in ("median_ms", "max_ms"))
-        fits = (f"; its measured median call {measured['median_ms']:.0f} ms "
-                f"{'fits' if med >= 1 / CONTROL_DT_S else 'does not fit'} within {mode} d = {best} at 10 Hz; "
-                f"highest safe control rate {med:.1f} Hz ({slow:.1f} Hz at its slowest call), {mode}")
-    return f"{head}{fits}."
 
 
 REALTIME_COLUMNS = ("sync", *(f"{e}-d{d}" for e in ("async", "blocking") for d in (1, 2, 4, 8)),

@@ -1,0 +1,82 @@
+"""What a scoring command runs: the policy of --policy or --checkpoint in its inference mode, the execution
+strategy of the strategy options, and BID's weaker policy. Shared by `eval` and `realtime`."""
+
+from __future__ import annotations
+
+import argparse
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+from bcbench.errors import BCBenchError
+from bcbench.utils.io import safe_name
+
+
+def backend(args: argparse.Namespace) -> str:
+    """--backend, defaulted: auto (the fastest exact mode here) where a measured latency sets the delays, since
+    the mode then changes the result; else torch, the reference every score can be reproduced with."""
+    if args.backend is not None:
+        return args.backend
+    measured = getattr(args, "measured", False) or getattr(args, "latency", None) == "measured"
+    return "auto" if measured and args.precision == "fp32" and not args.reference else "torch"
+
+
+def load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
+    """The policy to evaluate and the default output folder."""
+    from bcbench.policies import REGISTRY, is_learned, make_policy
+    from bcbench.policies.outside import outside_policy, parse_kwargs
+
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    if args.checkpoint:
+        from bcbench.evaluation.backends import apply_mode
+        from bcbench.modes import mode_name
+        from bcbench.policies.checkpoint import configure_runner, load_runner
+
+        runner = load_runner(args.checkpoint, use_ema=not args.no_ema, device=args.device)
+        tag = configure_runner(runner, args.sampler, args.steps, args.seed, args.spacing)
+        mode = mode_name(backend(args), args.precision, args.reference)
+        apply_mode(runner, mode)
+        tag += "" if mode == "fast" else f"{mode}-"
+        return runner, Path(args.checkpoint) / f"eval-{tag}{args.episodes}ep-{stamp}"
+    if not args.policy:
+        raise BCBenchError("choose --policy NAME or --checkpoint RUN_DIR")
+    if args.backend not in (None, "torch") or args.precision != "fp32" or args.reference:
+        raise BCBenchError("--backend/--precision/--reference apply to a trained --checkpoint")
+    if args.sampler or args.steps or args.spacing:
+        raise BCBenchError("--sampler/--steps/--spacing need a diffusion --checkpoint")
+    if is_learned(args.policy):
+        raise BCBenchError(f"'{args.policy}' is a learned policy: train it (`bcbench train --policy {args.policy}`) "
+                           "and evaluate with --checkpoint RUN_DIR")
+    if args.policy in REGISTRY:
+        if args.policy_arg:
+            raise BCBenchError("--policy-arg goes with an outside policy (module:factory or a plug-in)")
+        return make_policy(args.policy, args.preset, seed=args.seed), Path("runs") / f"eval-{args.policy}-{stamp}"
+    policy = outside_policy(args.policy, parse_kwargs(args.policy_arg))  # checked before anything runs
+    return policy, Path("runs") / f"eval-{safe_name(policy.name)}-{stamp}"
+
+
+def strategy_config(args: argparse.Namespace, kind: str, several: bool = False) -> Any:
+    """The StrategyConfig of the command line's strategy options, for strategy `kind` (`several`: one of a sweep's
+    strategies, where --bid-weak belongs to bid alone)."""
+    from bcbench.evaluation.config import StrategyConfig
+
+    return StrategyConfig(kind, args.rtc_max_guidance, args.bid_samples, args.bid_modes,
+                          args.bid_weak if kind == "bid" or not several else None, args.ensemble_decay)
+
+
+def load_weak(args: argparse.Namespace, policy: Any) -> Any:
+    """BID's weaker policy (--bid-weak RUN_DIR), run as the policy is: same sampler, seed and inference mode."""
+    if not args.bid_weak:
+        return None
+    if not args.checkpoint:
+        raise BCBenchError("--bid-weak goes with a trained --checkpoint")
+    from bcbench.evaluation.backends import apply_mode
+    from bcbench.modes import mode_name
+    from bcbench.policies.checkpoint import configure_runner, load_runner
+
+    weak = load_runner(args.bid_weak, use_ema=not args.no_ema, device=args.device)
+    if weak.name != policy.name:
+        raise BCBenchError(f"--bid-weak is a {weak.name} run; the policy is {policy.name}")
+    configure_runner(weak, args.sampler, args.steps, args.seed, args.spacing)
+    apply_mode(weak, policy.info.mode or mode_name(backend(args), args.precision, args.reference))
+    return weak
