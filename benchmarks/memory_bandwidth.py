@@ -12,14 +12,15 @@ from __future__ import annotations
 
 import argparse
 
+import numpy as np
 import torch
 
-from bcbench.evaluation.floor import median_s
+from bcbench.evaluation.floor import wall_times
 from bcbench.policies import make_policy
 
 
 def median_time(fn, n: int = 10) -> float:
-    return median_s(fn, n)
+    return float(np.median(wall_times(fn, n)))
 
 
 def main() -> None:

@@ -37,7 +37,7 @@ def _normalizer() -> MinMaxNormalizer:
 
 
 def _rows_for(name: str, preset: str, modes: list[str], samplers: list[str], steps: list[int], device: torch.device,
-              timing: TimingConfig, rate_hz: float, floor: bool = False) -> list[dict[str, Any]]:
+              timing: TimingConfig, rate_hz: float) -> list[dict[str, Any]]:
     torch.manual_seed(0)
     model = make_policy(name, preset)
     if not is_learned(name):
@@ -54,7 +54,7 @@ def _rows_for(name: str, preset: str, modes: list[str], samplers: list[str], ste
                 model.set_sampler(sampler, k)
             model.reset_noise(0)
             # this machine's limits right before the row is timed (a shared VM drifts by tens of percent in minutes)
-            limits = machine_limits() if floor and device.type == "cpu" else None
+            limits = machine_limits() if device.type == "cpu" else None
             stats = measure_runner(runner, timing, rate_hz)
             # what this call must read and compute, and this machine's limits beside it (the floor: at the end)
             against = {"machine_limits": limits, **call_work(runner)} if limits else {}
@@ -117,7 +117,7 @@ def run_latency_benchmark(policies: list[str] | None = None, presets: list[str] 
         if name in outside or any(r["policy"] == name and r["preset"] == "-" for r in rows):
             continue  # baselines have no sizes
         rows += _rows_for(name, preset, modes or [*MODES, AUTO], samplers or ["ddpm", "ddim"],
-                          list(steps or DEFAULT_STEPS), dev, timing, rate_hz, floor=True)
+                          list(steps or DEFAULT_STEPS), dev, timing, rate_hz)
     best = against_floor(rows)  # every row against the best limits this run measured
     out_dir = Path(out) if out else Path("runs") / f"latency-{datetime.now():%Y%m%d-%H%M%S}"
     record = {"type": "latency-benchmark", "device": str(dev), "rate_hz": rate_hz, "timing": timing.__dict__,

@@ -22,7 +22,6 @@ from __future__ import annotations
 import time
 from typing import Any
 
-import numpy as np
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
@@ -33,35 +32,24 @@ READ_MB = 256  # bytes streamed per bandwidth sample: well past any L3 cache
 GEMM_N = 1024
 
 
-def median_s(fn: Any, n: int = 7) -> float:
-    """Median wall time of `fn()` in seconds over n calls, after one warm-up call."""
+def wall_times(fn: Any, n: int) -> list[float]:
+    """Wall times of n calls of `fn()` in seconds, after one warm-up call."""
     fn()
     ts = []
     for _ in range(n):
         t0 = time.perf_counter()
         fn()
         ts.append(time.perf_counter() - t0)
-    return float(np.median(ts))
-
-
-def best_s(fn: Any, n: int = 9) -> float:
-    """Shortest wall time of `fn()` in seconds over n calls, after one warm-up call."""
-    fn()
-    ts = []
-    for _ in range(n):
-        t0 = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t0)
-    return min(ts)
+    return ts
 
 
 def machine_limits() -> dict[str, float]:
     """Streaming read bandwidth (GB/s: a sum over a buffer larger than any cache) and fp32 matrix-product
     throughput (GFLOP/s: a 1024^3 product), with torch's current threads; each the best of 9 trials."""
     buf = torch.ones(READ_MB * 2**20 // 4)
-    read_s = best_s(lambda: buf.sum())
+    read_s = min(wall_times(lambda: buf.sum(), 9))
     a, b = torch.randn(GEMM_N, GEMM_N), torch.randn(GEMM_N, GEMM_N)
-    gemm_s = best_s(lambda: a @ b)
+    gemm_s = min(wall_times(lambda: a @ b, 9))
     return {"read_gb_per_s": buf.numel() * 4 / read_s / 1e9, "gemm_gflop_per_s": 2 * GEMM_N**3 / gemm_s / 1e9,
             "threads": torch.get_num_threads()}
 

@@ -144,7 +144,7 @@ class ConditionalResidualBlock1D(nn.Module):
     def forward_film(self, x: torch.Tensor, film: torch.Tensor, time_last: bool = False) -> torch.Tensor:
         """The block given its FiLM parameters (B, 2 * Cout) already computed; x (B, Cin, T), or (B, T, Cin)
         when `time_last`."""
-        out = run_layer(self.blocks[0], x, time_last)  # (B, Cout, T)
+        out = run_layer(self.blocks[0], x, time_last)  # (B, Cout, T), or (B, T, Cout) when time_last
         film = film.view(-1, 2, 1, self.out_channels) if time_last else film.view(-1, 2, self.out_channels, 1)
         out = film[:, 0] * out + film[:, 1]  # FiLM: the condition rescales and shifts every channel
         out = run_layer(self.blocks[1], out, time_last)
