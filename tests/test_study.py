@@ -284,7 +284,7 @@ def test_runner_refuses_test_seeds_in_an_explore_study(tmp_path):
 
 def test_provenance_reads_every_file_kind_and_states_the_reason(tmp_path):
     """A study completed later (a sweep, a re-timing) shows every commit with what it produced, and its reason."""
-    from bcbench.analysis.report import provenance_notes
+    from bcbench.analysis.provenance import provenance_notes
     from bcbench.analysis.results import file_commits
 
     run = tmp_path / "runs" / "r"

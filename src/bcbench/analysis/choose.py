@@ -88,7 +88,7 @@ def control_loop_lines(rows: list[Row], realtime: dict[str, dict[str, Any]], mar
             "default, or DDIM-10 / Euler-10 for a sampler sweep), its score, its median call at batch 1 in the "
             "fastest exact mode timed on this machine, and "
             f"the highest control rate at which its score stays within {margin} of sync under real-time execution "
-            "(the larger safe delay of async and blocking, divided by that call time). Hardware and training are "
-            "stated once, below.", "",
+            "(the larger safe delay of async and blocking, divided by that call time). The machine is named once, "
+            "at the top; each run's training under 'Training: converged?'.", "",
             "| " + " | ".join(HEADER) + " |", "|---" * len(HEADER) + "|",
             *("| " + " | ".join(r) + " |" for r in table), ""]

@@ -46,7 +46,8 @@ def _budget_lines(ax: Any, vertical: bool = True) -> None:
     for ms, label in BUDGETS_MS:
         (ax.axvline if vertical else ax.axhline)(ms, ls="--", lw=1, color="k", alpha=0.5)
         if vertical:
-            ax.text(ms * 0.93, 0.98, label, rotation=90, va="top", ha="right", fontsize=7, alpha=0.7,
+            # at the foot of the line: the points (good scores) crowd the top of these figures
+            ax.text(ms * 0.93, 0.02, label, rotation=90, va="bottom", ha="right", fontsize=7, alpha=0.7,
                     transform=ax.get_xaxis_transform())
 
 
@@ -58,6 +59,7 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference") -> Path | None
     fig, ax = plt.subplots(figsize=(9, 5.5))
     legend: dict[str, Any] = {}
     labels: list[tuple[float, float, str]] = []
+    markers: list[tuple[float, float, float]] = []  # (x, y, radius in points): labels keep clear of them
     nth = _nth_of_policy(pts)
     for r in pts:
         lo, hi = r.est("mean_score")["ci95"]
@@ -67,6 +69,7 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference") -> Path | None
         dot = ax.scatter(r.latency_ms(mode), r.score, s=size, color=COLOURS.get(r.policy, "k"), alpha=0.8,
                          edgecolor="k", lw=0.5, marker=MARKERS[nth[r.label] % len(MARKERS)])
         legend.setdefault(f"{r.label}, {r.params / 1e6:.2f} M", dot)
+        markers.append((r.latency_ms(mode), r.score, size ** 0.5 / 2))
         deployed = r.deployed_ms() if mode == "reference" else None
         if deployed and deployed[1] < 0.95 * r.latency_ms(mode):  # an arrow to the deployed (exact) time
             ax.annotate("", (deployed[1], r.score), xytext=(r.latency_ms(mode), r.score),
@@ -75,7 +78,7 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference") -> Path | None
             labels.append((r.latency_ms(mode), r.score, r.variant.upper().replace("-LEADING", "-L")))
     ax.legend(legend.values(), legend.keys(), fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0),
               markerscale=0.5)  # outside the data
-    fig.set_size_inches(12, 5.5)
+    fig.set_size_inches(12, 6.5)  # room for the labels of Diffusion Policy's many settings
 
     shown = {r.reference_key for r in pts}
     for key, ref in STUDY_REFERENCE.items():  # the study's own points (A100), hollow, for comparison
@@ -93,30 +96,44 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference") -> Path | None
     ax.set_title("Accuracy against inference time (the study's Fig. 5)")
     ax.grid(alpha=0.3, which="both")
     fig.tight_layout()
-    place_labels(ax, labels)
+    place_labels(ax, labels, markers=markers)
     return _save(fig, path)
 
 
-OFFSETS = ((4, 3), (4, -9), (-4, 3), (-4, -9), (4, 10), (4, -16), (-4, 10), (-4, -16), (4, 17), (-4, 17))
+DY = (-3, 4, -10, 11, -17, 18, -24, 25, -31)  # label rows above and below a point, nearest first (points)
 
 
-def place_labels(ax: Any, items: list[tuple[float, float, str]], fontsize: float = 6) -> None:
-    """Name points without labels overlapping: each label (left to right) takes the first offset in OFFSETS
-    whose box, estimated from its length in display units, meets no label placed before it (else the first)."""
+def place_labels(ax: Any, items: list[tuple[float, float, str]], fontsize: float = 6,
+                 markers: list[tuple[float, float, float]] | None = None) -> None:
+    """Name points without a label overlapping another label or any marker.
+
+    `markers` are (x, y, radius in points) of every drawn marker. Each label (left to right) takes the first
+    free place to the right, then to the left, of its point, a row nearer first (DY); a label that finds no free
+    place goes to the last candidate, joined to its point by a thin line so it still names the right one."""
     ax.figure.canvas.draw()  # final limits and log scale: data -> display transform
     pt = ax.figure.dpi / 72  # display units per typographic point
-    placed: list[tuple[float, float, float, float]] = []
+    discs = [(*ax.transData.transform((x, y)), r * pt) for x, y, r in (markers or [])]
+    placed = [(dx - r, dy - r, 2 * r, 2 * r) for dx, dy, r in discs]  # markers block labels
+
+    def free(box: tuple[float, float, float, float]) -> bool:
+        bx, by, bw, bh = box
+        return not any(bx < qx + qw and qx < bx + bw and by < qy + qh and qy < by + bh for qx, qy, qw, qh in placed)
+
     for x, y, text in sorted(items):
         px, py = ax.transData.transform((x, y))
-        w, h = 0.62 * fontsize * len(text) * pt, fontsize * pt
-        boxes = [(px + dx * pt - (w if dx < 0 else 0), py + dy * pt, w, h) for dx, dy in OFFSETS]
-        free = [i for i, (bx, by, _, _) in enumerate(boxes)
-                if not any(bx < qx + qw and qx < bx + w and by < qy + qh and qy < by + h for qx, qy, qw, qh in placed)]
-        i = free[0] if free else 0
+        r = max((d[2] for d in discs if abs(d[0] - px) < 1e-6 and abs(d[1] - py) < 1e-6), default=2 * pt) / pt
+        w, h = 0.6 * fontsize * len(text) * pt, fontsize * pt
+        offsets = [(side * (r + 2), dy) for dy in DY for side in (1, -1)]
+        offsets += [(side * (r + 2 + k), dy) for k in (15, 30) for dy in DY[:5] for side in (1, -1)]
+        boxes = [(px + dx * pt - (w if dx < 0 else 0), py + dy * pt, w, h) for dx, dy in offsets]
+        i = next((j for j, b in enumerate(boxes) if free(b)), len(boxes) - 1)
         placed.append(boxes[i])
-        dx, dy = OFFSETS[i]
-        ax.annotate(text, (x, y), xytext=(dx, dy), textcoords="offset points", fontsize=fontsize,
-                    ha="right" if dx < 0 else "left")
+        dx, dy = offsets[i]
+        far = abs(dx) > r + 3 or abs(dy) > r + 4
+        ax.annotate(text, (x, y), xytext=(dx, dy + (h / pt) / 2), textcoords="offset points", fontsize=fontsize,
+                    ha="right" if dx < 0 else "left", va="center",
+                    arrowprops={"arrowstyle": "-", "lw": 0.4, "alpha": 0.5, "shrinkA": 0, "shrinkB": r}
+                    if far else None)
 
 
 def _dp_rows(rows: list[Any], sampler: str, schedule: str, spacing: str | None = None) -> list[Any]:
@@ -314,6 +331,6 @@ def figure5_realtime(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path
     _score_axis(ax, "median latency per call on this machine (ms, log scale)")
     ax.set_title("Figure 5, real time: score under async execution at measured latency (hollow: sync)", fontsize=10)
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)  # outside the data
-    fig.set_size_inches(12, 5.5)
+    fig.set_size_inches(12, 6.5)  # room for the labels of Diffusion Policy's many settings
     fig.tight_layout()
     return _save(fig, path)

@@ -21,6 +21,7 @@ from bcbench.analysis.convergence import Check, apply_checks, doubling_checks
 from bcbench.analysis.fewstep import fewstep_lines, load_paired
 from bcbench.analysis.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
 from bcbench.analysis.findings import DEFAULT_MARGIN, judge, points_from_rows
+from bcbench.analysis.provenance import MIXING_REASON, lead_line, provenance_notes
 from bcbench.analysis.realtime import safe_delay_sentence
 from bcbench.analysis.results import Row, file_commits, load_realtime, load_rows, study_time
 from bcbench.analysis.strategies import load_strategy_sweeps, strategy_figure, strategy_lines
@@ -32,9 +33,8 @@ FIG5 = "Figure 5: accuracy against inference time"
 COLUMNS = ["policy", "params", "mean score [95% CI]", "> 0.5 [Wilson 95%]", "> 0.9 [Wilson 95%]",
            "success [Wilson 95%]",
            "latency ref. median / tail (ms; tail = p99 from >= 100 calls, else max of N)",
-           "latency fast median (ms; x this machine's floor)", "max rate, every-step re-plan (Hz)", "training",
-           "hardware",
-           "study (A100): score / >0.5 / >0.9 / ms"]
+           "latency fast median (ms; x this machine's floor)", "max rate, every-step re-plan (Hz)",
+           "study (A100): score / >0.5 / >0.9 / ms"]  # training and hardware: once per run, not on every row
 
 
 def _ms(v: float | None) -> str:
@@ -62,19 +62,17 @@ def _train_cell(r: Row) -> str:
     cell = f"{t.get('epochs', 0):.2f} epochs, {minutes:.1f} min" + (f", {sps:.0f} samples/s" if sps else "")
     if t.get("stopped") not in (None, "finished"):
         cell += f" ({t['stopped']})"  # e.g. "stopped by time: schedule not finished"
-    return cell
+    # where it trained: every session's CPU (segments), else the summary's machine; samples/s depend on it
+    segs = t.get("segments") or ([{**t["hardware"], "precision": t.get("precision")}] if t.get("hardware") else [])
+    machines = sorted({f"{g.get('cpu_model', '?')}" + (f" ({', '.join(g['cpu_flags'])})" if g.get("cpu_flags") else "")
+                       + (f", {g['precision']}" if g.get("precision") else "") for g in segs})
+    return cell + (f"; trained on {' and '.join(machines)}" if machines else "")
 
 
 def _fast_cell(fast: dict[str, Any]) -> str:
     """The fast mode's median, with its ratio to this machine's floor where the record has one."""
     ratio = fast.get("x_floor")
     return _ms(fast.get("median_ms")) + ("" if ratio is None else f" ({ratio:.1f}x)")
-
-
-def _hw_cell(r: Row) -> str:
-    h = r.hardware
-    dev = h.get("gpu") or h.get("cpu_model", "?")
-    return f"{dev}, {h.get('torch_threads', '?')} threads"
 
 
 def table_rows(rows: list[Row]) -> list[list[str]]:
@@ -91,8 +89,7 @@ def table_rows(rows: list[Row]) -> list[list[str]]:
                     *(fmt_share(r.est(k), int(r.summary.get("n") or len(r.scores)))
                       for k in ("share_above_0.5", "share_above_0.9", "success_rate")),
                     f"{_ms(r.latency_ms('reference'))} / {tail}",
-                    _fast_cell(fast), "-" if rate is None else f"{rate:.1f}", _train_cell(r), _hw_cell(r),
-                    _study_cell(r)])
+                    _fast_cell(fast), "-" if rate is None else f"{rate:.1f}", _study_cell(r)])
     return out
 
 
@@ -240,34 +237,6 @@ def convergence_lines(rows: list[Row]) -> list[str]:
     return out or ["- no trained runs"]
 
 
-MIXING_REASON = "mixing-reason.txt"  # a study folder's own account of why its files come from several commits
-
-
-def provenance_notes(rows: list[Row], commits_by_kind: dict[str, list[str]] | None = None,
-                     reason: str = "") -> list[str]:
-    """The commits every result file was produced at (each with the kinds of file it made), with a warning when
-    several, and the study's recorded reason for it if it has one; a warning for a dirty tree."""
-    by_kind = commits_by_kind or {c: [] for c in sorted({r.git_commit or "unknown" for r in rows})}
-    commits = sorted(by_kind)
-    named = [c + (f" ({', '.join(by_kind[c])})" if by_kind[c] and len(commits) > 1 else "") for c in commits]
-    notes = [f"Produced at commit{'s' if len(commits) > 1 else ''}: " + ", ".join(named) + "."]
-    if len(commits) > 1:
-        notes.append("Warning: these results mix several commits; numbers from different code may not be comparable."
-                     + (f" Why: {reason}" if reason else ""))
-    if any(c.endswith("-dirty") for c in commits):
-        notes.append("Warning: some results come from a working tree with uncommitted changes.")
-    nodes: dict[str, list[str]] = {}
-    for r in rows:
-        if r.timed_on:
-            nodes.setdefault(r.timed_on, []).append(f"{r.label} {r.variant}")
-    if len(nodes) > 1:  # a cluster: latencies from different machines are not comparable as they stand
-        notes.append("Timed on several machines: " + "; ".join(f"{n}: {', '.join(v)}" for n, v in sorted(nodes.items()))
-                     + ".")
-    elif nodes:
-        notes.append(f"Timed on {next(iter(nodes))}.")
-    return notes
-
-
 def _md_table(header: list[str], rows: list[list[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(c.replace("|", "/") for c in row) + " |" for row in rows]
@@ -301,16 +270,16 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     paired = load_paired(results)  # latency timed in interleaved rounds, when the study's folder has it
     findings = judge(points_from_rows(rows), margin, paired and paired.get("ratios"))
     table = table_rows(rows)
-    intro = (f"Results directory `{results.name}`; {len(rows)} evaluated settings. "
-             "Scores: mean over the evaluation episodes of the max reward min(coverage/0.95, 1), with 95% bootstrap "
+    intro = ("Scores: mean over the evaluation episodes of the max reward min(coverage/0.95, 1), with 95% bootstrap "
              "intervals. Latency: one call at batch 1, raw observation in, chunk out (median, and the p99 from at "
              "least 100 calls or else the maximum, labelled 'max of N'). The study's numbers were measured by the "
-             "study on an A100; ours on the hardware named in each row. " + _spacing_note(rows))
+             "study on an A100; ours on the hardware named at the top. " + _spacing_note(rows))
     reason_file = results / MIXING_REASON
     notes = provenance_notes(rows, file_commits(results, extra_dirs),
                              " ".join(reason_file.read_text().split()) if reason_file.exists() else "")
     fig5 = figs.pop(FIG5)  # the report opens with it, and with which policy suits which control loop
-    md = ["# bcbench report", "", intro, "", *[f"> {n}" for n in notes], "",
+    lead = lead_line(results, rows, mixed=any("mix several commits" in n for n in notes))
+    md = ["# bcbench report", "", lead, "",
           *([f"![{FIG5}]({fig5.name})", ""] if fig5 else []), *control_loop_lines(rows, realtime, margin),
           "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
     md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
@@ -322,26 +291,33 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     for title, path in figs.items():
         if path:
             md += [f"## {title}", "", f"![{title}]({path.name})", ""]
+    md += ["## How to read the numbers", "", intro, "", "## Provenance", "", *[f"- {n}" for n in notes], ""]
     md_path = out / "report.md"
     with atomic_path(md_path) as tmp:
         tmp.write_text("\n".join(md) + "\n")
     html_path = out / "report.html"
     with atomic_path(html_path) as tmp:
-        lead = (_img(FIG5, fig5) if fig5 else "") + "<h2>Which policy for my control loop</h2>" + _html_table(
+        top = (_img(FIG5, fig5, "lead") if fig5 else "") + "<h2>Which policy for my control loop</h2>" + _html_table(
             CHOOSE_HEADER, control_loop_rows(rows, realtime, margin))
-        tmp.write_text(_html(intro + " " + " ".join(notes), findings, table, figs, FINDINGS_INTRO.format(m=margin),
-                             convergence_lines(rows), lead))
+        tail = (f"<h2>How to read the numbers</h2><p>{html.escape(intro)}</p><h2>Provenance</h2><ul>"
+                + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
+        tmp.write_text(_html(lead.replace("`", ""), findings, table, figs, FINDINGS_INTRO.format(m=margin),
+                             convergence_lines(rows), top, tail))
     return {"markdown": str(md_path), "html": str(html_path), "dir": str(out)}
 
 
-def _img(title: str, path: Path) -> str:
+def _img(title: str, path: Path, cls: str = "") -> str:
     t = html.escape(title)
-    return f"<h2>{t}</h2><img alt='{t}' src='data:image/png;base64,{base64.b64encode(path.read_bytes()).decode()}'>"
+    return (f"<h2>{t}</h2><img alt='{t}'{f' class={cls!r}' if cls else ''} "
+            f"src='data:image/png;base64,{base64.b64encode(path.read_bytes()).decode()}'>")
 
 
 def _html(intro: str, findings: list[Any], table: list[list[str]], figs: dict[str, Path | None],
-          rules_intro: str, training: list[str], lead: str) -> str:
-    css = ("body{font-family:system-ui,sans-serif;max-width:1400px;margin:2em auto;padding:0 1em;color:#222}"
+          rules_intro: str, training: list[str], lead: str, tail: str) -> str:
+    # the first screen holds Figure 5 and the table under it (.lead: the figure's height capped for that)
+    css = ("body{font-family:system-ui,sans-serif;max-width:1400px;margin:0 auto 2em;padding:0 1em;color:#222}"
+           "h1{font-size:1.6em;margin:.4em 0 .2em}h2{font-size:1.25em;margin:.5em 0 .3em}"
+           "img.lead{max-height:46vh;width:auto}"
            "table{border-collapse:collapse;font-size:12px}td,th{border:1px solid #ccc;padding:3px 6px;text-align:left}"
            "th{background:#f3f3f3}.supported{color:#176b2c}.contradicted{color:#a11}.inconclusive{color:#8a6d00}"
            ".undertrained{color:#666}"
@@ -354,7 +330,8 @@ def _html(intro: str, findings: list[Any], table: list[list[str]], figs: dict[st
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>bcbench report</title><style>{css}</style>"
             f"</head><body><h1>bcbench report</h1><p>{html.escape(intro)}</p>{lead}<h2>The study's findings on this "
             f"evidence</h2><p>{html.escape(rules_intro)}</p><ol>{items}</ol><h2>Results</h2>"
-            f"{_html_table(COLUMNS, table)}<h2>Training: converged?</h2><ul>{train_items}</ul>{images}</body></html>\n")
+            f"{_html_table(COLUMNS, table)}<h2>Training: converged?</h2><ul>{train_items}</ul>{images}{tail}"
+            "</body></html>\n")
 
 
 EXPORTED = ("spec.json", "index.jsonl", "run.json", "train_summary.json", "normalizer.json", "metrics.jsonl",

@@ -299,6 +299,18 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_publish(args: argparse.Namespace) -> int:
+    from bcbench.policies.publish import publish
+
+    rec = publish(args.run_dir, args.out, args.scores, force=args.force)
+    print(f"{rec['name']}: {rec['policy']} ({rec['parameters']:,} parameters, {rec['weights']} weights, "
+          f"{rec['file']['bytes'] / 1e6:.1f} MB fp32) from {rec['source']['run']} {rec['source']['checkpoint']}; "
+          f"reproduces {rec['scores']['file']} (mean {rec['scores']['mean_score']:.3f} over "
+          f"{rec['scores']['episodes']} episodes)")
+    print(f"  run it: bcbench eval --checkpoint {args.out} --episodes 3 --seed-start {rec['scores']['seed_start']}")
+    return 0
+
+
 def cmd_tiers(args: argparse.Namespace) -> int:
     from bcbench.evaluation.tiers import run_tiers, tiers_table
 

@@ -232,6 +232,16 @@ def _add_deploy_commands(sub: Any) -> None:
     p.add_argument("--no-ema", action="store_true", help="export the raw weights even if the run kept an EMA")
     p.set_defaults(func="cmd_export")
 
+    p = sub.add_parser("publish", help="copy a trained run's inference weights (fp32, no trainer state) into a small "
+                                       "model folder that eval/latency/realtime --checkpoint take on a fresh clone")
+    p.add_argument("run_dir", metavar="RUN_DIR", help="a trained run (its newest checkpoint is published)")
+    p.add_argument("out", metavar="OUT", help="the model folder to write, e.g. models/diffusion-cpu")
+    p.add_argument("--scores", required=True, metavar="EVAL_JSON",
+                   help="the committed per-episode evaluation of exactly these weights (torch), which the published "
+                        "model must reproduce; checked to be of this run, step and weights")
+    p.add_argument("--force", action="store_true", help="replace OUT if it exists")
+    p.set_defaults(func="cmd_publish")
+
     p = sub.add_parser("tiers", help="accuracy of each inference mode of a trained run against the exact torch one")
     p.add_argument("run_dir", metavar="RUN_DIR", help="a trained run")
     p.add_argument("--mode", action="append", choices=[m for m in MODES if m != "fast"],

@@ -66,7 +66,8 @@ def latest_checkpoint(run_dir: Path) -> Path | None:
     if not pointer.exists():
         return None
     path = pointer.parent / read_json(pointer)["dir"]
-    if not (path / "model.safetensors").exists():
+    # a published model (bcbench publish) keeps the inference weights only: ema.safetensors without model.safetensors
+    if not ((path / "model.safetensors").exists() or (path / "ema.safetensors").exists()):
         raise BCBenchError(f"{pointer} points at {path}, which is incomplete")
     return path
 
@@ -116,6 +117,8 @@ def load_runner(run_dir: str | Path, use_ema: bool = True, device: str = "cpu") 
         raise BCBenchError(f"{run_dir} has no checkpoint yet")
     model = build_model(run)
     has_ema = (ckpt / "ema.safetensors").exists()
+    if not use_ema and not (ckpt / "model.safetensors").exists():
+        raise BCBenchError(f"{run_dir} holds the EMA inference weights only (a published model); drop --no-ema")
     load_weights(ckpt, model, ema=use_ema and has_ema)
     norm = MinMaxNormalizer.from_dict(read_json(run_dir / "normalizer.json"))
     info = RunInfo(run_dir=str(run_dir), checkpoint=ckpt.name, weights="ema" if use_ema and has_ema else "raw",

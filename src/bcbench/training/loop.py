@@ -205,6 +205,9 @@ def _resume(r: Run) -> None:
             if r.ema is not None:
                 r.ema.model.load_state_dict(r.model.state_dict())
         return
+    if not (ckpt / "state.pt").exists():
+        raise BCBenchError(f"{ckpt} has no trainer state (a published model holds inference weights only); "
+                           "it cannot be resumed")
     load_weights(ckpt, r.model)
     state = load_state(ckpt)
     if r.ema is not None:

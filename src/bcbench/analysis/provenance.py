@@ -1,0 +1,70 @@
+"""Where and when a report's numbers come from: the machines that evaluated and timed them, and the commits of
+every result file, with a warning when they differ. Reads result rows only."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from bcbench.analysis.results import Row
+
+
+def _hw_cell(r: Row) -> str:
+    h = r.hardware
+    dev = h.get("gpu") or h.get("cpu_model", "?")
+    flags = "" if h.get("gpu") or not h.get("cpu_flags") else f" ({', '.join(h['cpu_flags'])})"
+    return f"{dev}{flags}, {h.get('torch_threads', '?')} threads"
+
+
+def hardware_line(rows: list[Row]) -> str:
+    """Where the rows were evaluated (and timed), said once: one machine, or each machine with its rows."""
+    by_hw: dict[str, list[str]] = {}
+    for r in rows:
+        by_hw.setdefault(_hw_cell(r), []).append(r.label + ("" if r.variant == "default" else f" {r.variant}"))
+    did = "Evaluated and timed" if any(r.latency for r in rows) else "Evaluated"
+    if len(by_hw) <= 1:
+        return f"{did} on {next(iter(by_hw), 'no machine')}."
+    return f"{did} on several machines: " + "; ".join(
+        f"{hw}: {', '.join(labels)}" for hw, labels in sorted(by_hw.items())) + "."
+
+
+def lead_line(results: Path, rows: list[Row], mixed: bool) -> str:
+    """The report's first line: what it holds, on which episodes, where; details follow at its end."""
+    ns = sorted({len(r.scores) for r in rows if r.scores})
+    seeds = sorted({s for r in rows for s in r.scores})
+    eps = (f"{'/'.join(map(str, ns))} episodes each (seeds {seeds[0]}-{seeds[-1]})" if seeds else "no episodes")
+    return (f"Study `{results.name}`: {len(rows)} evaluated settings, {eps}. {hardware_line(rows)}"
+            + (" These results mix several commits: see Provenance at the end." if mixed else ""))
+
+
+MIXING_REASON = "mixing-reason.txt"  # a study folder's own account of why its files come from several commits
+
+
+def _short(commit: str) -> str:
+    """A commit as git abbreviates it for people (12 hex digits; a "-dirty" mark kept)."""
+    base, dirty = (commit[:-6], "-dirty") if commit.endswith("-dirty") else (commit, "")
+    return (base[:12] if len(base) == 40 else base) + dirty
+
+
+def provenance_notes(rows: list[Row], commits_by_kind: dict[str, list[str]] | None = None,
+                     reason: str = "") -> list[str]:
+    """The commits every result file was produced at (each with the kinds of file it made), with a warning when
+    several, and the study's recorded reason for it if it has one; a warning for a dirty tree."""
+    by_kind = commits_by_kind or {c: [] for c in sorted({r.git_commit or "unknown" for r in rows})}
+    commits = sorted(by_kind)
+    named = [_short(c) + (f" ({', '.join(by_kind[c])})" if by_kind[c] and len(commits) > 1 else "") for c in commits]
+    notes = [f"Produced at commit{'s' if len(commits) > 1 else ''}: " + ", ".join(named) + "."]
+    if len(commits) > 1:
+        notes.append("Warning: these results mix several commits; numbers from different code may not be comparable."
+                     + (f" Why: {reason}" if reason else ""))
+    if any(c.endswith("-dirty") for c in commits):
+        notes.append("Warning: some results come from a working tree with uncommitted changes.")
+    nodes: dict[str, list[str]] = {}
+    for r in rows:
+        if r.timed_on:
+            nodes.setdefault(r.timed_on, []).append(f"{r.label} {r.variant}")
+    if len(nodes) > 1:  # a cluster: latencies from different machines are not comparable as they stand
+        notes.append("Timed on several machines: " + "; ".join(f"{n}: {', '.join(v)}" for n, v in sorted(nodes.items()))
+                     + ".")
+    elif nodes:
+        notes.append(f"Timed on {next(iter(nodes))}.")
+    return notes

@@ -1,0 +1,35 @@
+"""The committed HTML reports as a reader sees them, in headless Chromium (scripts/check_report.py): Figure 5 and
+the "which policy" table in a laptop's first screen, no sideways scrolling, every figure decoded.
+
+Runs where Chromium is installed (`apt-get install chromium`); skipped elsewhere (CI's image has none)."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+REPORTS = sorted((ROOT / "results").glob("*/report/report.html"))
+_spec = importlib.util.spec_from_file_location("check_report", ROOT / "scripts" / "check_report.py")
+check = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(check)
+EXE = check.chromium()
+needs_chromium = pytest.mark.skipif(EXE is None, reason="no Chromium on this machine")
+
+
+@needs_chromium
+@pytest.mark.parametrize("report", REPORTS, ids=[p.parent.parent.name for p in REPORTS])
+def test_committed_report_reads_in_one_screen(report):
+    m = check.layout(EXE, report)
+    assert m["figures"] and not check.problems(m), check.problems(m)
+
+
+@needs_chromium
+def test_the_check_sees_a_table_below_the_fold_and_a_page_too_wide(tmp_path):
+    page = tmp_path / "report.html"
+    page.write_text("<!doctype html><html><body><div style='height:2000px'></div><div style='width:3000px'>x</div>"
+                    "<table><tr><td>policy</td></tr></table></body></html>")
+    found = check.problems(check.layout(EXE, page))
+    assert any("below the first screen" in p for p in found) and any("sideways" in p for p in found), found
