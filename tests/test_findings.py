@@ -33,8 +33,9 @@ def verdict(points: list[Point], number: int) -> str:
 
 def test_paired_interval_covers_a_known_difference_and_pairs_by_seed():
     a, b = pt("a", "x", BASE + 0.1 + NOISY), pt("b", "x", BASE)
-    est, lo, hi, n = paired_interval(a, [b])
-    assert n == N and est == pytest.approx(0.1) and lo < 0.1 < hi and hi - lo < 0.2
+    d = paired_interval(a, [b])
+    est, lo, hi, n = d.est, d.lo, d.hi, d.n
+    assert d.k == 1 and d.share is None and n == N and est == pytest.approx(0.1) and lo < 0.1 < hi and hi - lo < 0.2
     shifted = Point("c", "x", "default", 0, (0, 1), None, None, {s + 1: v for s, v in b.scores.items()})
     assert paired_interval(a, [shifted])[3] == N - 1  # only seeds both have count
 

@@ -36,10 +36,11 @@ class Check:
 
 def doubling_checks(rows: list[Row], margin: float) -> list[Check]:
     """Every (checked run, variant) that has its twice-the-steps run evaluated on shared episodes."""
-    base = {(r.run_label, r.variant): r for r in rows if r.run_label}
+    # the checked run of the same training seed (a confirm study trains the preset with several)
+    base = {(r.run_label, r.variant, r.train_seed): r for r in rows if r.run_label}
     out = []
     for r in rows:
-        b = base.get((r.doubles, r.variant)) if r.doubles else None
+        b = base.get((r.doubles, r.variant, r.train_seed)) if r.doubles else None
         if b is None:
             continue
         est, lo, hi, n = paired_bootstrap(r.scores, [b.scores])

@@ -80,11 +80,13 @@ def fewstep_lines(points: list[Point], margin: float, mode: str = "fast",
     met = []
     for p in flows:
         k = int(p.variant.removeprefix("euler"))
-        est, lo, hi, n = paired_interval(p, [ref])
+        d = paired_interval(p, [ref])
+        est, lo, hi, n = d.est, d.lo, d.hi, d.n
         verdict = _verdict(lo, hi, margin)
         share = p.latency_ms / base_ms if p.latency_ms is not None and base_ms else None
+        seeds = f"{n} seeds" + ("" if d.k == 1 else f" x {d.k} training seeds")
         out.append(f"| {k} | {_score(p)} | {_score(dp_point(points, 'ddim', k))} | "
-                   f"{est:+.3f} [{lo:+.3f}, {hi:+.3f}] ({n} seeds) | {verdict} | {_ms(p)} | "
+                   f"{est:+.3f} [{lo:+.3f}, {hi:+.3f}] ({seeds}) | {verdict} | {_ms(p)} | "
                    f"{'-' if share is None else f'{share:.2f}'} |")
         if k <= GOAL_STEPS and lo > -margin and share is not None and share <= 1 / GOAL_SPEEDUP:
             met.append(k)

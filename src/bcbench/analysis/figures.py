@@ -69,6 +69,9 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference") -> Path | None
         dot = ax.scatter(r.latency_ms(mode), r.score, s=size, color=COLOURS.get(r.policy, "k"), alpha=0.8,
                          edgecolor="k", lw=0.5, marker=MARKERS[nth[r.label] % len(MARKERS)])
         legend.setdefault(f"{r.label}, {r.params / 1e6:.2f} M", dot)
+        for v in r.summary.get("per_seed", []):  # several training seeds: each seed's score, faint, beside the mean
+            ax.scatter(r.latency_ms(mode), v, s=14, color=COLOURS.get(r.policy, "k"), alpha=0.35, lw=0,
+                       marker=MARKERS[nth[r.label] % len(MARKERS)])
         markers.append((r.latency_ms(mode), r.score, size ** 0.5 / 2))
         deployed = r.deployed_ms() if mode == "reference" else None
         if deployed and deployed[1] < 0.95 * r.latency_ms(mode):  # an arrow to the deployed (exact) time

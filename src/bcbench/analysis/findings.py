@@ -12,8 +12,9 @@ Each finding's `rule` states its test in one sentence (printed in the report).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
-from bcbench.stats import paired_bootstrap
+from bcbench.stats import paired_bootstrap, two_level_bootstrap
 
 SUPPORTED, CONTRADICTED, INCONCLUSIVE, UNDERTRAINED = "supported", "contradicted", "inconclusive", "undertrained"
 DEFAULT_MARGIN = 0.05
@@ -34,6 +35,20 @@ class Point:
     scores: dict[int, float] = field(default_factory=dict)  # episode seed -> score
     converged: bool | None = None  # False: the learning curve had not reached its plateau
     run: str = ""  # the trained run's label (its variants share one learning curve)
+    seeds: list[dict[int, float]] = field(default_factory=list)  # several training seeds: each one's `scores`
+    seed_ids: list[int] = field(default_factory=list)
+
+
+class Diff(NamedTuple):
+    """A paired difference: estimate, 95% interval, shared episodes, training seeds resampled (1: episodes only)
+    and the share of its variance that comes from training seeds (None with one seed)."""
+
+    est: float
+    lo: float
+    hi: float
+    n: int
+    k: int = 1
+    share: float | None = None
 
 
 @dataclass
@@ -45,19 +60,42 @@ class Finding:
     rule: str = ""
 
 
-def paired_interval(a: Point, others: list[Point], seed: int = 0) -> tuple[float, float, float, int]:
-    """Mean of a - max(others) over shared seeds with its 95% paired-bootstrap interval, and n seeds
-    (bcbench.stats.paired_bootstrap on the points' per-seed scores)."""
-    return paired_bootstrap(a.scores, [o.scores for o in others], seed)
+def _by_training_seed(p: Point, ids: list[int]) -> list[dict[int, float]]:
+    """p's episode scores for each training seed in `ids` (one run, or a baseline, stands for every seed)."""
+    if not p.seeds:
+        return [p.scores] * len(ids)
+    own = dict(zip(p.seed_ids, p.seeds, strict=True))
+    return [own[i] for i in ids]
+
+
+def paired_interval(a: Point, others: list[Point], seed: int = 0) -> Diff:
+    """Mean of a - max(others) over shared episode seeds with its 95% paired-bootstrap interval
+    (bcbench.stats.paired_bootstrap). Where a setting has several training seeds, the difference is taken per episode
+    within each training seed the settings share, and the interval resamples training seeds too
+    (bcbench.stats.two_level_bootstrap); a single run or a baseline is paired with every seed of the other."""
+    multi = [p for p in (a, *others) if p.seeds]
+    if not multi:
+        return Diff(*paired_bootstrap(a.scores, [o.scores for o in others], seed))
+    ids = sorted(set(multi[0].seed_ids).intersection(*(p.seed_ids for p in multi[1:])))
+    if not ids:
+        return Diff(float("nan"), float("nan"), float("nan"), 0)
+    rest = [_by_training_seed(o, ids) for o in others]
+    est = two_level_bootstrap(_by_training_seed(a, ids), rest, seed)
+    n = len(set(_by_training_seed(a, ids)[0]).intersection(*(r[0] for r in rest)))
+    return Diff(est["value"], *est["ci95"], n, len(ids), est["training_seed_share"])
 
 
 def _fmt(p: Point) -> str:
     lat = f", {p.latency_ms:.1f} ms" if p.latency_ms is not None else ""
-    return f"{p.name} {p.score:.3f} [{p.ci[0]:.3f}, {p.ci[1]:.3f}]{lat}"
+    seeds = f" (mean of {len(p.seeds)} training seeds)" if p.seeds else ""
+    return f"{p.name} {p.score:.3f} [{p.ci[0]:.3f}, {p.ci[1]:.3f}]{seeds}{lat}"
 
 
-def _fmt_diff(est: float, lo: float, hi: float, n: int) -> str:
-    return f"paired difference {est:+.3f} [{lo:+.3f}, {hi:+.3f}] over {n} seeds"
+def _fmt_diff(d: Diff) -> str:
+    if d.k == 1:
+        return f"paired difference {d.est:+.3f} [{d.lo:+.3f}, {d.hi:+.3f}] over {d.n} seeds"
+    return (f"paired difference {d.est:+.3f} [{d.lo:+.3f}, {d.hi:+.3f}] over {d.k} training seeds x {d.n} episodes "
+            f"(two-level bootstrap; training seeds carry {100 * (d.share or 0):.0f}% of its variance)")
 
 
 def _undertrained(points: list[Point]) -> list[str]:
@@ -104,18 +142,18 @@ def finding_1(points: list[Point], m: float) -> Finding:
             f"settings at least {SLOWER:g}x faster (best chosen inside each bootstrap resample): supported if the "
             f"interval lies below +{m}, contradicted if above; undertrained if the slow setting, or (unless "
             "supported) any faster one, had not reached its plateau.")
-    timed = [p for p in points if p.latency_ms and p.policy not in ("random", "scripted") and p.scores]
+    timed = [p for p in points if p.latency_ms and p.policy not in ("random", "scripted") and (p.scores or p.seeds)]
     slow = dp_point(points, "ddpm", 100)
-    if slow is None or not slow.latency_ms or not slow.scores:
+    if slow is None or not slow.latency_ms or not (slow.scores or slow.seeds):
         return Finding(1, claim, INCONCLUSIVE, "DP cosine DDPM-100 is not evaluated and timed", rule)
     fast = [p for p in timed if p.latency_ms * SLOWER <= slow.latency_ms]
     if not fast:
         return Finding(1, claim, INCONCLUSIVE, f"no setting is {SLOWER:g}x faster than {_fmt(slow)}", rule)
-    est, lo, hi, n = paired_interval(slow, fast)
+    d = paired_interval(slow, fast)
     best = max(fast, key=lambda p: p.score)
     evidence = (f"{_fmt(slow)} against the best of {len(fast)} settings >= {SLOWER:g}x faster ({_fmt(best)}): "
-                f"{_fmt_diff(est, lo, hi, n)}")
-    verdict = _at_most(lo, hi, m)
+                f"{_fmt_diff(d)}")
+    verdict = _at_most(d.lo, d.hi, m)
     # more training can only raise the faster settings' scores, which keeps "supported" supported: then only
     # the slow setting's convergence matters (an undertrained slow one could still rise above them)
     return _finish(1, claim, rule, verdict, evidence, [slow] if verdict == SUPPORTED else [slow, *fast])
@@ -127,9 +165,9 @@ def finding_2(points: list[Point], m: float) -> Finding:
     p10, p100 = dp_point(points, "ddpm", 10), dp_point(points, "ddpm", 100)
     if p10 is None or p100 is None:
         return Finding(2, claim, INCONCLUSIVE, "DDPM-10 and DDPM-100 of the cosine model are not both evaluated", rule)
-    est, lo, hi, n = paired_interval(p10, [p100])
-    evidence = f"{_fmt(p10)} vs {_fmt(p100)}: {_fmt_diff(est, lo, hi, n)}"
-    return _finish(2, claim, rule, _at_least(lo, hi, -m), evidence, [p10, p100])
+    d = paired_interval(p10, [p100])
+    evidence = f"{_fmt(p10)} vs {_fmt(p100)}: {_fmt_diff(d)}"
+    return _finish(2, claim, rule, _at_least(d.lo, d.hi, -m), evidence, [p10, p100])
 
 
 def finding_3(points: list[Point], m: float, ratios: dict[str, float] | None = None) -> Finding:
@@ -147,7 +185,8 @@ def finding_3(points: list[Point], m: float, ratios: dict[str, float] | None = N
     pairs = tested + [ab for ab in pairs if ab not in tested]  # the tested pair first, then the descriptive ones
     notes, verdicts = [], []
     for a, b in pairs:
-        est, lo, hi, n = paired_interval(a, [b])
+        d = paired_interval(a, [b])
+        lo, hi = d.lo, d.hi
         interleaved = f"{a.variant}/{b.variant}" in (ratios or {})
         ratio = (ratios[f"{a.variant}/{b.variant}"] if interleaved else
                  a.latency_ms / b.latency_ms if a.latency_ms and b.latency_ms else None)
@@ -156,7 +195,7 @@ def finding_3(points: list[Point], m: float, ratios: dict[str, float] | None = N
         else:
             verdicts.append(SUPPORTED if -m < lo and hi < m else INCONCLUSIVE)
         time_note = f", time ratio {ratio:.2f}{' (interleaved timing)' if interleaved else ''}" if ratio else ""
-        notes.append(f"{a.name} vs {b.name}: {_fmt_diff(est, lo, hi, n)}{time_note}")
+        notes.append(f"{a.name} vs {b.name}: {_fmt_diff(d)}{time_note}")
     notes[0] = "tested: " + notes[0] + (". Not tested (descriptive): " if len(notes) > 1 else "")
     return _finish(3, claim, rule, verdicts[0], notes[0] + "; ".join(notes[1:]), list(pairs[0]))
 
@@ -170,9 +209,9 @@ def finding_4(points: list[Point], m: float) -> Finding:
     if not (r and b and c):
         return Finding(4, claim, INCONCLUSIVE, "ResNet-50, BCT and CNN-MLP are not all evaluated", rule)
     d1, d2 = paired_interval(r, [b]), paired_interval(b, [c])
-    v1, v2 = _at_least(d1[1], d1[2], m), _at_least(d2[1], d2[2], m)
-    evidence = (f"{_fmt(r)}; {_fmt(b)}; {_fmt(c)}; ResNet-50 - BCT: {_fmt_diff(*d1)}; BCT - CNN-MLP: "
-                f"{_fmt_diff(*d2)}")
+    v1, v2 = _at_least(d1.lo, d1.hi, m), _at_least(d2.lo, d2.hi, m)
+    evidence = (f"{_fmt(r)}; {_fmt(b)}; {_fmt(c)}; ResNet-50 - BCT: {_fmt_diff(d1)}; BCT - CNN-MLP: "
+                f"{_fmt_diff(d2)}")
     return _finish(4, claim, rule, _combine([v1, v2]), evidence, [r, b, c])
 
 
@@ -183,9 +222,9 @@ def finding_5(points: list[Point], m: float) -> Finding:
     bet, rnd = by.get("bet"), by.get("random")
     if bet is None or rnd is None:
         return Finding(5, claim, INCONCLUSIVE, "BeT and the random baseline are not both evaluated", rule)
-    est, lo, hi, n = paired_interval(bet, [rnd])
-    evidence = f"{_fmt(bet)} vs {_fmt(rnd)}: {_fmt_diff(est, lo, hi, n)}"
-    return _finish(5, claim, rule, _at_most(lo, hi, m), evidence, [bet])
+    d = paired_interval(bet, [rnd])
+    evidence = f"{_fmt(bet)} vs {_fmt(rnd)}: {_fmt_diff(d)}"
+    return _finish(5, claim, rule, _at_most(d.lo, d.hi, m), evidence, [bet])
 
 
 def judge(points: list[Point], margin: float = DEFAULT_MARGIN, ratios: dict[str, float] | None = None) -> list[Finding]:
@@ -197,4 +236,5 @@ def judge(points: list[Point], margin: float = DEFAULT_MARGIN, ratios: dict[str,
 def points_from_rows(rows: list, mode: str = "reference") -> list[Point]:
     return [Point(r.label + ("" if r.variant == "default" else f" {r.variant.upper()}"), r.policy, r.variant, r.score,
                   tuple(r.est("mean_score")["ci95"]), r.latency_ms(mode), r.beta_schedule, dict(r.scores),
-                  getattr(r, "converged", None), r.label) for r in rows]
+                  getattr(r, "converged", None), r.label, [dict(sc) for sc in r.seed_scores], list(r.seed_ids))
+            for r in rows]

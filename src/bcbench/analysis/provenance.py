@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from bcbench.analysis.results import Row
+from bcbench.analysis.seeds import episodes_and_seeds
 
 
 def _hw_cell(r: Row) -> str:
@@ -29,9 +30,10 @@ def hardware_line(rows: list[Row]) -> str:
 
 def lead_line(results: Path, rows: list[Row], mixed: bool) -> str:
     """The report's first line: what it holds, on which episodes, where; details follow at its end."""
-    ns = sorted({len(r.scores) for r in rows if r.scores})
-    seeds = sorted({s for r in rows for s in r.scores})
+    ns, seeds, k = episodes_and_seeds(rows)
     eps = (f"{'/'.join(map(str, ns))} episodes each (seeds {seeds[0]}-{seeds[-1]})" if seeds else "no episodes")
+    if k:
+        eps += f", {'/'.join(map(str, k))} training seeds per trained setting"
     return (f"Study `{results.name}`: {len(rows)} evaluated settings, {eps}. {hardware_line(rows)}"
             + (" These results mix several commits: see Provenance at the end." if mixed else ""))
 

@@ -24,6 +24,7 @@ from bcbench.analysis.findings import DEFAULT_MARGIN, judge, points_from_rows
 from bcbench.analysis.provenance import MIXING_REASON, lead_line, provenance_notes
 from bcbench.analysis.realtime import safe_delay_sentence
 from bcbench.analysis.results import Row, file_commits, load_realtime, load_rows, study_time
+from bcbench.analysis.seeds import merge_training_seeds, per_seed_cell
 from bcbench.analysis.strategies import load_strategy_sweeps, strategy_figure, strategy_lines
 from bcbench.reference import CPU_DEVIATIONS, STUDY_REFERENCE
 from bcbench.stats import fmt_estimate, fmt_share
@@ -75,7 +76,15 @@ def _fast_cell(fast: dict[str, Any]) -> str:
     return _ms(fast.get("median_ms")) + ("" if ratio is None else f" ({ratio:.1f}x)")
 
 
-def table_rows(rows: list[Row]) -> list[list[str]]:
+SEEDS_NOTE = ("A setting trained with several training seeds shows the mean over seeds of each seed's mean score, "
+              "with an interval that resamples training seeds and, within each, its episodes (two-level bootstrap); "
+              "each seed's score and the share of the variance that training seeds carry are beside it. Shares "
+              "pool the episodes of every seed; their Wilson intervals treat those episodes as independent, so they "
+              "leave out the spread between seeds. Paired comparisons pair episodes within each training seed and "
+              "resample training seeds as well. ")
+
+
+def table_rows(rows: list[Row], multi: bool = False) -> list[list[str]]:
     out = []
     order = ["random", "scripted", "cnn_mlp", "resnet50", "bet", "bct", "diffusion", "flow"]
     for r in sorted(rows, key=lambda r: (order.index(r.policy) if r.policy in order else 99, r.label,
@@ -86,6 +95,7 @@ def table_rows(rows: list[Row]) -> list[list[str]]:
         rate = fast.get("max_rate_every_step_hz") or (r.latency.get("reference") or {}).get("max_rate_every_step_hz")
         name = r.label + ("" if r.variant == "default" else f" {r.variant.upper()}")
         out.append([name, f"{r.params / 1e6:.2f} M", fmt_estimate(r.est("mean_score")),
+                    *([per_seed_cell(r)] if multi else []),
                     *(fmt_share(r.est(k), int(r.summary.get("n") or len(r.scores)))
                       for k in ("share_above_0.5", "share_above_0.9", "success_rate")),
                     f"{_ms(r.latency_ms('reference'))} / {tail}",
@@ -256,11 +266,13 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     checks = doubling_checks(rows, margin)
     strict = bool(_spec(results).get("purpose"))  # studies under the seed protocol need the check
     apply_checks(rows, checks, strict)
+    # one row per setting from here on (several training seeds merged); `rows` keeps one per run for training
+    settings = merge_training_seeds(rows)
     out = results / "report"
     out.mkdir(parents=True, exist_ok=True)
-    figs = {FIG5: figure5(rows, out / "fig5_accuracy_vs_latency.png"),
-            "Figure 3: generative policies against sampling steps": figure3(rows, out / "fig3_denoising_steps.png"),
-            "Figure 4: DDPM-cosine, DDIM-cosine, DDIM-linear": figure4(rows, out / "fig4_samplers.png"),
+    figs = {FIG5: figure5(settings, out / "fig5_accuracy_vs_latency.png"),
+            "Figure 3: generative policies against sampling steps": figure3(settings, out / "fig3_denoising_steps.png"),
+            "Figure 4: DDPM-cosine, DDIM-cosine, DDIM-linear": figure4(settings, out / "fig4_samplers.png"),
             "Learning curves": learning_curves(rows, out / "learning_curves.png")}
     realtime, strategies = load_realtime(results), load_strategy_sweeps(results)
     if realtime:
@@ -268,24 +280,27 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
         figs["Figure 5, real time"] = figure5_realtime(realtime, out / "fig5_realtime.png")
         figs["Execution strategies: score against delay"] = strategy_figure(strategies, out / "strategies.png")
     paired = load_paired(results)  # latency timed in interleaved rounds, when the study's folder has it
-    findings = judge(points_from_rows(rows), margin, paired and paired.get("ratios"))
-    table = table_rows(rows)
+    findings = judge(points_from_rows(settings), margin, paired and paired.get("ratios"))
+    multi = any(r.seed_scores for r in settings)
+    columns = [*COLUMNS[:3], "per training seed", *COLUMNS[3:]] if multi else COLUMNS
+    table = table_rows(settings, multi)
     intro = ("Scores: mean over the evaluation episodes of the max reward min(coverage/0.95, 1), with 95% bootstrap "
-             "intervals. Latency: one call at batch 1, raw observation in, chunk out (median, and the p99 from at "
+             "intervals. " + (SEEDS_NOTE if multi else "")
+             + "Latency: one call at batch 1, raw observation in, chunk out (median, and the p99 from at "
              "least 100 calls or else the maximum, labelled 'max of N'). The study's numbers were measured by the "
              "study on an A100; ours on the hardware named at the top. " + _spacing_note(rows))
     reason_file = results / MIXING_REASON
     notes = provenance_notes(rows, file_commits(results, extra_dirs),
                              " ".join(reason_file.read_text().split()) if reason_file.exists() else "")
     fig5 = figs.pop(FIG5)  # the report opens with it, and with which policy suits which control loop
-    lead = lead_line(results, rows, mixed=any("mix several commits" in n for n in notes))
+    lead = lead_line(results, settings, mixed=any("mix several commits" in n for n in notes))
     md = ["# bcbench report", "", lead, "",
-          *([f"![{FIG5}]({fig5.name})", ""] if fig5 else []), *control_loop_lines(rows, realtime, margin),
+          *([f"![{FIG5}]({fig5.name})", ""] if fig5 else []), *control_loop_lines(settings, realtime, margin),
           "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
     md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
-    md += ["", "## Results", "", _md_table(COLUMNS, table), "", "## Training: converged?", "",
+    md += ["", "## Results", "", _md_table(columns, table), "", "## Training: converged?", "",
            *convergence_lines(rows), "", *check_lines(checks, strict, margin), *deviation_lines(rows),
-           *fewstep_lines(points_from_rows(rows, "fast"), margin, paired=paired),
+           *fewstep_lines(points_from_rows(settings, "fast"), margin, paired=paired),
            *time_lines(results),
            *realtime_lines(realtime, margin), *strategy_lines(strategies, margin)]
     for title, path in figs.items():
@@ -298,10 +313,10 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     html_path = out / "report.html"
     with atomic_path(html_path) as tmp:
         top = (_img(FIG5, fig5, "lead") if fig5 else "") + "<h2>Which policy for my control loop</h2>" + _html_table(
-            CHOOSE_HEADER, control_loop_rows(rows, realtime, margin))
+            CHOOSE_HEADER, control_loop_rows(settings, realtime, margin))
         tail = (f"<h2>How to read the numbers</h2><p>{html.escape(intro)}</p><h2>Provenance</h2><ul>"
                 + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
-        tmp.write_text(_html(lead.replace("`", ""), findings, table, figs, FINDINGS_INTRO.format(m=margin),
+        tmp.write_text(_html(lead.replace("`", ""), findings, (columns, table), figs, FINDINGS_INTRO.format(m=margin),
                              convergence_lines(rows), top, tail))
     return {"markdown": str(md_path), "html": str(html_path), "dir": str(out)}
 
@@ -312,7 +327,7 @@ def _img(title: str, path: Path, cls: str = "") -> str:
             f"src='data:image/png;base64,{base64.b64encode(path.read_bytes()).decode()}'>")
 
 
-def _html(intro: str, findings: list[Any], table: list[list[str]], figs: dict[str, Path | None],
+def _html(intro: str, findings: list[Any], table: tuple[list[str], list[list[str]]], figs: dict[str, Path | None],
           rules_intro: str, training: list[str], lead: str, tail: str) -> str:
     # the first screen holds Figure 5 and the table under it (.lead: the figure's height capped for that)
     css = ("body{font-family:system-ui,sans-serif;max-width:1400px;margin:0 auto 2em;padding:0 1em;color:#222}"
@@ -330,7 +345,7 @@ def _html(intro: str, findings: list[Any], table: list[list[str]], figs: dict[st
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>bcbench report</title><style>{css}</style>"
             f"</head><body><h1>bcbench report</h1><p>{html.escape(intro)}</p>{lead}<h2>The study's findings on this "
             f"evidence</h2><p>{html.escape(rules_intro)}</p><ol>{items}</ol><h2>Results</h2>"
-            f"{_html_table(COLUMNS, table)}<h2>Training: converged?</h2><ul>{train_items}</ul>{images}{tail}"
+            f"{_html_table(*table)}<h2>Training: converged?</h2><ul>{train_items}</ul>{images}{tail}"
             "</body></html>\n")
 
 

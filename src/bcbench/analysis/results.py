@@ -66,6 +66,11 @@ class Row:
     deviations: str = ""  # how its preset departs from the paper's recipe, as the run recorded it
     run_label: str = ""  # the study's label of its run (variants of one run share it)
     doubles: str | None = None  # this run checks the convergence of the run so labelled (twice its steps)
+    train_seed: int | None = None  # the trained run's seed (None: a baseline)
+    # a setting over several training seeds (bcbench.analysis.seeds): each seed's episode scores, its seed ids and
+    # runs; empty for a single run, whose episode scores are `scores`
+    seed_scores: list[dict[int, float]] = field(default_factory=list)
+    seed_ids: list[int] = field(default_factory=list)
 
     def est(self, name: str) -> dict[str, Any]:
         return self.summary[name]
@@ -113,7 +118,8 @@ def _row_from_eval(path: Path, margin: float = 0.05) -> Row:
               preset=pol.get("preset"), variant=vkey, sampler=sampler, steps=steps, spacing=spacing,
               beta_schedule=cfg.get("beta_schedule"), params=int(pol.get("parameters", 0)), summary=ev["summary"],
               scores={int(e["seed"]): float(e["score"]) for e in ev.get("episodes", [])},
-              git_commit=ev.get("git_commit"), hardware=ev.get("hardware", {}), source=str(path))
+              git_commit=ev.get("git_commit"), hardware=ev.get("hardware", {}), source=str(path),
+              train_seed=cfg.get("seed") if "run_dir" in pol else None)
     lat = run_dir / f"latency-{vkey}.json"
     if lat.exists():
         record = read_json(lat)

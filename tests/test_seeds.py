@@ -1,0 +1,105 @@
+"""A confirm study's report over several training seeds: one row per setting, a two-level interval, each seed's
+score beside it, findings paired within training seeds, the 2x check matched to its own seed."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bcbench.analysis.findings import Point, paired_interval
+from bcbench.analysis.report import write_report
+from bcbench.analysis.results import load_rows
+from bcbench.analysis.seeds import merge_training_seeds
+from bcbench.utils.io import write_json
+
+EPISODES = 100
+
+
+def _eval(policy: str, label: str, scores: np.ndarray, seed: int | None, run: str, start: int = 100_000) -> dict:
+    est = {"value": float(scores.mean()), "ci95": [float(scores.mean()) - 0.05, float(scores.mean()) + 0.05]}
+    share = {"value": float((scores > 0.5).mean()), "ci95": [0, 1]}
+    pol = {"name": policy, "parameters": 1000, "config": {"seed": seed}}
+    if seed is not None:
+        pol["run_dir"] = f"/x/{run}"
+    return {"type": "evaluation", "policy": pol, "study": {"label": label, "run_dir": f"/x/{run}"},
+            "episodes": [{"seed": start + i, "score": float(s)} for i, s in enumerate(scores)],
+            "summary": {"n": len(scores), "mean_score": est, "share_above_0.5": share, "share_above_0.9": share,
+                        "success_rate": share}, "hardware": {"cpu_model": "test cpu", "torch_threads": 2},
+            "git_commit": "abc123"}
+
+
+def _study(root: Path, seed_means: dict[str, list[float]]) -> Path:
+    """Three learned policies (3 training seeds each, their means as given) and the random baseline."""
+    rng = np.random.default_rng(0)
+    base = rng.uniform(-0.15, 0.15, EPISODES)  # episode difficulty, shared by every setting (what pairing removes)
+    base -= base.mean()
+    policies = {"ResNet-50": "resnet50", "BCT": "bct", "CNN-MLP": "cnn_mlp"}
+    for label, means in seed_means.items():
+        for s, m in enumerate(means):
+            scores = np.clip(m + base + rng.normal(0, 0.02, EPISODES), 0, 1)
+            write_json(root / "runs" / f"{label}-s{s}" / "eval-default.json",
+                       _eval(policies[label], label, scores, s, f"{label}-s{s}"))
+    write_json(root / "runs" / "random" / "eval-default.json",
+               _eval("random", "random", np.clip(0.2 + base, 0, 1), None, "random"))
+    return root
+
+
+def test_settings_merge_over_training_seeds_with_a_two_level_interval(tmp_path):
+    _study(tmp_path, {"ResNet-50": [0.30, 0.50, 0.70], "BCT": [0.49, 0.50, 0.51], "CNN-MLP": [0.2, 0.2, 0.2]})
+    rows = load_rows(tmp_path)
+    assert len(rows) == 10 and sorted(r.train_seed for r in rows if r.policy == "bct") == [0, 1, 2]
+    merged = {r.label: r for r in merge_training_seeds(rows)}
+    assert len(merged) == 4 and merged["random"].seed_scores == []  # a baseline stays as it is
+    wide, narrow = merged["ResNet-50"], merged["BCT"]
+    assert wide.seed_ids == [0, 1, 2] and wide.summary["n"] == 3 * EPISODES
+    assert wide.score == pytest.approx(0.5, abs=0.01)
+    assert wide.summary["per_seed"] == pytest.approx([0.3, 0.5, 0.7], abs=0.01)
+    (lo, hi), (nlo, nhi) = wide.est("mean_score")["ci95"], narrow.est("mean_score")["ci95"]
+    # seeds far apart: the interval spans most of them and training seeds carry the variance; seeds alike: narrow
+    assert hi - lo > 0.2 and wide.summary["training_seed_share"] > 0.9
+    assert nhi - nlo < 0.1 and narrow.summary["training_seed_share"] < 0.9
+
+
+def test_paired_findings_resample_training_seeds(tmp_path):
+    # per-seed differences 0.05, 0.15, 0.25: the mean is 0.15 and training seeds make most of its spread
+    _study(tmp_path, {"ResNet-50": [0.55, 0.60, 0.65], "BCT": [0.50, 0.45, 0.40], "CNN-MLP": [0.2, 0.2, 0.2]})
+    pts = {r.label: Point(r.label, r.policy, r.variant, r.score, tuple(r.est("mean_score")["ci95"]), None, None,
+                          dict(r.scores), None, r.label, [dict(s) for s in r.seed_scores], list(r.seed_ids))
+           for r in merge_training_seeds(load_rows(tmp_path))}
+    d = paired_interval(pts["ResNet-50"], [pts["BCT"]])
+    assert d.k == 3 and d.n == EPISODES and d.est == pytest.approx(0.15, abs=0.01) and d.lo < 0.15 < d.hi
+    one = paired_interval(Point("a", "x", "default", 0, (0, 1), None, None, pts["ResNet-50"].seeds[0]),
+                          [Point("b", "x", "default", 0, (0, 1), None, None, pts["BCT"].seeds[0])])
+    assert one.k == 1 and (d.hi - d.lo) > 3 * (one.hi - one.lo)  # one seed's interval hides the seed spread
+    assert d.share > 0.9
+    vs_baseline = paired_interval(pts["BCT"], [pts["random"]])  # a baseline pairs with every training seed
+    assert vs_baseline.k == 3 and vs_baseline.est == pytest.approx(0.25, abs=0.01)
+
+
+def test_report_shows_each_seed_and_says_how_it_was_computed(tmp_path):
+    _study(tmp_path, {"ResNet-50": [0.55, 0.60, 0.65], "BCT": [0.40, 0.45, 0.50], "CNN-MLP": [0.2, 0.2, 0.2]})
+    md = Path(write_report(tmp_path)["markdown"]).read_text()
+    assert "100 episodes each (seeds 100000-100099), 3 training seeds per trained setting" in md
+    assert "| per training seed |" in md and re.search(r"s0 0\.5[45]\d, s1 0\.(59|60)\d, s2 0\.6[45]\d", md)
+    table = md.split("## Results")[1].split("## Training")[0]
+    assert table.count("| ResNet-50 |") == 1  # one row per setting, not one per seed
+    assert "over 3 training seeds x 100 episodes (two-level bootstrap" in md  # finding 4's pairs
+    assert "two-level bootstrap" in md.split("## How to read the numbers")[1]
+
+
+def test_the_double_is_compared_with_its_own_seed(tmp_path):
+    """The 2x check (seed 0) is paired with seed 0 of the preset, not with whichever seed was read last."""
+    from bcbench.analysis.convergence import doubling_checks
+
+    _study(tmp_path, {"ResNet-50": [0.60, 0.60, 0.20], "BCT": [0.4] * 3, "CNN-MLP": [0.2] * 3})
+    rows = load_rows(tmp_path)
+    for r in rows:
+        r.run_label = r.label
+    double = next(r for r in rows if r.label == "ResNet-50" and r.train_seed == 0)
+    twice = type(double)(**{**double.__dict__, "key": "2x:default", "label": "ResNet-50 2x", "run_label": "2x",
+                            "doubles": "ResNet-50"})
+    (check,) = doubling_checks([*rows, twice], 0.05)
+    assert check.est == pytest.approx(0.0) and check.verdict == "converged"  # against seed 2 it would be +0.4
