@@ -103,3 +103,39 @@ def test_the_double_is_compared_with_its_own_seed(tmp_path):
                             "doubles": "ResNet-50"})
     (check,) = doubling_checks([*rows, twice], 0.05)
     assert check.est == pytest.approx(0.0) and check.verdict == "converged"  # against seed 2 it would be +0.4
+
+
+def test_a_confirm_study_checks_convergence_on_validation_only(tmp_path):
+    """The 2x run and the seed it doubles are evaluated on validation episodes (check stage); the 2x run is not a
+    setting of the confirm study: no test-seed evaluation, no timing."""
+    import tomllib
+
+    from bcbench.study.runner import StudyRunner
+    from bcbench.study.spec import parse_spec
+
+    spec = parse_spec(tomllib.loads(
+        'run = [{ policy = "cnn_mlp", label = "base", steps = 20, seeds = [0, 1, 2] },'
+        ' { policy = "cnn_mlp", label = "2x", steps = 40, doubles = "base" }]\n'
+        '[study]\npurpose = "confirm"\nepisodes = 100\nseed_start = 100000\ncheck_episodes = 60\n'))
+    plan = [(stage, run.label, run.seed) for stage, run, _ in StudyRunner(spec, tmp_path).stages()]
+    assert [p for p in plan if p[0] == "eval"] == [("eval", "base", 0), ("eval", "base", 1), ("eval", "base", 2)]
+    assert [p for p in plan if p[0] == "check"] == [("check", "base", 0), ("check", "2x", 0)]
+    assert ("latency", "2x", 0) not in plan and ("latency", "base", 2) in plan
+    with pytest.raises(Exception, match="check_episodes"):
+        parse_spec(tomllib.loads('run = [{ policy = "cnn_mlp" }]\n[study]\ncheck_episodes = 20\n'))
+
+
+def test_report_reads_the_checks_from_validation_files(tmp_path):
+    _study(tmp_path, {"ResNet-50": [0.55, 0.60, 0.65], "BCT": [0.40, 0.45, 0.50], "CNN-MLP": [0.2, 0.2, 0.2]})
+    write_json(tmp_path / "spec.json", {"purpose": "confirm", "margin": 0.05})
+    rng = np.random.default_rng(1)
+    val = np.clip(0.5 + rng.uniform(-0.2, 0.2, 60), 0, 1)
+    for run, label, doubles in (("BCT-s0", "BCT", None), ("BCT-2x", "BCT 2x", "BCT")):
+        rec = _eval("bct", label, val, 0, run, start=200_000)
+        rec["study"].update({"check": True, **({"doubles": doubles} if doubles else {})})
+        write_json(tmp_path / "runs" / run / "check-default.json", rec)
+    md = Path(write_report(tmp_path)["markdown"]).read_text()
+    assert "Compared on validation episodes (seeds 200000+)" in md
+    assert "- BCT: twice the steps minus the run +0.000 [+0.000, +0.000] over 60 episodes: **converged**" in md
+    table = md.split("## Results")[1].split("## Training")[0]
+    assert "BCT 2x" not in table and "| BCT |" in table  # the check is not a setting of the table

@@ -23,7 +23,7 @@ from bcbench.analysis.figures import figure3, figure4, figure5, figure5_realtime
 from bcbench.analysis.findings import DEFAULT_MARGIN, judge, points_from_rows
 from bcbench.analysis.provenance import MIXING_REASON, lead_line, provenance_notes
 from bcbench.analysis.realtime import safe_delay_sentence
-from bcbench.analysis.results import Row, file_commits, load_realtime, load_rows, study_time
+from bcbench.analysis.results import Row, file_commits, load_check_rows, load_realtime, load_rows, study_time
 from bcbench.analysis.seeds import merge_training_seeds, per_seed_cell
 from bcbench.analysis.strategies import load_strategy_sweeps, strategy_figure, strategy_lines
 from bcbench.reference import CPU_DEVIATIONS, STUDY_REFERENCE
@@ -221,7 +221,7 @@ def preset_change_lines(rows: list[Row]) -> list[str]:
     return lines
 
 
-def check_lines(checks: list[Check], strict: bool, margin: float) -> list[str]:
+def check_lines(checks: list[Check], strict: bool, margin: float, validation: bool = False) -> list[str]:
     """The twice-the-steps checks, or what the curve rule above is worth when a study has none."""
     if not checks:
         return [] if strict else [
@@ -230,7 +230,9 @@ def check_lines(checks: list[Check], strict: bool, margin: float) -> list[str]:
             "passes by construction; read it as 'the curve flattened', not as evidence of convergence.", ""]
     return ["### Twice the steps", "",
             f"A run trained again with twice its optimiser steps (same recipe, its own schedule), minus the run, on "
-            f"the same episodes (paired, two-sided 95%): converged if the interval lies below +{margin}.", "",
+            f"the same episodes (paired, two-sided 95%): converged if the interval lies below +{margin}."
+            + (" Compared on validation episodes (seeds 200000+), not on the test seeds of the table; the verdict "
+               "holds for every training seed of the preset." if validation else ""), "",
             *[c.line() for c in checks], ""]
 
 
@@ -263,7 +265,8 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     results = Path(results)
     margin = _spec(results).get("margin", DEFAULT_MARGIN)
     rows = load_rows(results, extra_dirs, margin)
-    checks = doubling_checks(rows, margin)
+    check_rows = load_check_rows(results)  # a confirm study compares on validation episodes, apart from its table
+    checks = doubling_checks(check_rows or rows, margin)
     strict = bool(_spec(results).get("purpose"))  # studies under the seed protocol need the check
     apply_checks(rows, checks, strict)
     # one row per setting from here on (several training seeds merged); `rows` keeps one per run for training
@@ -299,7 +302,8 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
           "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
     md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
     md += ["", "## Results", "", _md_table(columns, table), "", "## Training: converged?", "",
-           *convergence_lines(rows), "", *check_lines(checks, strict, margin), *deviation_lines(rows),
+           *convergence_lines(rows), "", *check_lines(checks, strict, margin, validation=bool(check_rows)),
+           *deviation_lines(rows),
            *fewstep_lines(points_from_rows(settings, "fast"), margin, paired=paired),
            *time_lines(results),
            *realtime_lines(realtime, margin), *strategy_lines(strategies, margin)]
@@ -360,7 +364,7 @@ def export_results(results: str | Path, dest: str | Path) -> int:
     for f in sorted(results.rglob("*")):
         if "checkpoints" in f.parts or "report" in f.relative_to(results).parts or not f.is_file():
             continue
-        if f.name in EXPORTED or (f.suffix == ".json" and f.name.startswith(("eval", "latency", "realtime"))):
+        if f.name in EXPORTED or (f.suffix == ".json" and f.name.startswith(("eval", "check", "latency", "realtime"))):
             target = dest / f.relative_to(results)
             target.parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(f, target)

@@ -16,7 +16,8 @@ from bcbench.modes import EXACT_MODES
 from bcbench.utils.io import read_json, read_jsonl
 
 # Result files the report reads, by kind: every one records the commit its process ran.
-_KINDS = (("eval-*.json", "evaluations"), ("eval.json", "evaluations"), ("latency-*.json", "timing"),
+_KINDS = (("eval-*.json", "evaluations"), ("eval.json", "evaluations"), ("check-*.json", "convergence checks"),
+          ("latency-*.json", "timing"),
           ("train_summary.json", "training"), ("realtime-*.json", "real-time sweeps"), ("tiers.json", "tiers"),
           ("latency-paired.json", "interleaved latency"))
 
@@ -105,8 +106,9 @@ def _row_from_eval(path: Path, margin: float = 0.05) -> Row:
     # spacing was recorded from the commit that made trailing the default; earlier files used leading
     spacing = (pol.get("spacing") or variant.get("spacing") or "leading") if sampler else None
     # a study names its files by variant (eval-ddim10.json); a lone `bcbench eval` writes eval.json
-    named = path.stem.startswith("eval-")
-    vkey = path.stem[len("eval-"):] if named else (
+    prefix = "check-" if path.stem.startswith("check-") else "eval-"  # a confirm study's checks: check-VARIANT
+    named = path.stem.startswith(prefix)
+    vkey = path.stem[len(prefix):] if named else (
         f"{sampler}{steps}" + ("" if spacing == "trailing" else f"-{spacing}") if sampler else "default")
     cfg = pol.get("config", {})
     run_dir = path.parent
@@ -154,6 +156,12 @@ def load_rows(results: str | Path, extra_dirs: list[str] | None = None, margin: 
     if not rows:
         raise BCBenchError(f"no evaluation results under {results}")
     return list(rows.values())
+
+
+def load_check_rows(results: str | Path) -> list[Row]:
+    """A confirm study's twice-the-steps checks (runs/*/check-*.json, on validation episodes), one row each."""
+    return [_row_from_eval(f) for f in sorted(Path(results).rglob("check-*.json"))
+            if "report" not in f.relative_to(results).parts]
 
 
 def load_latency_files(dirs: list[str | Path]) -> list[dict[str, Any]]:

@@ -35,6 +35,7 @@ from bcbench.modes import mode_name
 from bcbench.policies import make_policy
 from bcbench.policies.checkpoint import configure_runner, load_runner
 from bcbench.policies.outside import outside_policy
+from bcbench.protocol import VALIDATION_SEED_START
 from bcbench.study.spec import RunSpec, StudySpec, Variant
 from bcbench.training.loop import TrainOptions, new_run, train
 from bcbench.utils.device import pick_device
@@ -64,16 +65,20 @@ class StudyRunner:
         """Every run's training and evaluations first, then all timing: timing is done last, in one stretch,
         so a machine kept quiet for it is not disturbed by the study's own training in between."""
         out: list[tuple[str, RunSpec, Variant | None]] = []
+        shown = [run for run in self.spec.runs if self.spec.shown(run)]
         for run in self.spec.runs:
             if run.learned:
                 out.append(("train", run, None))
-            out += [("eval", run, v) for v in run.variants]
+            if self.spec.shown(run):
+                out += [("eval", run, v) for v in run.variants]
+            if self.spec.checks_on_validation(run):
+                out += [("check", run, v) for v in run.variants]
         if self.spec.latency:
-            out += [("latency", run, v) for run in self.spec.runs for v in run.variants]
+            out += [("latency", run, v) for run in shown for v in run.variants]
         if self.spec.realtime:  # last: its 'measured' setting times the policy too; one sweep per strategy
             kinds = self.spec.realtime.get("strategies", ["naive"])
             out += [("realtime", run, replace(v, strategy=None if k == "naive" else k))
-                    for run in self.spec.runs for v in run.realtime for k in kinds]
+                    for run in shown for v in run.realtime for k in kinds]
         return out
 
     def result_file(self, stage: str, run: RunSpec, variant: Variant | None) -> Path:
@@ -114,13 +119,21 @@ class StudyRunner:
         apply_mode(runner, mode_name(self.spec.backend, self.spec.precision))
         return runner
 
-    def _eval(self, run: RunSpec, variant: Variant) -> dict[str, Any]:
-        cfg = EvalConfig(episodes=self.spec.episodes, seed_start=self.spec.seed_start, max_steps=self.spec.max_steps)
-        extra = {"study": {"name": self.spec.name, "purpose": self.spec.purpose, "label": run.label,
+    def _eval(self, run: RunSpec, variant: Variant, check: bool = False) -> dict[str, Any]:
+        episodes, start = (self.spec.check_episodes, VALIDATION_SEED_START) if check else (
+            self.spec.episodes, self.spec.seed_start)
+        cfg = EvalConfig(episodes=episodes, seed_start=start, max_steps=self.spec.max_steps)
+        extra = {"study": {"name": self.spec.name, "purpose": self.spec.purpose, **({"check": True} if check else {}),
+                           "label": run.label,
                            "variant": asdict(variant), "run_dir": str(self.run_dir(run)),
                            **({"outside_policy": run.policy, "args": run.args} if run.outside else {}),
                            **({"doubles": run.doubles} if run.doubles else {})}}
         return evaluate(self._policy(run, variant), cfg, None, progress=self.progress, extra=extra)
+
+    def _check(self, run: RunSpec, variant: Variant) -> dict[str, Any]:
+        """A confirm study's twice-the-steps check: the run on validation episodes (compared by the report with
+        the run of the same seed it doubles, or that doubles it), never on the test seeds."""
+        return self._eval(run, variant, check=True)
 
     def _latency(self, run: RunSpec, variant: Variant) -> dict[str, Any]:
         if self.spec.threads:

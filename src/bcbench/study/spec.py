@@ -15,6 +15,7 @@
     resources = { train = { cpus = 2, gpus = 1 }, eval = { cpus = 1 } }   # per stage kind, under --ray
     purpose = "explore"     # explore: validation seeds 200000+ only, >= 50 episodes (choices are made here);
                             # confirm: fixed presets on the test seeds 100000+ (bcbench.protocol)
+    check_episodes = 100    # confirm: validation episodes of the twice-the-steps checks (>= 50)
 
     [[run]]
     policy = "diffusion"
@@ -26,6 +27,9 @@
     set = { "optim.epochs" = 8 }                    # config overrides (optional)
     eval = [{ sampler = "ddpm", steps = [10, 100] }, { sampler = "ddim", steps = [10], spacing = "leading" }]
                             # spacing: trailing (default; every K starts from pure noise) or leading
+    doubles = "LABEL"       # this run checks the convergence of run LABEL: twice its steps, same preset. In a
+                            # confirm study the two (same seed) are compared on validation episodes only
+                            # (check-*.json); the doubling run is not evaluated on the test seeds
 
 Validation happens before anything runs and names the offending entry in one line.
 """
@@ -46,11 +50,11 @@ from bcbench.modes import MODES, mode_name
 from bcbench.policies import REGISTRY, is_learned, make_config, sampler_kinds
 from bcbench.policies.config import config_to_dict
 from bcbench.policies.outside import load_factory
-from bcbench.protocol import check_purpose
+from bcbench.protocol import MIN_CHOICE_EPISODES, check_purpose
 
 STUDY_KEYS = {"name", "episodes", "seed_start", "val_fraction", "latency", "threads", "max_steps", "rate_hz",
               "latency_min_calls", "latency_min_seconds", "device", "margin", "curve_episodes", "realtime",
-              "backend", "precision", "latency_modes", "resources", "purpose"}
+              "check_episodes", "backend", "precision", "latency_modes", "resources", "purpose"}
 RUN_KEYS = {"policy", "preset", "config", "steps", "max_minutes", "seeds", "set", "eval", "label", "eval_every",
             "realtime", "args", "doubles"}
 REALTIME_KEYS = {"delays", "execution", "profiles", "measured", "strategies", "execution_horizon"}
@@ -129,6 +133,18 @@ class StudySpec:
     runs: list[RunSpec] = field(default_factory=list)
     source: str = ""
     purpose: str | None = None  # explore or confirm (bcbench.protocol); None: written before the seed protocol
+    # a confirm study's twice-the-steps check: the doubling run and the seed it checks are compared on this many
+    # validation episodes (seeds 200000+; the test seeds are not for choices); >= 50
+    check_episodes: int = 100
+
+    def checks_on_validation(self, run: RunSpec) -> bool:
+        """In a confirm study: a doubling run, or the run of the same label and seed that one checks."""
+        return self.purpose == "confirm" and (run.doubles is not None or any(
+            d.doubles == run.label and d.seed == run.seed for d in self.runs))
+
+    def shown(self, run: RunSpec) -> bool:
+        """Whether the run is evaluated (and timed) as a setting: a confirm study's doubling runs are only checks."""
+        return not (self.purpose == "confirm" and run.doubles is not None)
 
 
 def _where(i: int, run: dict[str, Any]) -> str:
@@ -296,7 +312,8 @@ def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
                          ("rate_hz", float, lambda v: v > 0), ("latency_min_calls", int, lambda v: v >= 1),
                          ("latency_min_seconds", float, lambda v: v >= 0),
                          ("device", str, lambda v: v in ("cpu", "cuda", "auto")),
-                         ("margin", float, lambda v: 0 < v < 1), ("curve_episodes", int, lambda v: v >= 1)):
+                         ("margin", float, lambda v: 0 < v < 1), ("curve_episodes", int, lambda v: v >= 1),
+                         ("check_episodes", int, lambda v: v >= MIN_CHOICE_EPISODES)):
         if key in study:
             v = study[key]
             good = isinstance(v, typ) or (typ is float and isinstance(v, int) and not isinstance(v, bool))
