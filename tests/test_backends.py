@@ -73,19 +73,22 @@ def test_one_step_samplers_make_one_denoiser_call():
     assert model.deployed is None  # the recorder is removed again
 
 
-@pytest.mark.parametrize("name, modes", [("diffusion", ["openvino-bf16"]), ("cnn_mlp", ["openvino-int8"])])
+@pytest.mark.parametrize("name, modes", [("diffusion", ["openvino-bf16"]), ("cnn_mlp", ["openvino-int8"]),
+                                         ("diffusion", ["onnxruntime-int8"]), ("bct", ["onnxruntime-int8"])])
 def test_approximate_modes_are_close_and_labelled(name, modes, exports, tmp_path, monkeypatch):
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # where an export without a cache folder goes
     model = _model(name)
     calib = [model.example_obs(1) for _ in range(4)]
     obs = model.example_obs(2)
     c = {**_chunks(model, ["fast"], obs), **_chunks(model, modes, obs, calibration=calib,
-                                                     export_dir=None if modes == ["openvino-int8"] else exports[name])}
+                                                     export_dir=None if modes[0].endswith("int8") else exports[name])}
     for mode in modes:
         assert np.isfinite(c[mode]).all()
         assert np.abs(c[mode] - c["fast"]).max() < 0.5, mode  # approximate, not unrelated
-    assert model.deployment["backend"] == "openvino" and model.deployment["precision"] == modes[0][9:]
-    assert not list(tmp_path.iterdir())  # a temporary export is deleted once compiled (it leaked 15 GB)
+    backend, precision = modes[0].split("-")
+    assert model.deployment["backend"] == backend and model.deployment["precision"] == precision
+    # a temporary export is deleted once compiled (it leaked 15 GB); torch's own compile cache may appear there
+    assert not [p for p in tmp_path.iterdir() if not p.name.startswith("torchinductor")]
     set_mode(model, "fast")
     assert model.deployed is None and model.deployment == {"backend": "torch", "precision": "fp32"}
 
@@ -96,6 +99,7 @@ def test_mode_names_and_errors(monkeypatch):
     assert PARSER_MODES == MODES  # the parser lists them without importing torch
     assert mode_name("torch") == "fast" and mode_name("torch", reference=True) == "reference"
     assert mode_name("openvino", "int8") == "openvino-int8"
+    assert mode_name("onnxruntime", "int8") == "onnxruntime-int8"
     with pytest.raises(BCBenchError, match="needs --backend openvino"):
         mode_name("torch", "bf16")
     with pytest.raises(BCBenchError, match="unknown inference mode"):

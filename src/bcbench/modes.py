@@ -6,6 +6,7 @@
     openvino-bf16  the same with a bf16 inference-precision hint: approximate
     openvino-int8  NNCF post-training quantisation: approximate
     onnxruntime-fp32  the graphs exported to ONNX and run by ONNX Runtime's CPU provider: exact
+    onnxruntime-int8  those graphs, their matrix products quantised by ONNX Runtime (dynamic int8): approximate
 
 How each runs is bcbench.evaluation.backends; the analysis reads these names only.
 """
@@ -14,7 +15,8 @@ from __future__ import annotations
 
 from bcbench.errors import BCBenchError
 
-MODES = ("reference", "fast", "openvino-fp32", "openvino-bf16", "openvino-int8", "onnxruntime-fp32")
+MODES = ("reference", "fast", "openvino-fp32", "openvino-bf16", "openvino-int8", "onnxruntime-fp32",
+         "onnxruntime-int8")
 EXACT_MODES = ("reference", "fast", "openvino-fp32", "onnxruntime-fp32")
 PRECISIONS = ("fp32", "bf16", "int8")
 BACKENDS = ("torch", "openvino", "onnxruntime", "auto")
@@ -33,9 +35,9 @@ def mode_name(backend: str, precision: str = "fp32", reference: bool = False) ->
         return "reference" if reference else "fast"
     if reference:
         raise BCBenchError(f"--reference is the torch reference form; it does not combine with --backend {backend}")
-    if backend == "onnxruntime" and precision == "fp32":
-        return "onnxruntime-fp32"
+    if backend == "onnxruntime" and precision in ("fp32", "int8"):
+        return f"onnxruntime-{precision}"
     if backend != "openvino" or precision not in PRECISIONS:
-        raise BCBenchError(f"unknown backend/precision '{backend}/{precision}' (torch, onnxruntime with fp32, or "
-                           f"openvino with {', '.join(PRECISIONS)})")
+        raise BCBenchError(f"unknown backend/precision '{backend}/{precision}' (torch, onnxruntime with fp32 or "
+                           f"int8, or openvino with {', '.join(PRECISIONS)})")
     return f"openvino-{precision}"

@@ -172,7 +172,8 @@ def _add_study_commands(sub: Any) -> None:
                    help="presets (default paper and quick; --config is the old name of this option)")
     p.add_argument("--mode", action="append", choices=[*MODES, AUTO],
                    help="inference modes (default all: torch reference and fast, OpenVINO fp32, bf16 and int8, ONNX "
-                        "Runtime fp32, and auto: the fastest exact one on this machine, measured, as a user gets it)")
+                        "Runtime fp32 and int8, and auto: the fastest exact one on this machine, measured, as a user "
+                        "gets it)")
     p.add_argument("--sampler", action="append", choices=["ddpm", "ddim", "euler", "midpoint"],
                    help="samplers of generative policies (default ddpm and ddim; flow: euler)")
     p.add_argument("--steps", type=_positive_int, action="append",

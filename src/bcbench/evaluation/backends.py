@@ -34,7 +34,7 @@ from bcbench.data.replay_buffer import load_replay_buffer
 from bcbench.data.sequence import make_datasets
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.auto import choose_mode
-from bcbench.evaluation.onnx_runtime import deploy_onnxruntime, ort_version
+from bcbench.evaluation.onnx_runtime import deploy_onnxruntime, ort_version, reduce_range
 from bcbench.interface import FilmSplittable
 from bcbench.modes import AUTO, MODES
 from bcbench.policies.checkpoint import read_run
@@ -179,8 +179,9 @@ def set_mode(model: BCPolicy, mode: str, export_dir: Path | None = None,
     model.deployed, model.deployment = None, {"backend": "torch", "precision": "fp32"}
     if mode.startswith("openvino-"):
         deploy_openvino(model, mode.removeprefix("openvino-"), export_dir, calibration)
-    elif mode == "onnxruntime-fp32":  # its own folder beside OpenVINO's (each export replaces its whole folder)
-        deploy_onnxruntime(model, export_dir and export_dir.with_name(export_dir.name + "-onnxruntime"))
+    elif mode.startswith("onnxruntime-"):  # its own folder beside OpenVINO's (each export replaces its whole folder)
+        deploy_onnxruntime(model, export_dir and export_dir.with_name(export_dir.name + "-onnxruntime"),
+                           precision=mode.removeprefix("onnxruntime-"))
 
 
 def dataset_observations(model: BCPolicy, split: str, n: int, seed: int = 0,
@@ -211,10 +212,13 @@ def apply_mode(runner: PolicyRunner, mode: str) -> None:
         return
     model = runner.model
     export_dir, calibration = None, None
-    if mode == "onnxruntime-fp32" and runner.info.run_dir and runner.info.checkpoint:
+    if mode.startswith("onnxruntime-") and runner.info.run_dir and runner.info.checkpoint:
+        precision = mode.removeprefix("onnxruntime-")
         ckpt_dir = Path(runner.info.run_dir) / "checkpoints" / runner.info.checkpoint
-        key = export_key(model, "fp32", ckpt_dir, runner.info.weights or "ema", f"onnxruntime-{ort_version()}")
-        export_dir = Path(runner.info.run_dir) / "export" / f"onnx-float-{key}"  # set_mode appends -onnxruntime
+        runtime = f"onnxruntime-{ort_version()}" + ("-7bit" if precision == "int8" and reduce_range() else "")
+        key = export_key(model, precision, ckpt_dir, runner.info.weights or "ema", runtime)
+        kind = "int8" if precision == "int8" else "float"
+        export_dir = Path(runner.info.run_dir) / "export" / f"onnx-{kind}-{key}"  # set_mode appends -onnxruntime
     if mode.startswith("openvino-"):
         precision = mode.removeprefix("openvino-")
         run_dir, ckpt = runner.info.run_dir, runner.info.checkpoint

@@ -6,6 +6,14 @@ ORT_ENABLE_ALL, one session per graph, intra-op threads as torch's. Exports are 
 checkpoint, weights and the onnxruntime version; written atomically). On the 2-core AMD EPYC Zen 3 (AVX2 only) a
 plain export of paper-size Diffusion Policy ran faster than OpenVINO fp32 (issue 28); which wins depends on the CPU,
 so measure with `bcbench latency --mode onnxruntime-fp32 --mode openvino-fp32`.
+
+`onnxruntime-int8` (approximate) quantises the exported graphs' matrix products (MatMul, Gemm: every layer of
+Diffusion Policy's U-Net in its channels-last export form, the transformers' projections, the MLP heads) with ONNX
+Runtime's dynamic quantisation: int8 weights per output channel, activations quantised per call from their own
+range, so no calibration data is needed. Convolutions of the image encoders stay fp32 (ONNX Runtime's integer
+convolution is slower than its fp32 one on CPUs). On a CPU without an int8 dot-product instruction (VNNI) the
+u8 x s8 products are summed in 16 bits, which can saturate: there the weights take 7 bits (`reduce_range`, as
+ONNX Runtime's documentation advises), and the deployment record says which was used.
 """
 
 from __future__ import annotations
@@ -21,6 +29,7 @@ import torch
 
 from bcbench.errors import BCBenchError
 from bcbench.policies.learned import BCPolicy, GraphModule
+from bcbench.utils.system import cpu_has_vnni
 
 OPSET = 17
 
@@ -86,16 +95,44 @@ class _Session:
         return outs[0] if self.n_out == 1 else tuple(outs)
 
 
-def deploy_onnxruntime(model: BCPolicy, export_dir: Path | None = None, threads: int | None = None) -> None:
-    """Run the policy's graphs in ONNX Runtime (`model.deployed`); exports cached in export_dir."""
+def reduce_range() -> bool:
+    """7-bit weights for int8 where the CPU has no VNNI (its 16-bit sums of u8 x s8 pairs can saturate)."""
+    return not cpu_has_vnni()
+
+
+def quantize_int8(model: BCPolicy, out_dir: Path) -> Path:
+    """Export the policy's graphs and quantise their matrix products to int8 (dynamic), into `out_dir` atomically."""
+    from onnxruntime.quantization import QuantType, quantize_dynamic  # only for int8
+
+    tmp = out_dir.with_name(out_dir.name + ".tmp")
+    with tempfile.TemporaryDirectory(prefix="bcbench-ort-fp32-") as src:
+        export_onnx(model, Path(src) / "graphs")
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir(parents=True)
+        for name in model.graphs:
+            quantize_dynamic(Path(src) / "graphs" / f"{name}.onnx", tmp / f"{name}.onnx", per_channel=True,
+                             reduce_range=reduce_range(), weight_type=QuantType.QInt8,
+                             op_types_to_quantize=["MatMul", "Gemm"])
+    shutil.rmtree(out_dir, ignore_errors=True)
+    tmp.rename(out_dir)
+    return out_dir
+
+
+def deploy_onnxruntime(model: BCPolicy, export_dir: Path | None = None, threads: int | None = None,
+                       precision: str = "fp32") -> None:
+    """Run the policy's graphs in ONNX Runtime (`model.deployed`) at fp32 or int8; exports cached in export_dir."""
+    if precision not in ("fp32", "int8"):
+        raise BCBenchError(f"ONNX Runtime runs fp32 or int8, not {precision}")
     if export_dir is None:  # nothing to cache it in (an untrained policy): export, load, delete
         with tempfile.TemporaryDirectory(prefix="bcbench-ort-") as tmp:
-            deploy_onnxruntime(model, Path(tmp) / "graphs", threads)
+            deploy_onnxruntime(model, Path(tmp) / "graphs", threads, precision)
         model.deployment["export"] = None
         return
     if not all((export_dir / f"{n}.onnx").exists() for n in model.graphs):
-        export_onnx(model, export_dir)
+        (quantize_int8 if precision == "int8" else export_onnx)(model, export_dir)
     n = threads or torch.get_num_threads()
     model.deployed = {name: _Session(export_dir / f"{name}.onnx", n) for name in model.graphs}
-    model.deployment = {"backend": "onnxruntime", "precision": "fp32", "onnxruntime": ort_version(), "opset": OPSET,
-                        "threads": n, "export": str(export_dir)}
+    model.deployment = {"backend": "onnxruntime", "precision": precision, "onnxruntime": ort_version(),
+                        "opset": OPSET, "threads": n, "export": str(export_dir),
+                        **({"int8": "dynamic, per-channel weights" + (", 7-bit (no VNNI)" if reduce_range() else "")}
+                           if precision == "int8" else {})}

@@ -26,8 +26,8 @@ def cpu_model() -> str:
 
 
 # The instruction-set features that decide which kernels (and precisions) run fast on a CPU.
-ISA_FLAGS = ("avx2", "fma", "avx512f", "avx512_vnni", "avx512_bf16", "amx_tile", "amx_bf16", "amx_int8", "asimd",
-             "sve")
+ISA_FLAGS = ("avx2", "fma", "avx_vnni", "avx512f", "avx512_vnni", "avx512_bf16", "amx_tile", "amx_bf16", "amx_int8",
+             "asimd", "sve")
 
 
 @functools.cache
@@ -40,6 +40,11 @@ def cpu_flags() -> tuple[str, ...]:
     line = next((ln for ln in text.splitlines() if ln.startswith(("flags", "Features"))), "")
     have = set(line.split(":", 1)[-1].split())
     return tuple(f for f in ISA_FLAGS if f in have)
+
+
+def cpu_has_vnni() -> bool:
+    """Whether this CPU has an int8 dot-product instruction (AVX-VNNI or AVX512-VNNI; AMX implies the latter)."""
+    return bool({"avx_vnni", "avx512_vnni"} & set(cpu_flags()))
 
 
 def cpu_has_bf16() -> bool:
