@@ -23,7 +23,15 @@ from bcbench.analysis.figures import figure3, figure4, figure5, figure5_realtime
 from bcbench.analysis.findings import DEFAULT_MARGIN, judge, points_from_rows
 from bcbench.analysis.provenance import MIXING_REASON, lead_line, provenance_notes
 from bcbench.analysis.realtime import safe_delay_sentence
-from bcbench.analysis.results import Row, file_commits, load_check_rows, load_realtime, load_rows, study_time
+from bcbench.analysis.results import (
+    Row,
+    file_commits,
+    load_check_rows,
+    load_realtime,
+    load_rows,
+    study_machines,
+    study_time,
+)
 from bcbench.analysis.seeds import merge_training_seeds, per_seed_cell
 from bcbench.analysis.strategies import load_strategy_sweeps, strategy_figure, strategy_lines
 from bcbench.reference import CPU_DEVIATIONS, STUDY_REFERENCE
@@ -187,9 +195,10 @@ def time_lines(results: Path) -> list[str]:
     budget = sum(v for k, v in spent.items() if k != "real-time sweep")
     parts = ", ".join(f"{k} {v / 60:.0f} min" for k, v in spent.items() if v)
     total = f"; with the real-time sweep: {sum(spent.values()) / 3600:.2f} h" if spent["real-time sweep"] else ""
+    machines = study_machines(results)
     return ["## Study time", "", f"{parts}. Training, evaluation and timing: {budget / 3600:.2f} h{total} (sums "
-            "of recorded work on the machines named in the table; a run resumed after other work shared its "
-            "machine records that slower time).", ""]
+            "of recorded work; a run resumed after other work shared its machine records that slower time). "
+            f"Machines: {'; '.join(machines) if machines else 'not recorded'}.", ""]
 
 
 def deviation_lines(rows: list[Row]) -> list[str]:

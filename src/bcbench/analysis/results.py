@@ -207,7 +207,7 @@ def study_time(results: str | Path) -> dict[str, float]:
     out = {"training": 0.0, "curve rollouts": 0.0, "evaluation": 0.0, "timing": 0.0, "real-time sweep": 0.0}
     if not index.exists():
         return out
-    kinds = {"eval": "evaluation", "latency": "timing", "realtime": "real-time sweep"}
+    kinds = {"eval": "evaluation", "check": "evaluation", "latency": "timing", "realtime": "real-time sweep"}
     for rec in read_jsonl(index):
         if rec["stage"] in kinds:
             out[kinds[rec["stage"]]] += float(rec["seconds"])
@@ -218,3 +218,17 @@ def study_time(results: str | Path) -> dict[str, float]:
             if metrics.exists():
                 out["curve rollouts"] += sum(float(m.get("eval_wall_s", 0.0)) for m in read_jsonl(metrics))
     return out
+
+
+def study_machines(results: str | Path) -> list[str]:
+    """The CPUs (model and ISA flags) a study's training sessions and evaluations ran on, from its records."""
+    seen: set[str] = set()
+    for f in Path(results).rglob("*.json"):
+        if f.name != "train_summary.json" and not f.name.startswith(("eval", "check")):
+            continue
+        rec = read_json(f)
+        for h in [*(rec.get("segments") or []), rec.get("hardware") or {}]:
+            if h.get("cpu_model"):
+                flags = h.get("cpu_flags")
+                seen.add(h["cpu_model"] + (f" ({', '.join(flags)})" if flags else ""))
+    return sorted(seen)
