@@ -3,6 +3,7 @@ steps), Fig. 4 (DDPM-cosine, DDIM-cosine, DDIM-linear over steps), and the laten
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -250,15 +251,20 @@ def learning_curves(rows: list[Any], path: Path) -> Path | None:
         return None
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, 4.5))
     nth = _nth_of_policy(list(runs.values()))
+    shared = Counter(r.label for r in runs.values())  # several training seeds of one setting: name each seed
     for r in runs.values():
         c, colour, ls = r.curve, COLOURS.get(r.policy, "k"), LINES[nth[r.label] % len(LINES)]
-        mark = "" if r.converged else " (not converged)"
+        mark = ("" if shared[r.label] == 1 else f" seed {r.train_seed}") + ("" if r.converged else " (not converged)")
         if c.score:
             ax.plot(c.samples, c.score, ls=ls, marker="o", ms=3, color=colour, label=f"{r.label}{mark}")
             ax.fill_between(c.samples, c.lo, c.hi, color=colour, alpha=0.12)
         if c.val_loss:
             ax2.plot(c.val_samples, c.val_loss, ls=ls, color=colour, label=r.label)
-    if not _score_axis(ax, "training samples", "mean score on validation seeds (95% CI)"):
+    if _score_axis(ax, "training samples", "mean score on validation seeds (95% CI)", legend=False):
+        # below both panels, outside the data; the validation-loss lines share these colours and styles
+        fig.legend(*ax.get_legend_handles_labels(), loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=3,
+                   fontsize=7)
+    else:
         ax.text(0.5, 0.5, "no rollouts logged while training\n(train with --eval-every)", ha="center",
                 transform=ax.transAxes, alpha=0.6)
     ax.set_title("Learning curves: closed-loop score")
@@ -270,14 +276,14 @@ def learning_curves(rows: list[Any], path: Path) -> Path | None:
     return _save(fig, path)
 
 
-def _score_axis(ax: Any, xlabel: str, ylabel: str = "mean score (95% CI)") -> bool:
+def _score_axis(ax: Any, xlabel: str, ylabel: str = "mean score (95% CI)", legend: bool = True) -> bool:
     """Labels, a 0-1 score range, a grid, and a legend when anything is labelled (returned)."""
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_ylim(-0.05, 1.05)
     ax.grid(alpha=0.3)
     labelled = bool(ax.get_legend_handles_labels()[0])
-    if labelled:
+    if labelled and legend:
         ax.legend(fontsize=7)
     return labelled
 
@@ -334,6 +340,6 @@ def figure5_realtime(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path
     _score_axis(ax, "median latency per call on this machine (ms, log scale)")
     ax.set_title("Figure 5, real time: score under async execution at measured latency (hollow: sync)", fontsize=10)
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)  # outside the data
-    fig.set_size_inches(12, 6.5)  # room for the labels of Diffusion Policy's many settings
+    fig.set_size_inches(12, 5.5)
     fig.tight_layout()
     return _save(fig, path)
