@@ -1,11 +1,12 @@
-"""One-off migration (issue 29): give committed run.json files written before runs recorded their preset's
-values a `preset_values` entry, so that the report (which reads files only) can name what each override
-changed without building the preset in torch.
+"""Migration (issues 29 and 30): give committed run.json files written before runs recorded their preset a
+`preset_values` entry (the preset's value of each override) and, for `cpu` presets, `preset_deviations` (how the
+preset departs from the paper's recipe), so that the report (which reads files only) describes each run by its
+own preset even after a preset is re-chosen.
 
-For each run.json under the given results folders that has recipe overrides and no `preset_values`, the
-preset is rebuilt at this commit and checked to be the one the run was made with: its config with the
-overrides applied must equal the run's recorded config. Only then is the entry written (atomically);
-a mismatch is reported and left alone.   Usage: python scripts/backfill_preset_values.py results/*/
+For each run.json under the given results folders missing either entry, the preset is rebuilt at this commit and
+checked to be the one the run was made with: its config with the overrides applied must equal the run's recorded
+config. Only then are the entries written (atomically); a mismatch is reported and left alone. Run it before a
+preset changes.   Usage: python scripts/backfill_preset_values.py results/*/
 """
 
 from __future__ import annotations
@@ -15,19 +16,26 @@ from pathlib import Path
 
 from bcbench.policies import make_config
 from bcbench.policies.config import config_to_dict, dotted_value
+from bcbench.reference import CPU_DEVIATIONS
 from bcbench.utils.io import read_json, write_json
 
 
 def backfill(run_json: Path) -> str:
     meta = read_json(run_json)
     overrides = meta.get("overrides") or {}
-    if "preset_values" in meta or not overrides:
+    need_values = bool(overrides) and "preset_values" not in meta
+    need_dev = (meta.get("preset") or "").startswith("cpu") and meta["policy"] in CPU_DEVIATIONS \
+        and "preset_deviations" not in meta
+    if not (need_values or need_dev):
         return "skip"
     rebuilt = config_to_dict(make_config(meta["policy"], meta["preset"], overrides))
     if read_json_like(rebuilt) != meta["config"]:
         return "MISMATCH: the preset changed since this run; left alone"
-    preset = config_to_dict(make_config(meta["policy"], meta["preset"]))
-    meta["preset_values"] = {k: dotted_value(preset, k) for k in overrides}
+    if need_values:
+        preset = config_to_dict(make_config(meta["policy"], meta["preset"]))
+        meta["preset_values"] = {k: dotted_value(preset, k) for k in overrides}
+    if need_dev:
+        meta["preset_deviations"] = CPU_DEVIATIONS[meta["policy"]]
     write_json(run_json, meta)
     return "filled"
 
