@@ -37,13 +37,13 @@ CPU_DEVIATIONS: dict[str, str] = {
     "cnn_mlp": "the study's network; Adam 1e-3 (study 1e-2) at batch 256 (study 64), 20 epochs (study 50) with "
                "reduce-on-plateau; bf16 autocast",
     "resnet50": "the study's topology at 1/8 width with one bottleneck per stage (0.49 M instead of 34.5 M "
-                "parameters), random init (study: ImageNet); Adam 1e-3 (study 1e-4), batch 256, 20 epochs "
+                "parameters), random init (study: ImageNet); Adam 1e-3 (study 1e-4), batch 64, 20 epochs "
                 "(study 30); bf16 autocast",
     "bet": "a chunked BeT (16-step chunk from the newest token; BeT predicts per step); 1/4-width ResNet-18 with "
            "one block per stage, 3 layers of width 96 (BeT: 4-6 of 72-120), 32 bins; AdamW 1e-3 at batch 256, "
            "30 epochs, cosine; bf16 autocast",
     "bct": "1/4-width ResNet-18 with one block per stage, a 2-layer width-128 transformer (study: 4 of 512); "
-           "AdamW 1e-3 at batch 256, 30 epochs, cosine; bf16 autocast",
+           "AdamW 1e-3 at batch 64, 30 epochs, cosine; bf16 autocast",
     "diffusion": "1/4-width ResNet-18/GroupNorm with one block per stage and a 64/128/256 U-Net (5.3 M instead "
                  "of 91.1 M parameters); AdamW 1e-3 (paper 1e-4) at batch 256 (paper 64), 100 warm-up steps "
                  "(paper 500), 60 epochs (paper 100); EMA, crop, cosine schedule as the paper; bf16 autocast",

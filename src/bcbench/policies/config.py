@@ -115,14 +115,16 @@ def config_to_dict(cfg: Any) -> dict[str, Any]:
 CPU_BATCH = 256  # the cpu profile's batch: 2-3x the samples/s of batch 64 on 2 cores with bf16 (benchmarked)
 
 
-def cpu_profile(quick: Any, epochs: int, **optim: Any) -> Any:
+def cpu_profile(quick: Any, epochs: int, batch_size: int = CPU_BATCH, **optim: Any) -> Any:
     """The `cpu` preset: the quick network trained to its plateau on a 2-core CPU.
 
-    Batch 256 (bf16 autocast where the CPU has it), the given epochs, and the quick recipe otherwise, with
-    optimiser changes passed in `optim` (e.g. a learning rate for the larger batch). Chosen from learning
-    curves so that each policy's curve is flat over its last quarter within 90 minutes on 2 cores.
+    Batch 256 unless given (bf16 autocast where the CPU has it), the given epochs, and the quick recipe otherwise,
+    with optimiser changes passed in `optim` (e.g. a learning rate for the larger batch). First chosen from learning
+    curves (each curve flat over its last quarter within 90 minutes on 2 cores); re-chosen on validation seeds by
+    the explore studies (issue 30), which the presets' comments name. Checkpoints every ~25,600 samples.
     """
-    o = dataclasses.replace(quick.optim, batch_size=CPU_BATCH, epochs=epochs, checkpoint_every=100, **optim)
+    o = dataclasses.replace(quick.optim, batch_size=batch_size, epochs=epochs,
+                            checkpoint_every=100 * CPU_BATCH // batch_size, **optim)
     return dataclasses.replace(quick, optim=o)
 
 
