@@ -318,7 +318,7 @@ def cmd_tiers(args: argparse.Namespace) -> int:
     tag = f"{args.sampler}{args.steps}" if args.sampler else "default"
     out = Path(args.out) if args.out else Path(args.run_dir) / f"tiers-{tag}"
     record = run_tiers(args.run_dir, modes, args.episodes, args.sampler, args.steps, out,
-                       observations=args.observations, progress=not args.quiet)
+                       seed_start=args.seed_start, observations=args.observations, progress=not args.quiet)
     print(tiers_table(record))
     print(f"results: {out / 'tiers.json'}")
     return 0

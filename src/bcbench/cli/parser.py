@@ -250,6 +250,9 @@ def _add_deploy_commands(sub: Any) -> None:
     p.add_argument("--sampler", choices=["ddpm", "ddim", "euler", "midpoint"], help="generative policies' sampler")
     p.add_argument("--steps", type=_positive_int, help="generative policies' steps")
     p.add_argument("--episodes", type=_positive_int, default=100, help="test episodes per mode (default 100)")
+    p.add_argument("--seed-start", type=int, default=100_000,
+                   help="first episode seed (default 100000, the test seeds; 200000+ for validation: a run that "
+                        "is not a final preset is compared there)")
     p.add_argument("--observations", type=_positive_int, default=100,
                    help="validation observations for the chunk deviation (default 100)")
     p.add_argument("--out", metavar="DIR", help="output folder (default RUN_DIR/tiers-SAMPLER)")

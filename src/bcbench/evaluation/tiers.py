@@ -76,7 +76,9 @@ def run_tiers(run_dir: str | Path, modes: list[str], episodes: int, sampler: str
 def tiers_table(record: dict[str, Any]) -> str:
     lines = [f"Accuracy of each inference mode against torch fast (exact) - {record['policy']['name']}, "
              f"{record['policy'].get('sampler', '')}{record['policy'].get('steps', '')}; deviation over "
-             f"{record['observations']} validation observations, score over {record['episodes']} test seeds",
+             f"{record['observations']} validation observations, score over {record['episodes']} "
+             f"{'validation' if record.get('seed_start', 100_000) >= 200_000 else 'test'} seeds from "
+             f"{record.get('seed_start', 100_000)}",
              "", "| mode | max chunk deviation (px) | mean score [95% CI] | paired difference vs fast [95% CI] | |",
              "|---|---|---|---|---|"]
     for r in record["rows"]:
