@@ -311,8 +311,8 @@ def realtime_figure(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path)
                 err = [[e["value"] - e["ci95"][0] for _, e in pts], [e["ci95"][1] - e["value"] for _, e in pts]]
                 ax.errorbar([d for d, _ in pts], [e["value"] for _, e in pts], yerr=err, capsize=3, marker=marker,
                             ls=style, color=colour, label=f"{label}, {execution}")
-    _score_axis(ax, "delay d (control steps of 0.1 s at 10 Hz; d = 0: sync, the world waits)")
-    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)  # outside the data
+    if _score_axis(ax, "delay d (control steps of 0.1 s at 10 Hz; d = 0: sync, the world waits)", legend=False):
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)  # outside the data
     fig.tight_layout()
     ax.set_title("Score under real-time execution")
     return _save(fig, path)
