@@ -203,3 +203,22 @@ def test_the_default_backend_is_auto_where_measured_latency_sets_the_delays(argv
     from bcbench.cli.policies import backend
 
     assert backend(build_parser().parse_args(argv)) == want
+
+
+def test_tiers_compare_modes_paired_on_the_seeds_asked(synthetic_zarr, tmp_path, monkeypatch, capsys):
+    """`bcbench tiers`: an exact mode deviates by rounding only, int8 is labelled and paired; --seed-start picks
+    validation seeds for a run that is not a final preset, and the table says which."""
+    run = tmp_path / "run"
+    _train_tiny(run, synthetic_zarr)
+    monkeypatch.setenv("BCBENCH_DATA", str(synthetic_zarr))  # observations from the run's validation split
+    assert main(["tiers", str(run), "--mode", "onnxruntime-fp32", "--mode", "onnxruntime-int8", "--episodes", "2",
+                 "--seed-start", "200000", "--observations", "4", "--out", str(tmp_path / "t"), "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "score over 2 validation seeds from 200000" in out
+    record = json.loads((tmp_path / "t" / "tiers.json").read_text())
+    rows = {r["mode"]: r for r in record["rows"]}
+    assert record["seed_start"] == 200_000 and set(rows) == {"fast", "onnxruntime-fp32", "onnxruntime-int8"}
+    assert rows["onnxruntime-fp32"]["max_deviation_px"] < 0.05  # exact: float rounding only
+    assert rows["onnxruntime-int8"]["paired_vs_fast"]["n"] == 2
+    seeds = [e["seed"] for e in json.loads((tmp_path / "t" / "eval-fast" / "eval.json").read_text())["episodes"]]
+    assert seeds == [200_000, 200_001]
