@@ -79,9 +79,9 @@ def paired_interval(a: Point, others: list[Point], seed: int = 0) -> Diff:
     ids = sorted(set(multi[0].seed_ids).intersection(*(p.seed_ids for p in multi[1:])))
     if not ids:
         return Diff(float("nan"), float("nan"), float("nan"), 0)
-    rest = [_by_training_seed(o, ids) for o in others]
-    est = two_level_bootstrap(_by_training_seed(a, ids), rest, seed)
-    n = len(set(_by_training_seed(a, ids)[0]).intersection(*(r[0] for r in rest)))
+    mine, rest = _by_training_seed(a, ids), [_by_training_seed(o, ids) for o in others]
+    est = two_level_bootstrap(mine, rest, seed)
+    n = len(set(mine[0]).intersection(*(r[0] for r in rest)))
     return Diff(est["value"], *est["ci95"], n, len(ids), est["training_seed_share"])
 
 

@@ -22,6 +22,7 @@ import torch
 
 from bcbench.interface import FilmSplittable, example_observation
 from bcbench.modes import EXACT_MODES
+from bcbench.policies.checkpoint import weights_file
 from bcbench.policies.learned import PolicyRunner
 from bcbench.utils.io import read_json, write_json
 from bcbench.utils.system import cpu_flags, cpu_model, versions
@@ -66,7 +67,7 @@ def _cache_key(runner: PolicyRunner) -> str:
     ckpt = (Path(info.run_dir) / "checkpoints" / info.checkpoint) if info.run_dir and info.checkpoint else None
     stat = ""
     if ckpt is not None:
-        f = ckpt / ("ema.safetensors" if info.weights == "ema" else "model.safetensors")
+        f = weights_file(ckpt, info.weights)
         stat = f"{f}:{f.stat().st_size}:{f.stat().st_mtime_ns}" if f.exists() else str(f)
     blob = json.dumps([stat, runner.name, info.sampler, info.steps, info.spacing, cpu_model(), cpu_flags(),
                        torch.get_num_threads(), versions(), CANDIDATES], sort_keys=True, default=str)

@@ -37,7 +37,7 @@ from bcbench.evaluation.auto import choose_mode
 from bcbench.evaluation.onnx_runtime import deploy_onnxruntime, ort_version, reduce_range
 from bcbench.interface import FilmSplittable
 from bcbench.modes import AUTO, MODES
-from bcbench.policies.checkpoint import read_run
+from bcbench.policies.checkpoint import read_run, weights_file
 from bcbench.policies.learned import BCPolicy, GraphModule, PolicyRunner
 
 GRAPH_FORMAT = 2  # bump when a policy's graphs change meaning: cached exports are then rebuilt
@@ -139,7 +139,7 @@ def export_key(model: BCPolicy, precision: str, checkpoint: Path | None, weights
     (OpenVINO's unless `runtime` names another)."""
     stat = ""
     if checkpoint is not None:
-        f = checkpoint / ("ema.safetensors" if weights == "ema" else "model.safetensors")
+        f = weights_file(checkpoint, weights)
         st = f.stat()
         stat = f"{f}:{st.st_size}:{st.st_mtime_ns}"
     graphs = "int8" if precision == "int8" else "float"  # fp32 and bf16 compile the same float graphs
@@ -202,6 +202,22 @@ def run_data_split(run_dir: str | Path) -> dict[str, Any]:
     return read_run(Path(run_dir)).get("data_split", {})
 
 
+def _export_dir(runner: PolicyRunner, mode: str) -> Path | None:
+    """Where a trained run caches `mode`'s export: RUN_DIR/export/{openvino|onnx}-{float|int8}-KEY, keyed by the
+    checkpoint, weights, precision and runtime version (None: a torch mode, or an untrained policy)."""
+    info = runner.info
+    backend, _, precision = mode.partition("-")
+    if backend not in ("openvino", "onnxruntime") or not (info.run_dir and info.checkpoint):
+        return None
+    runtime = None  # OpenVINO's version
+    if backend == "onnxruntime":  # int8 built for a CPU without VNNI (7-bit weights) is another export
+        runtime = f"onnxruntime-{ort_version()}" + ("-7bit" if precision == "int8" and reduce_range() else "")
+    key = export_key(runner.model, precision, Path(info.run_dir) / "checkpoints" / info.checkpoint,
+                     info.weights or "ema", runtime)
+    prefix = "onnx" if backend == "onnxruntime" else "openvino"  # set_mode appends -onnxruntime to the former
+    return Path(info.run_dir) / "export" / f"{prefix}-{'int8' if precision == 'int8' else 'float'}-{key}"
+
+
 def apply_mode(runner: PolicyRunner, mode: str) -> None:
     """Put a PolicyRunner's policy in `mode`; a trained run's exports are cached under RUN_DIR/export/. `auto`:
     the fastest exact mode for this checkpoint on this machine (bcbench.evaluation.auto), recorded as chosen."""
@@ -210,25 +226,11 @@ def apply_mode(runner: PolicyRunner, mode: str) -> None:
         apply_mode(runner, trial["chosen"])
         runner.info.deployment = {**(runner.info.deployment or {}), "auto": trial}
         return
-    model = runner.model
-    export_dir, calibration = None, None
-    if mode.startswith("onnxruntime-") and runner.info.run_dir and runner.info.checkpoint:
-        precision = mode.removeprefix("onnxruntime-")
-        ckpt_dir = Path(runner.info.run_dir) / "checkpoints" / runner.info.checkpoint
-        runtime = f"onnxruntime-{ort_version()}" + ("-7bit" if precision == "int8" and reduce_range() else "")
-        key = export_key(model, precision, ckpt_dir, runner.info.weights or "ema", runtime)
-        kind = "int8" if precision == "int8" else "float"
-        export_dir = Path(runner.info.run_dir) / "export" / f"onnx-{kind}-{key}"  # set_mode appends -onnxruntime
-    if mode.startswith("openvino-"):
-        precision = mode.removeprefix("openvino-")
-        run_dir, ckpt = runner.info.run_dir, runner.info.checkpoint
-        if run_dir and ckpt:
-            ckpt_dir = Path(run_dir) / "checkpoints" / ckpt
-            key = export_key(model, precision, ckpt_dir, runner.info.weights or "ema")
-            export_dir = Path(run_dir) / "export" / f"openvino-{'int8' if precision == 'int8' else 'float'}-{key}"
-        if precision == "int8" and not (export_dir and export_dir.exists()):
-            # calibration on training-split observations; an untrained model (timing only) gets random ones
-            calibration = (dataset_observations(model, "train", 64, data_split=run_data_split(run_dir)) if run_dir
-                           else [model.example_obs() for _ in range(8)])
+    model, run_dir = runner.model, runner.info.run_dir
+    export_dir, calibration = _export_dir(runner, mode), None
+    if mode == "openvino-int8" and not (export_dir and export_dir.exists()):
+        # calibration on training-split observations; an untrained model (timing only) gets random ones
+        calibration = (dataset_observations(model, "train", 64, data_split=run_data_split(run_dir)) if run_dir
+                       else [model.example_obs() for _ in range(8)])
     set_mode(model, mode, export_dir, calibration)
     runner.info.mode, runner.info.deployment = mode, model.deployment

@@ -18,7 +18,6 @@ ONNX Runtime's documentation advises), and the deployment record says which was 
 
 from __future__ import annotations
 
-import shutil
 import tempfile
 import warnings
 from pathlib import Path
@@ -29,6 +28,7 @@ import torch
 
 from bcbench.errors import BCBenchError
 from bcbench.policies.learned import BCPolicy, GraphModule
+from bcbench.utils.io import atomic_dir
 from bcbench.utils.system import cpu_has_vnni
 
 OPSET = 17
@@ -49,18 +49,15 @@ def ort_version() -> str:
 def export_onnx(model: BCPolicy, out_dir: Path) -> Path:
     """Write the policy's graphs as ONNX (`NAME.onnx` each, any batch) into `out_dir`, atomically."""
     model = model.eval()
-    tmp = out_dir.with_name(out_dir.name + ".tmp")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
     fastpath = torch.backends.mha.get_fastpath_enabled()
     torch.backends.mha.set_fastpath_enabled(False)  # attention's fused fast path has no ONNX form: the plain ops
     try:
-        for name, example in model.graph_inputs(1).items():
-            _export_graph(model, name, example, tmp / f"{name}.onnx")
+        with atomic_dir(out_dir, force=True) as staged:
+            staged.mkdir()
+            for name, example in model.graph_inputs(1).items():
+                _export_graph(model, name, example, staged / f"{name}.onnx")
     finally:
         torch.backends.mha.set_fastpath_enabled(fastpath)
-    shutil.rmtree(out_dir, ignore_errors=True)
-    tmp.rename(out_dir)
     return out_dir
 
 
@@ -104,17 +101,13 @@ def quantize_int8(model: BCPolicy, out_dir: Path) -> Path:
     """Export the policy's graphs and quantise their matrix products to int8 (dynamic), into `out_dir` atomically."""
     from onnxruntime.quantization import QuantType, quantize_dynamic  # only for int8
 
-    tmp = out_dir.with_name(out_dir.name + ".tmp")
-    with tempfile.TemporaryDirectory(prefix="bcbench-ort-fp32-") as src:
-        export_onnx(model, Path(src) / "graphs")
-        shutil.rmtree(tmp, ignore_errors=True)
-        tmp.mkdir(parents=True)
+    with tempfile.TemporaryDirectory(prefix="bcbench-ort-fp32-") as src, atomic_dir(out_dir, force=True) as staged:
+        fp32 = export_onnx(model, Path(src) / "graphs")
+        staged.mkdir()
         for name in model.graphs:
-            quantize_dynamic(Path(src) / "graphs" / f"{name}.onnx", tmp / f"{name}.onnx", per_channel=True,
+            quantize_dynamic(fp32 / f"{name}.onnx", staged / f"{name}.onnx", per_channel=True,
                              reduce_range=reduce_range(), weight_type=QuantType.QInt8,
                              op_types_to_quantize=["MatMul", "Gemm"])
-    shutil.rmtree(out_dir, ignore_errors=True)
-    tmp.rename(out_dir)
     return out_dir
 
 

@@ -72,8 +72,13 @@ def latest_checkpoint(run_dir: Path) -> Path | None:
     return path
 
 
+def weights_file(ckpt: Path, weights: str | None) -> Path:
+    """A checkpoint's weights file: `weights` "ema" (the EMA, what evaluation uses), else the raw weights."""
+    return Path(ckpt) / ("ema.safetensors" if weights == "ema" else "model.safetensors")
+
+
 def load_weights(path: Path, model: torch.nn.Module, ema: bool = False) -> None:
-    file = Path(path) / ("ema.safetensors" if ema else "model.safetensors")
+    file = weights_file(path, "ema" if ema else "raw")
     try:
         model.load_state_dict(load_file(str(file)))
     except (OSError, RuntimeError) as exc:
@@ -83,6 +88,9 @@ def load_weights(path: Path, model: torch.nn.Module, ema: bool = False) -> None:
 def load_state(path: Path) -> dict[str, Any]:
     """The optimiser, schedule, RNG and loop state of a checkpoint, unpickled with `weights_only=True`: tensors,
     numbers, strings and containers only, so a run folder from someone else cannot run code when resumed."""
+    if not (Path(path) / "state.pt").exists():
+        raise BCBenchError(f"{path} has no trainer state (a published model holds inference weights only); "
+                           "it cannot be resumed")
     try:
         return torch.load(Path(path) / "state.pt", map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as e:

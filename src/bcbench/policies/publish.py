@@ -15,6 +15,7 @@ state, no pickle, nothing that runs code when loaded.
 from __future__ import annotations
 
 import hashlib
+import math
 import shutil
 from pathlib import Path
 from typing import Any
@@ -22,17 +23,14 @@ from typing import Any
 from safetensors import safe_open
 
 from bcbench.errors import BCBenchError
-from bcbench.policies.checkpoint import latest_checkpoint, read_run
+from bcbench.policies.checkpoint import latest_checkpoint, read_run, weights_file
 from bcbench.utils.io import atomic_dir, read_json, write_json
 from bcbench.utils.system import git_commit
 
 
 def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
     with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
+        return hashlib.file_digest(f, "sha256").hexdigest()
 
 
 def _check_fp32(file: Path) -> int:
@@ -41,14 +39,11 @@ def _check_fp32(file: Path) -> int:
     n = 0
     with safe_open(str(file), framework="pt") as f:
         for key in f.keys():  # noqa: SIM118 (a safetensors file handle is not iterable)
-            dtype = str(f.get_slice(key).get_dtype())
+            tensor = f.get_slice(key)
+            dtype = str(tensor.get_dtype())
             if dtype.startswith(("F", "BF")) and dtype != "F32":
                 raise BCBenchError(f"{file}: tensor {key} is {dtype}, not fp32; publish fp32 weights only")
-            shape = f.get_slice(key).get_shape()
-            size = 1
-            for s in shape:
-                size *= s
-            n += size
+            n += math.prod(tensor.get_shape())
     return n
 
 
@@ -57,9 +52,9 @@ def _scores_record(scores: Path, run_dir: Path, ckpt: Path, weights: str) -> dic
     if not scores.is_file():
         raise BCBenchError(f"--scores {scores}: no such file")
     rec = read_json(scores)
-    pol = rec.get("policy", {}) if isinstance(rec, dict) else {}
-    if rec.get("type") != "evaluation" or not rec.get("episodes"):
+    if not isinstance(rec, dict) or rec.get("type") != "evaluation" or not rec.get("episodes"):
         raise BCBenchError(f"--scores {scores} is not a bcbench evaluation with per-episode scores")
+    pol = rec.get("policy", {})
     if Path(str(pol.get("run_dir", ""))).name != run_dir.name:
         raise BCBenchError(f"--scores {scores} evaluated {pol.get('run_dir')}, not {run_dir}")
     if pol.get("checkpoint") != ckpt.name or pol.get("weights") != weights:
@@ -87,7 +82,7 @@ def publish(run_dir: str | Path, out: str | Path, scores: str | Path, force: boo
     if ckpt is None:
         raise BCBenchError(f"{run_dir} has no checkpoint to publish")
     weights = "ema" if (ckpt / "ema.safetensors").exists() else "raw"
-    file = ckpt / ("ema.safetensors" if weights == "ema" else "model.safetensors")
+    file = weights_file(ckpt, weights)
     source = _scores_record(Path(scores), run_dir, ckpt, weights)
     if Path(scores).resolve().is_relative_to(Path.cwd()):  # a committed file: recorded relative to the repository
         source["file"] = str(Path(scores).resolve().relative_to(Path.cwd()))

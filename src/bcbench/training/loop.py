@@ -205,11 +205,8 @@ def _resume(r: Run) -> None:
             if r.ema is not None:
                 r.ema.model.load_state_dict(r.model.state_dict())
         return
-    if not (ckpt / "state.pt").exists():
-        raise BCBenchError(f"{ckpt} has no trainer state (a published model holds inference weights only); "
-                           "it cannot be resumed")
+    state = load_state(ckpt)  # first: a folder without trainer state (a published model) is refused in one line
     load_weights(ckpt, r.model)
-    state = load_state(ckpt)
     if r.ema is not None:
         load_weights(ckpt, r.ema.model, ema=True)
     r.optimizer.load_state_dict(state["optimizer"])
