@@ -98,3 +98,25 @@ def test_resnet_stem_relu_after_pool_keeps_values_and_gradients(make, norm, bf16
     (out, grads), (ref, ref_grads) = outs
     assert torch.equal(out, ref)
     assert all(torch.equal(a, b) for a, b in zip(grads, ref_grads, strict=True))
+
+
+@pytest.mark.parametrize("channels_last_input", [False, True])
+def test_time_merge_equals_the_3d_convolution_and_stays_channels_last(channels_last_input):
+    """TimeMerge computes the study's 3-D convolution as a 2-D one over stacked frames, channels-last (the
+    layout of every later convolution; a (B, C, H, W) output cost the CNN-MLP and ResNet-50 trainers time)."""
+    from torch.nn import functional as F
+
+    from bcbench.policies.regressor import TimeMerge
+
+    torch.manual_seed(0)
+    merge = TimeMerge(obs_horizon=2, out_channels=8).eval()
+    merge.bn.running_mean.uniform_(-0.5, 0.5)
+    merge.bn.running_var.uniform_(0.5, 2.0)
+    image = torch.rand(3, 2, 3, 20, 20)  # (B, To, C, H, W)
+    if channels_last_input:  # an image that arrives in another layout gives the same numbers
+        image = image.contiguous(memory_format=torch.channels_last_3d)
+    out = merge(image)  # (B, C, H, W)
+    reference = F.relu(merge.bn(merge.conv(image.transpose(1, 2)).squeeze(2)))  # Conv3d over (B, C, To, H, W)
+    assert out.shape == (3, 8, 20, 20)
+    assert out.is_contiguous(memory_format=torch.channels_last)
+    torch.testing.assert_close(out, reference, rtol=0, atol=1e-5)
