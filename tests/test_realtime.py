@@ -225,3 +225,37 @@ def test_a_measured_setting_with_one_delay_is_shown_as_that_fixed_setting():
     assert same_as_fixed(sweep, "realtime-async-measured") == "async-d1"
     assert same_as_fixed(sweep, "realtime-blocking-measured") is None  # two delays: its own evidence
     assert same_as_fixed(sweep, "realtime-async-d1") is None and same_as_fixed(sweep, "realtime-sync") is None
+
+
+def test_a_setting_whose_delays_equal_a_fixed_settings_reuses_its_episodes(monkeypatch):
+    """A profile (or measured) latency that gives every call the same d repeats that fixed setting's episodes:
+    the sweep records them once, says where they come from, and they equal a run of that setting itself."""
+    import bcbench.evaluation.realtime
+    from bcbench.evaluation.latency_sources import PROFILES
+    from bcbench.evaluation.realtime import sweep
+
+    monkeypatch.setitem(PROFILES["a100"], "scripted", 30.0)  # 30 ms: d = 1
+    real, ran = bcbench.evaluation.realtime.evaluate, []
+
+    def counting(policy, cfg, *args, **kw):
+        ran.append(kw["extra"]["realtime"]["setting"])
+        return real(policy, cfg, *args, **kw)
+
+    monkeypatch.setattr(bcbench.evaluation.realtime, "evaluate", counting)
+    kw = {"executions": ["async"], "episodes": 2, "profiles": ["a100"], "measured": True, "progress": False,
+          "max_steps": 30}
+    out = sweep(make_policy("scripted"), delays=[1], **kw)
+    assert ran == ["realtime-sync", "realtime-async-d1"]  # the scripted policy's calls are far below 100 ms
+    for name in ("realtime-async-a100", "realtime-async-measured"):
+        assert out[name]["realtime"] == {"setting": name, "episodes_of": "realtime-async-d1"}
+        assert out[name]["summary"]["delay_steps"] == out["realtime-async-d1"]["summary"]["delay_steps"]
+    assert out["realtime-async-a100"]["summary"]["latency_source"] == {"kind": "profile", "name": "a100", "ms": 30.0}
+    assert out["realtime-async-measured"]["summary"]["latency_source"]["calls"] >= 100
+    assert out["realtime-async-a100"]["eval_config"]["latency"] == "profile:a100"
+    own = real(make_policy("scripted"), EvalConfig(episodes=2, execution="async", max_steps=30,
+                                                    latency="profile:a100"), None, progress=False)
+    assert [e["score"] for e in own["episodes"]] == [e["score"] for e in out["realtime-async-a100"]["episodes"]]
+    ran.clear()
+    out = sweep(make_policy("scripted"), delays=[2], **kw)  # d = 1 not swept: each setting runs its own episodes
+    assert ran == ["realtime-sync", "realtime-async-d2", "realtime-async-a100", "realtime-async-measured"]
+    assert "episodes_of" not in out["realtime-async-a100"]["realtime"]

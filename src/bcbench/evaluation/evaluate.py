@@ -62,12 +62,14 @@ def _split(items: dict[int, Any] | list[Any], n: int, key=lambda x: x) -> list[A
 
 
 def run_episodes(policy: ChunkPolicy, cfg: EvalConfig, out_dir: Path | None = None, progress: bool = True,
-                 weak: ChunkPolicy | None = None) -> tuple[list[EpisodeResult], dict[str, Any]]:
+                 weak: ChunkPolicy | None = None, source: LatencySource | None = None
+                 ) -> tuple[list[EpisodeResult], dict[str, Any]]:
     """Run cfg.episodes closed-loop episodes; returns per-episode results and timing counters. `weak`: BID's
-    weaker policy (cfg.strategy.bid_weak, loaded by the caller)."""
+    weaker policy (cfg.strategy.bid_weak, loaded by the caller); `source`: cfg's latency source, already resolved
+    (a sweep that looked at its delays first: measured calls are then not timed twice)."""
     n_workers = max(1, min(cfg.workers or os.cpu_count() or 1, cfg.episodes))
     results = {i: EpisodeResult(episode=i, seed=cfg.seed_start + i) for i in range(cfg.episodes)}
-    source = LatencySource.parse(cfg.latency, cfg.latency_ms)
+    source = source or LatencySource.parse(cfg.latency, cfg.latency_ms)
     strategy = Strategy(cfg.strategy, policy, weak)  # checked before any simulator starts
     source.resolve(policy, strategy)  # measured: timed now, before any simulator runs beside it
     controller = ChunkedController(policy, cfg.action_horizon, cfg.execution,
@@ -131,10 +133,12 @@ def run_episodes(policy: ChunkPolicy, cfg: EvalConfig, out_dir: Path | None = No
 
 
 def evaluate(policy: ChunkPolicy, cfg: EvalConfig, out_dir: str | Path | None = None, progress: bool = True,
-             extra: dict[str, Any] | None = None, weak: ChunkPolicy | None = None) -> dict[str, Any]:
-    """Evaluate and (if out_dir) write `eval.json` there atomically; returns the result dict."""
+             extra: dict[str, Any] | None = None, weak: ChunkPolicy | None = None,
+             source: LatencySource | None = None) -> dict[str, Any]:
+    """Evaluate and (if out_dir) write `eval.json` there atomically; returns the result dict (`weak`, `source`:
+    as for run_episodes)."""
     out = Path(out_dir) if out_dir is not None else None
-    episodes, timing = run_episodes(policy, cfg, out, progress, weak)
+    episodes, timing = run_episodes(policy, cfg, out, progress, weak, source)
     summary = score_summary(
         np.array([e.score for e in episodes]), np.array([e.success for e in episodes]),
         np.array([e.final_coverage for e in episodes]),

@@ -3,14 +3,17 @@ hardware profiles; its record is what the report reads (bcbench.analysis.realtim
 
 from __future__ import annotations
 
+import copy
 import platform
 from collections.abc import Callable
+from dataclasses import asdict
 from typing import Any
 
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.config import StrategyConfig
 from bcbench.evaluation.evaluate import EvalConfig, evaluate
-from bcbench.evaluation.latency_sources import profile_ms, sampler_steps
+from bcbench.evaluation.latency_sources import LatencySource, profile_ms, sampler_steps, steps_for
+from bcbench.evaluation.strategies import Strategy
 from bcbench.interface import ChunkPolicy
 from bcbench.protocol import CONTROL_DT_S
 from bcbench.utils.system import provenance
@@ -40,7 +43,9 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
     """Score against delay d for each execution mode (sync as the d = 0 reference), plus the policy's score at
     its measured latency on this machine and under each hardware profile: evaluation results by setting.
     `done`: settings finished by an interrupted sweep (kept, not rerun); `on_setting(results so far)` is called
-    after each setting, so a caller can save them (a sweep is 13 evaluations of 100 episodes in a study).
+    after each setting, so a caller can save them (a sweep is 13 evaluations of 100 episodes in a study). A
+    profile or measured setting whose every call takes the d of a fixed setting already swept reuses its episodes
+    (`fixed_twin`): a fast policy's A100 and measured settings cost no episodes.
     `execution_horizon`: s of the async settings (see bcbench.evaluation.controller); `strategy` (and BID's
     `weak` policy): how consecutive chunks are joined, in every setting, sync included."""
     if execution_horizon is not None:  # checked before hours of episodes
@@ -61,10 +66,44 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
         cfg = EvalConfig(episodes=episodes, execution=execution, max_steps=max_steps, seed_start=seed_start,
                          execution_horizon=execution_horizon if execution == "async" else None,
                          strategy=strategy or StrategyConfig(), **latency)
-        out[name] = evaluate(policy, cfg, None, progress=progress, extra={"realtime": {"setting": name}}, weak=weak)
+        source = None
+        if "latency" in latency:  # a profile or the measured latency: its delays are known before any episode
+            source = LatencySource.parse(cfg.latency, None)
+            source.resolve(policy, Strategy(cfg.strategy, policy, weak))
+            twin = fixed_twin(source, execution, out)
+            if twin is not None:
+                out[name] = same_episodes(out[twin], twin, name, cfg, source)
+                if on_setting is not None:
+                    on_setting(out)
+                continue
+        out[name] = evaluate(policy, cfg, None, progress=progress, extra={"realtime": {"setting": name}}, weak=weak,
+                             source=source)
         if on_setting is not None:
             on_setting(out)
     return out
+
+
+def fixed_twin(source: LatencySource, execution: str, done: dict[str, dict[str, Any]]) -> str | None:
+    """The fixed-delay setting already evaluated whose episodes a resolved latency source would repeat: every call
+    of it takes the same d (a profile's time, or measured calls that all round to one d), and the controller sees
+    only d, so each seed's episode is the same. None where the delays vary or that setting was not swept."""
+    ms = [source.ms] if source.kind in ("fixed", "profile") else source.samples_ms
+    steps = {steps_for(m / 1e3) for m in ms}
+    if len(steps) != 1 or (d := steps.pop()) < 1:
+        return None
+    name = f"realtime-{execution}-d{d}"
+    return name if name in done else None
+
+
+def same_episodes(twin: dict[str, Any], twin_name: str, name: str, cfg: EvalConfig, source: LatencySource
+                  ) -> dict[str, Any]:
+    """Setting `name`'s record from its fixed-delay twin's episodes (not run again): its own configuration and
+    latency source, and where its episodes come from."""
+    record = copy.deepcopy(twin)
+    record["eval_config"] = asdict(cfg)
+    record["summary"]["latency_source"] = source.describe()
+    record["realtime"] = {"setting": name, "episodes_of": twin_name}
+    return record
 
 
 def realtime_record(settings: dict[str, dict[str, Any]], study: str, label: str, variant: dict[str, Any],
