@@ -34,7 +34,7 @@ STUDY_REFERENCE: dict[str, dict[str, Any]] = {
 # How each `cpu` preset departs from its paper's recipe (a run records its own copy in run.json; this table
 # serves runs written before runs recorded it).
 CPU_DEVIATIONS: dict[str, str] = {
-    "cnn_mlp": "the study's network; Adam 1e-3 (study 1e-2) at batch 256 (study 64), 20 epochs (study 50) with "
+    "cnn_mlp": "the study's network; Adam 1e-3 (study 1e-2) at batch 64 (as the study), 20 epochs (study 50) with "
                "reduce-on-plateau; bf16 autocast",
     "resnet50": "the study's topology at 1/8 width with one bottleneck per stage (0.49 M instead of 34.5 M "
                 "parameters), random init (study: ImageNet); Adam 1e-3 (study 1e-4), batch 64, 20 epochs "
