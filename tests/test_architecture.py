@@ -17,6 +17,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "bcbench"
@@ -145,4 +146,12 @@ def test_behaviour_is_unchanged_since_before_the_restructuring():
     from tests.golden.make_golden import pipeline
 
     golden = json.loads((Path(__file__).parent / "golden" / "pipeline-0fe1623.json").read_text())
-    assert json.loads(json.dumps(pipeline())) == golden
+    got = json.loads(json.dumps(pipeline()))
+    assert sorted(got) == sorted(golden)
+    for name, episodes in golden.items():
+        # seeds, scores and lengths exactly; final states to fp32 rounding (a9bb32f computes the CNN-MLP's first
+        # layer channels-last: the same sums in another order move a final state by ~3e-7 px)
+        assert [(e["seed"], e["score"], e["length"]) for e in got[name]] == \
+            [(e["seed"], e["score"], e["length"]) for e in episodes], name
+        np.testing.assert_allclose([e["final_state"] for e in got[name]], [e["final_state"] for e in episodes],
+                                   rtol=1e-6, atol=1e-4, err_msg=name)
