@@ -37,3 +37,8 @@ def check_purpose(purpose: str | None, seed_start: int, episodes: int) -> str | 
     return None
 
 CONTROL_DT_S = 0.1  # Push-T's control period (10 Hz): a delay d is counted in these steps
+
+
+def delay_setting(execution: str, d: int) -> str:
+    """A real-time sweep's fixed-delay setting as its records name it: realtime-EXECUTION-dD (d >= 1)."""
+    return f"realtime-{execution}-d{d}"

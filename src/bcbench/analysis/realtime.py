@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from bcbench.protocol import CONTROL_DT_S
+from bcbench.protocol import CONTROL_DT_S, delay_setting
 from bcbench.stats import paired_bootstrap
 
 
@@ -27,7 +27,7 @@ def largest_safe_delay(results: dict[str, dict[str, Any]], execution: str, margi
     safe = 0
     delays = sorted(int(k.rsplit("-d", 1)[1]) for k in results if k.startswith(f"realtime-{execution}-d"))
     for d in delays:
-        if delay_vs_sync(results, f"realtime-{execution}-d{d}")[1] <= -margin:
+        if delay_vs_sync(results, delay_setting(execution, d))[1] <= -margin:
             break
         safe = d
     return safe

@@ -15,6 +15,7 @@ import matplotlib.pyplot as plt
 
 from bcbench.analysis.realtime import delay_curve, highest_safe_rate, largest_safe_delay, seed_scores
 from bcbench.analysis.results import realtime_records
+from bcbench.protocol import delay_setting
 from bcbench.stats import paired_bootstrap
 from bcbench.utils.io import atomic_path
 
@@ -38,7 +39,7 @@ def load_strategy_sweeps(results: str | Path) -> dict[str, dict[str, dict[str, A
 
 
 def setting_name(execution: str, d: int) -> str:
-    return "realtime-sync" if d == 0 else f"realtime-{execution}-d{d}"
+    return "realtime-sync" if d == 0 else delay_setting(execution, d)
 
 
 def versus_naive(sweeps: dict[str, dict[str, Any]], kind: str, name: str) -> tuple[float, float, float, int] | None:

@@ -15,7 +15,7 @@ from bcbench.evaluation.evaluate import EvalConfig, evaluate
 from bcbench.evaluation.latency_sources import LatencySource, profile_ms, sampler_steps, steps_for
 from bcbench.evaluation.strategies import Strategy
 from bcbench.interface import ChunkPolicy
-from bcbench.protocol import CONTROL_DT_S
+from bcbench.protocol import CONTROL_DT_S, delay_setting
 from bcbench.utils.system import provenance
 
 
@@ -26,7 +26,7 @@ def sweep_settings(delays: list[int], executions: list[str], profiles: list[str]
     if bad:
         raise BCBenchError(f"delays must be >= 0, got {bad[0]}")
     settings: list[tuple[str, str, dict[str, Any]]] = [("realtime-sync", "sync", {})]
-    settings += [(f"realtime-{e}-d{d}", e, {"latency_ms": d * CONTROL_DT_S * 1e3})
+    settings += [(delay_setting(e, d), e, {"latency_ms": d * CONTROL_DT_S * 1e3})
                  for e in executions for d in sorted(set(delays)) if d > 0]
     settings += [(f"realtime-{e}-{p}", e, {"latency": f"profile:{p}"}) for e in executions for p in profiles]
     if measured:
@@ -66,33 +66,30 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
         cfg = EvalConfig(episodes=episodes, execution=execution, max_steps=max_steps, seed_start=seed_start,
                          execution_horizon=execution_horizon if execution == "async" else None,
                          strategy=strategy or StrategyConfig(), **latency)
-        source = None
+        source, twin = None, None
         if "latency" in latency:  # a profile or the measured latency: its delays are known before any episode
             source = LatencySource.parse(cfg.latency, None)
             source.resolve(policy, Strategy(cfg.strategy, policy, weak))
             twin = fixed_twin(source, execution, out)
-            if twin is not None:
-                out[name] = same_episodes(out[twin], twin, name, cfg, source)
-                if on_setting is not None:
-                    on_setting(out)
-                continue
-        out[name] = evaluate(policy, cfg, None, progress=progress, extra={"realtime": {"setting": name}}, weak=weak,
-                             source=source)
+        if twin is not None:
+            out[name] = same_episodes(out[twin], twin, name, cfg, source)
+        else:
+            out[name] = evaluate(policy, cfg, None, progress=progress, extra={"realtime": {"setting": name}},
+                                 weak=weak, source=source)
         if on_setting is not None:
             on_setting(out)
     return out
 
 
 def fixed_twin(source: LatencySource, execution: str, done: dict[str, dict[str, Any]]) -> str | None:
-    """The fixed-delay setting already evaluated whose episodes a resolved latency source would repeat: every call
-    of it takes the same d (a profile's time, or measured calls that all round to one d), and the controller sees
-    only d, so each seed's episode is the same. None where the delays vary or that setting was not swept."""
-    ms = [source.ms] if source.kind in ("fixed", "profile") else source.samples_ms
+    """The fixed-delay setting already evaluated whose episodes a resolved profile or measured latency source would
+    repeat: every call of it takes the same d (a profile's time, or measured calls that all round to one d), and the
+    controller sees only d, so each seed's episode is the same. None where the delays vary or d was not swept."""
+    ms = [source.ms] if source.kind == "profile" else source.samples_ms
     steps = {steps_for(m / 1e3) for m in ms}
     if len(steps) != 1 or (d := steps.pop()) < 1:
         return None
-    name = f"realtime-{execution}-d{d}"
-    return name if name in done else None
+    return delay_setting(execution, d) if delay_setting(execution, d) in done else None
 
 
 def same_episodes(twin: dict[str, Any], twin_name: str, name: str, cfg: EvalConfig, source: LatencySource
