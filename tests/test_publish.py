@@ -20,6 +20,7 @@ from bcbench.policies.checkpoint import configure_runner, latest_checkpoint, loa
 from bcbench.policies.publish import publish, verify
 from bcbench.training.loop import TrainOptions, new_run, train
 from bcbench.utils.io import write_json
+from bcbench.utils.system import cpu_flags
 from tests.tiny import tiny_overrides
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -122,6 +123,14 @@ def test_committed_model_reproduces_its_committed_scores(model_dir):
     the code and the floating-point kernels are the same; a CPU with other vector units (the file records the
     one that computed them) may round the network's sums differently."""
     record = verify(model_dir)
-    torch.set_num_threads(record["scores"]["hardware"].get("torch_threads") or 2)
-    rows = _reproduce(model_dir, record, 3)
-    assert rows and all(abs(then - now) < 1e-9 for _, then, now in rows), rows
+    hw = record["scores"]["hardware"]
+    torch.set_num_threads(hw.get("torch_threads") or 2)
+    if tuple(hw.get("cpu_flags") or ()) == cpu_flags():
+        rows = _reproduce(model_dir, record, 3)
+        assert rows and all(abs(then - now) < 1e-9 for _, then, now in rows), rows
+        return
+    # Other vector units: the chunks differ in the last bits and 300 steps of contact dynamics amplify that
+    # episode by episode, so only the mean over more episodes is comparable (a wrong or untrained model fails it).
+    rows = _reproduce(model_dir, record, 10)
+    then, now = (sum(r[i] for r in rows) / len(rows) for i in (1, 2))
+    assert len(rows) == 10 and abs(then - now) < 0.15, (hw.get("cpu_flags"), cpu_flags(), rows)
