@@ -259,3 +259,36 @@ def test_a_setting_whose_delays_equal_a_fixed_settings_reuses_its_episodes(monke
     out = sweep(make_policy("scripted"), delays=[2], **kw)  # d = 1 not swept: each setting runs its own episodes
     assert ran == ["realtime-sync", "realtime-async-d2", "realtime-async-a100", "realtime-async-measured"]
     assert "episodes_of" not in out["realtime-async-a100"]["realtime"]
+
+
+def test_sweeps_of_several_training_seeds_are_pooled_over_them(tmp_path):
+    """A policy swept once per training seed is one row: each setting's score the mean over the seeds, its delay
+    differences paired within a seed and resampling seeds too (two-level), so a seed that alone looks safe does
+    not hide one that is not; the report says which sweeps are pooled."""
+    from bcbench.analysis.realtime import delay_vs_sync
+    from bcbench.analysis.report import realtime_lines
+    from bcbench.analysis.results import load_realtime
+    from bcbench.stats import two_level_bootstrap
+    from bcbench.utils.io import write_json
+
+    base = np.random.default_rng(1).uniform(0.3, 0.9, 50)
+    losses = {0: 0.0, 1: 0.2}  # async d = 1 costs seed 1 a lot, seed 0 nothing
+    for seed, loss in losses.items():
+        settings = {"realtime-sync": _setting(base + 0.05 * seed),
+                    "realtime-async-d1": _setting(base + 0.05 * seed - loss),
+                    "realtime-async-measured": _setting(base + 0.05 * seed - loss, median_ms=40.0 + 20 * seed)}
+        for r in settings.values():
+            r["policy"] = {"config": {"seed": seed}}
+        write_json(tmp_path / f"runs/bct-s{seed}/realtime-default.json",
+                   {"type": "realtime", "study": {"label": "BCT"}, "settings": settings})
+    pooled = load_realtime(tmp_path)
+    assert list(pooled) == ["BCT"]
+    sync, d1 = pooled["BCT"]["realtime-sync"], pooled["BCT"]["realtime-async-d1"]
+    assert sync["summary"]["mean_score"]["value"] == pytest.approx(base.mean() + 0.025)
+    assert sync["summary"]["training_seeds"] == [0, 1] and sync["summary"]["n"] == 100
+    est, lo, hi, pairs = delay_vs_sync(pooled["BCT"], "realtime-async-d1")
+    expected = two_level_bootstrap([{100_000 + i: -loss for i in range(50)} for loss in losses.values()])
+    assert (est, [lo, hi], pairs) == (pytest.approx(-0.1), pytest.approx(expected["ci95"]), 100)
+    assert lo <= -0.2 + 1e-9 and hi >= -1e-9  # the interval spans both seeds' losses: seed variance is in it
+    assert pooled["BCT"]["realtime-async-measured"]["summary"]["latency_source"]["median_ms"] == 50.0
+    assert "Swept with several training seeds (BCT: 0, 1)" in "\n".join(realtime_lines(pooled, 0.05))

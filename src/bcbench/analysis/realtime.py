@@ -3,20 +3,81 @@ highest control rate at which a policy keeps its sync score. Reads result record
 
 from __future__ import annotations
 
+import collections
 import math
+import statistics
 from typing import Any
 
 from bcbench.protocol import CONTROL_DT_S, delay_setting
-from bcbench.stats import paired_bootstrap
+from bcbench.stats import paired_bootstrap, two_level_bootstrap
 
 
 def seed_scores(r: dict[str, Any]) -> dict[int, float]:
     return {e["seed"]: e["score"] for e in r["episodes"]}
 
 
+def training_seed(r: dict[str, Any]) -> int:
+    """The training seed of the model an evaluation record ran (0 for a baseline, which has none)."""
+    return int(((r.get("policy") or {}).get("config") or {}).get("seed") or 0)
+
+
+def pool_training_seeds(sweeps: list[dict[str, dict[str, Any]]]) -> dict[str, dict[str, Any]]:
+    """One policy's sweeps, one per training seed, as one sweep: each setting every seed ran, its mean score the
+    mean over training seeds with a two-level interval (training seeds and, within each, episodes resampled:
+    `bcbench.stats.two_level_bootstrap`), its per-seed episode scores kept under "by_training_seed" so that
+    `compare` pairs within a training seed. The measured call time is the median of the seeds' medians (the
+    slowest call: the slowest of any), and the delays their calls took are counted over every seed."""
+    if len(sweeps) == 1:
+        return sweeps[0]
+    sweeps = sorted(sweeps, key=lambda s: training_seed(next(iter(s.values()))))
+    out: dict[str, dict[str, Any]] = {}
+    for name in [n for n in sweeps[0] if all(n in s for s in sweeps)]:
+        rs = [s[name] for s in sweeps]
+        by_seed = [seed_scores(r) for r in rs]
+        est = two_level_bootstrap(by_seed)
+        summary = {**rs[0]["summary"], "n": sum(len(r["episodes"]) for r in rs),
+                   "mean_score": {"value": est["value"], "ci95": est["ci95"]},
+                   "training_seeds": [training_seed(r) for r in rs], "per_training_seed": est["per_seed"]}
+        steps: collections.Counter[str] = collections.Counter()
+        for r in rs:
+            steps.update(r["summary"].get("delay_steps") or {})
+        if steps:
+            summary["delay_steps"] = dict(steps)
+        if "median_ms" in (src := rs[0]["summary"].get("latency_source") or {}):
+            calls = [r["summary"]["latency_source"] for r in rs]
+            summary["latency_source"] = {**src, "median_ms": statistics.median(c["median_ms"] for c in calls),
+                                         "max_ms": max(c["max_ms"] for c in calls)}
+        episodes = [{**e, "training_seed": training_seed(r)} for r in rs for e in r["episodes"]]
+        out[name] = {**rs[0], "summary": summary, "episodes": episodes, "by_training_seed": by_seed}
+    return out
+
+
+def compare(a: dict[str, Any], b: dict[str, Any]) -> tuple[float, float, float, int]:
+    """a's score minus b's, paired over the episode seeds they share, with its 95% interval and the number of
+    pairs. Pooled over training seeds (`pool_training_seeds`): paired within each training seed, training seeds
+    resampled as well (two-level), so the interval includes training-seed variance."""
+    if "by_training_seed" in a and "by_training_seed" in b:
+        pooled = two_level_bootstrap(a["by_training_seed"], [b["by_training_seed"]])
+        pairs = sum(len(set(x) & set(y)) for x, y in zip(a["by_training_seed"], b["by_training_seed"], strict=True))
+        return pooled["value"], *pooled["ci95"], pairs
+    return paired_bootstrap(seed_scores(a), [seed_scores(b)])
+
+
+def pooled_sentence(sweeps: dict[str, dict[str, dict[str, Any]]]) -> str:
+    """Which of the policies' sweeps are pooled over training seeds, and what that does to the numbers."""
+    seeds = {label: next(iter(s.values()))["summary"]["training_seeds"] for label, s in sweeps.items()
+             if s and "training_seeds" in next(iter(s.values()))["summary"]}
+    if not seeds:
+        return ""
+    named = "; ".join(f"{label}: {', '.join(map(str, ids))}" for label, ids in seeds.items())
+    return (f"Swept with several training seeds ({named}): each score is the mean over those seeds, and every "
+            "interval and paired difference resamples training seeds and, within each, episodes (differences "
+            "paired within a training seed).")
+
+
 def delay_vs_sync(results: dict[str, dict[str, Any]], setting: str) -> tuple[float, float, float, int]:
     """A setting's score minus sync over shared seeds, with its 95% paired-bootstrap interval and n seeds."""
-    return paired_bootstrap(seed_scores(results[setting]), [seed_scores(results["realtime-sync"])])
+    return compare(results[setting], results["realtime-sync"])
 
 
 def largest_safe_delay(results: dict[str, dict[str, Any]], execution: str, margin: float) -> int | None:

@@ -22,7 +22,7 @@ from bcbench.analysis.fewstep import fewstep_lines, load_paired
 from bcbench.analysis.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
 from bcbench.analysis.findings import DEFAULT_MARGIN, judge, points_from_rows
 from bcbench.analysis.provenance import MIXING_REASON, lead_line, provenance_notes
-from bcbench.analysis.realtime import safe_delay_sentence
+from bcbench.analysis.realtime import pooled_sentence, safe_delay_sentence
 from bcbench.analysis.results import (
     Row,
     file_commits,
@@ -175,7 +175,7 @@ def realtime_lines(realtime: dict[str, dict[str, Any]], margin: float) -> list[s
            "allow a call of up to d x 100 ms. Highest safe control rate, in the mode with the larger safe delay: "
            "the fastest rate at which the policy's measured call "
            "(median; slowest timed call) still takes at most that many steps (d / L), reading the delay curve "
-           "as holding in steps at other rates.", ""]
+           "as holding in steps at other rates. " + pooled_sentence(realtime), ""]
     out += [*realtime_table(realtime), "", "Every setting with its 95% interval, and what the sweep says (a measured "
             "or profile setting whose calls all took the same d repeats that fixed-delay setting and is marked so):",
             ""]
@@ -254,7 +254,8 @@ def convergence_lines(rows: list[Row]) -> list[str]:
             continue
         seen.add(run)
         state = "converged" if r.converged else "**not converged**"
-        out.append(f"- {r.label}: {state}: {r.convergence}; {_train_cell(r)}")
+        seed = f" (training seed {r.train_seed})" if r.train_seed is not None else ""
+        out.append(f"- {r.label}{seed}: {state}: {r.convergence}; {_train_cell(r)}")
     return out or ["- no trained runs"]
 
 

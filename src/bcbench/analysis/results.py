@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from bcbench.analysis.curves import Curve, load_curve, plateau
+from bcbench.analysis.realtime import pool_training_seeds
 from bcbench.errors import BCBenchError
 from bcbench.modes import EXACT_MODES
 from bcbench.utils.io import read_json, read_jsonl
@@ -183,16 +184,17 @@ def realtime_records(results: str | Path) -> list[tuple[Path, dict[str, Any]]]:
 
 
 def load_realtime(results: str | Path) -> dict[str, dict[str, Any]]:
-    """Real-time sweeps of a study (runs/*/realtime-*.json): label -> {setting name: evaluation result}."""
-    out: dict[str, dict[str, Any]] = {}
+    """Real-time sweeps of a study (runs/*/realtime-*.json): label -> {setting name: evaluation result}; a label
+    swept with several training seeds gets one sweep pooled over them (`analysis.realtime.pool_training_seeds`)."""
+    found: dict[str, list[dict[str, Any]]] = {}
     for f, data in realtime_records(results):
         study = data.get("study", {})
         v = study.get("variant") or {}
         label = study.get("label", f.parent.name) + (f" {v['sampler'].upper()}{v['steps']}" if v.get("sampler") else "")
         if study.get("outside_policy"):
             label += f" (outside bcbench: {study['outside_policy']})"
-        out[label] = data["settings"]
-    return out
+        found.setdefault(label, []).append(data["settings"])
+    return {label: pool_training_seeds(sweeps) for label, sweeps in found.items()}
 
 
 def study_time(results: str | Path) -> dict[str, float]:

@@ -13,10 +13,16 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
-from bcbench.analysis.realtime import delay_curve, highest_safe_rate, largest_safe_delay, seed_scores
+from bcbench.analysis.realtime import (
+    compare,
+    delay_curve,
+    highest_safe_rate,
+    largest_safe_delay,
+    pool_training_seeds,
+    pooled_sentence,
+)
 from bcbench.analysis.results import realtime_records
 from bcbench.protocol import delay_setting
-from bcbench.stats import paired_bootstrap
 from bcbench.utils.io import atomic_path
 
 STYLE = {"naive": ("k", "o", "--"), "rtc": ("C3", "s", "-"), "bid": ("C2", "^", "-"), "ensemble": ("C0", "D", "-")}
@@ -25,8 +31,9 @@ TABLE_DELAYS = (0, 1, 2, 4, 6, 8)
 
 def load_strategy_sweeps(results: str | Path) -> dict[str, dict[str, dict[str, Any]]]:
     """{policy label: {strategy: settings}} from every real-time record under `results` (strategy: naive when the
-    record predates strategies); only policies swept with more than one strategy."""
-    out: dict[str, dict[str, dict[str, Any]]] = {}
+    record predates strategies); only policies swept with more than one strategy. Sweeps of several training
+    seeds are pooled over them (`analysis.realtime.pool_training_seeds`)."""
+    found: dict[str, dict[str, list[dict[str, Any]]]] = {}
     for f, data in realtime_records(results):
         study = data.get("study", {})
         variant = study.get("variant") or {}
@@ -34,8 +41,9 @@ def load_strategy_sweeps(results: str | Path) -> dict[str, dict[str, dict[str, A
         base = study.get("label", f.parent.name).removesuffix(f" + {kind}")
         if variant.get("sampler"):
             base += f" {variant['sampler'].upper()}{variant['steps']}"
-        out.setdefault(base, {})[kind] = data["settings"]
-    return {k: v for k, v in out.items() if len(v) > 1 and "naive" in v}
+        found.setdefault(base, {}).setdefault(kind, []).append(data["settings"])
+    return {k: {kind: pool_training_seeds(s) for kind, s in v.items()} for k, v in found.items()
+            if len(v) > 1 and "naive" in v}
 
 
 def setting_name(execution: str, d: int) -> str:
@@ -45,7 +53,7 @@ def setting_name(execution: str, d: int) -> str:
 def versus_naive(sweeps: dict[str, dict[str, Any]], kind: str, name: str) -> tuple[float, float, float, int] | None:
     """A strategy's score minus naive's in the same setting, paired over shared episode seeds, 95% interval."""
     a, b = sweeps[kind].get(name), sweeps["naive"].get(name)
-    return paired_bootstrap(seed_scores(a), [seed_scores(b)]) if a and b else None
+    return compare(a, b) if a and b else None
 
 
 def measured_ms(settings: dict[str, Any], execution: str = "async") -> float | None:
@@ -127,5 +135,6 @@ def strategy_lines(by_policy: dict[str, dict[str, dict[str, Any]]], margin: floa
             "Async execution at delay d (d = 0: sync, every strategy included), 95% intervals; under each score "
             "the strategy's difference to naive async in the same setting, paired over episode seeds. "
             f"'Keeps sync up to': the largest d (and, at the strategy's measured call time, the highest control "
-            f"rate) whose score stays within {margin} of the policy's plain sync score (paired).", "",
-            *strategy_table(by_policy, margin), ""]
+            f"rate) whose score stays within {margin} of the policy's plain sync score (paired). "
+            + pooled_sentence({f"{label} {kind}": s for label, sw in by_policy.items() for kind, s in sw.items()}),
+            "", *strategy_table(by_policy, margin), ""]
