@@ -285,6 +285,7 @@ def test_sweeps_of_several_training_seeds_are_pooled_over_them(tmp_path):
     assert list(pooled) == ["BCT"]
     sync, d1 = pooled["BCT"]["realtime-sync"], pooled["BCT"]["realtime-async-d1"]
     assert sync["summary"]["mean_score"]["value"] == pytest.approx(base.mean() + 0.025)
+    assert d1["summary"]["mean_score"]["value"] == pytest.approx(base.mean() + 0.025 - 0.1)
     assert sync["summary"]["training_seeds"] == [0, 1] and sync["summary"]["n"] == 100
     est, lo, hi, pairs = delay_vs_sync(pooled["BCT"], "realtime-async-d1")
     expected = two_level_bootstrap([{100_000 + i: -loss for i in range(50)} for loss in losses.values()])

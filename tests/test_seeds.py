@@ -139,3 +139,18 @@ def test_report_reads_the_checks_from_validation_files(tmp_path):
     assert "- BCT: twice the steps minus the run +0.000 [+0.000, +0.000] over 60 episodes: **converged**" in md
     table = md.split("## Results")[1].split("## Training")[0]
     assert "BCT 2x" not in table and "| BCT |" in table  # the check is not a setting of the table
+
+
+def test_convergence_lines_name_the_training_seed_only_where_a_label_has_several(tmp_path):
+    import dataclasses
+
+    from bcbench.analysis.report import convergence_lines
+
+    _study(tmp_path, {"ResNet-50": [0.55, 0.60, 0.65], "BCT": [0.40], "CNN-MLP": [0.2, 0.2]})
+    rows = [dataclasses.replace(r, converged=True, convergence="flat") if r.train_seed is not None else r
+            for r in load_rows(tmp_path)]
+    lines = convergence_lines(rows)
+    assert len(lines) == 6  # one per trained run; the baseline has none
+    assert sum(line.startswith("- ResNet-50 (training seed ") for line in lines) == 3
+    assert sum(line.startswith("- CNN-MLP (training seed ") for line in lines) == 2
+    assert any(line.startswith("- BCT: converged") for line in lines)  # its only seed: not named

@@ -175,7 +175,7 @@ def realtime_lines(realtime: dict[str, dict[str, Any]], margin: float) -> list[s
            "allow a call of up to d x 100 ms. Highest safe control rate, in the mode with the larger safe delay: "
            "the fastest rate at which the policy's measured call "
            "(median; slowest timed call) still takes at most that many steps (d / L), reading the delay curve "
-           "as holding in steps at other rates. " + pooled_sentence(realtime), ""]
+           "as holding in steps at other rates." + (" " + pooled if (pooled := pooled_sentence(realtime)) else ""), ""]
     out += [*realtime_table(realtime), "", "Every setting with its 95% interval, and what the sweep says (a measured "
             "or profile setting whose calls all took the same d repeats that fixed-delay setting and is marked so):",
             ""]
@@ -246,7 +246,12 @@ def check_lines(checks: list[Check], strict: bool, margin: float, validation: bo
 
 
 def convergence_lines(rows: list[Row]) -> list[str]:
-    """One line per trained run: whether its learning curve reached its plateau, and why."""
+    """One line per trained run: whether its learning curve reached its plateau, and why. A label trained with
+    several seeds names each line's training seed (one seed per label needs no name)."""
+    seeds: dict[str, set[int]] = {}
+    for r in rows:
+        if r.train_seed is not None:
+            seeds.setdefault(r.label, set()).add(r.train_seed)
     seen, out = set(), []
     for r in rows:
         run = r.key.split(":")[0]
@@ -254,7 +259,7 @@ def convergence_lines(rows: list[Row]) -> list[str]:
             continue
         seen.add(run)
         state = "converged" if r.converged else "**not converged**"
-        seed = f" (training seed {r.train_seed})" if r.train_seed is not None else ""
+        seed = f" (training seed {r.train_seed})" if len(seeds.get(r.label, ())) > 1 else ""
         out.append(f"- {r.label}{seed}: {state}: {r.convergence}; {_train_cell(r)}")
     return out or ["- no trained runs"]
 

@@ -132,9 +132,10 @@ def strategy_lines(by_policy: dict[str, dict[str, dict[str, Any]]], margin: floa
     if not by_policy:
         return []
     return ["## Execution strategies under latency", "",
-            "Async execution at delay d (d = 0: sync, every strategy included), 95% intervals; under each score "
+            ("Async execution at delay d (d = 0: sync, every strategy included), 95% intervals; under each score "
             "the strategy's difference to naive async in the same setting, paired over episode seeds. "
             f"'Keeps sync up to': the largest d (and, at the strategy's measured call time, the highest control "
             f"rate) whose score stays within {margin} of the policy's plain sync score (paired). "
-            + pooled_sentence({f"{label} {kind}": s for label, sw in by_policy.items() for kind, s in sw.items()}),
+            + pooled_sentence({f"{label} {kind}": s for label, sw in by_policy.items() for kind, s in sw.items()})
+            ).rstrip(),
             "", *strategy_table(by_policy, margin), ""]
