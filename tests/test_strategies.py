@@ -250,6 +250,26 @@ def test_a_strategys_extra_compute_is_in_the_measured_latency():
     assert measured(StrategyConfig("rtc")) == pytest.approx(90.0, abs=1.0)
 
 
+def test_backend_auto_keeps_a_sweep_with_rtc_in_torch_and_says_why():
+    """--measured defaults to --backend auto, whose fastest mode may be an exported graph that cannot take RTC's
+    vector-Jacobian product: a sweep with rtc chooses among the torch modes only, and the record says why."""
+    from bcbench.cli.parser import build_parser
+    from bcbench.cli.policies import _needs_torch
+    from bcbench.evaluation.backends import apply_mode
+
+    parse = build_parser().parse_args
+    why = _needs_torch(parse(["realtime", "--checkpoint", "r", "--measured", "--strategy", "naive", "rtc"]))
+    assert "rtc" in why and "autograd" in why
+    assert _needs_torch(parse(["realtime", "--checkpoint", "r", "--measured", "--strategy", "naive", "bid"])) == ""
+    assert _needs_torch(parse(["eval", "--checkpoint", "r", "--strategy", "rtc"]))
+    runner = _runner("flow")
+    apply_mode(runner, "auto", torch_only=why)
+    trial = runner.info.deployment["auto"]
+    assert runner.info.mode == trial["chosen"] == "fast" and set(trial["median_ms"]) == {"fast"}
+    assert why in trial["why"]
+    Strategy(StrategyConfig("rtc"), runner)  # and RTC runs in the mode chosen
+
+
 def test_strategies_that_cannot_run_say_why_in_one_line():
     with pytest.raises(BCBenchError, match="bct does not sample its chunk"):
         Strategy(StrategyConfig("rtc"), _runner("bct"))

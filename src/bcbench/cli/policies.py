@@ -21,6 +21,15 @@ def backend(args: argparse.Namespace) -> str:
     return "auto" if measured and args.precision == "fp32" and not args.reference else "torch"
 
 
+def _needs_torch(args: argparse.Namespace) -> str:
+    """Why `auto` must stay in torch (one line), or "": Real-Time Chunking's guidance takes a vector-Jacobian
+    product through the network, which an exported graph does not compute, and a sweep runs every strategy in one
+    mode, so a sweep with rtc times every strategy in torch's fast form."""
+    kinds = getattr(args, "strategy", None) or []
+    kinds = [kinds] if isinstance(kinds, str) else kinds
+    return "the sweep includes rtc, whose guidance needs autograd: torch only" if "rtc" in kinds else ""
+
+
 def load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
     """The policy to evaluate and the default output folder."""
     from bcbench.policies import REGISTRY, is_learned, make_policy
@@ -35,7 +44,7 @@ def load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
         runner = load_runner(args.checkpoint, use_ema=not args.no_ema, device=args.device)
         tag = configure_runner(runner, args.sampler, args.steps, args.seed, args.spacing)
         mode = mode_name(backend(args), args.precision, args.reference)
-        apply_mode(runner, mode)
+        apply_mode(runner, mode, torch_only=_needs_torch(args))
         tag += "" if mode == "fast" else f"{mode}-"
         return runner, Path(args.checkpoint) / f"eval-{tag}{args.episodes}ep-{stamp}"
     if not args.policy:

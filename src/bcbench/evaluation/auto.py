@@ -62,7 +62,7 @@ def _restore(runner: PolicyRunner, state: tuple[Any, ...]) -> None:
         m.split_film = split
 
 
-def _cache_key(runner: PolicyRunner) -> str:
+def _cache_key(runner: PolicyRunner, candidates: tuple[str, ...] = CANDIDATES) -> str:
     info = runner.info
     ckpt = (Path(info.run_dir) / "checkpoints" / info.checkpoint) if info.run_dir and info.checkpoint else None
     stat = ""
@@ -70,27 +70,34 @@ def _cache_key(runner: PolicyRunner) -> str:
         f = weights_file(ckpt, info.weights)
         stat = f"{f}:{f.stat().st_size}:{f.stat().st_mtime_ns}" if f.exists() else str(f)
     blob = json.dumps([stat, runner.name, info.sampler, info.steps, info.spacing, cpu_model(), cpu_flags(),
-                       torch.get_num_threads(), versions(), CANDIDATES], sort_keys=True, default=str)
+                       torch.get_num_threads(), versions(), candidates], sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
 
-def choose_mode(runner: PolicyRunner, apply: Callable[[PolicyRunner, str], None]) -> dict[str, Any]:
+def choose_mode(runner: PolicyRunner, apply: Callable[[PolicyRunner, str], None],
+                candidates: tuple[str, ...] = CANDIDATES, restriction: str = "") -> dict[str, Any]:
     """The fastest exact mode for this runner here (cached per checkpoint, sampler and machine): a record with the
-    chosen mode, every candidate's median ms and why. `apply(runner, mode)` switches the runner's mode."""
+    chosen mode, every candidate's median ms and why. `apply(runner, mode)` switches the runner's mode.
+    `candidates`: the exact modes the caller can use (a sweep with Real-Time Chunking needs autograd: torch only),
+    `restriction` says why they are fewer than all."""
+    unknown = set(candidates) - set(CANDIDATES)
+    if not candidates or unknown:
+        raise ValueError(f"auto chooses among {CANDIDATES}, not {sorted(unknown) or 'nothing'}")
     cache = None
     if runner.info.run_dir:
-        cache = Path(runner.info.run_dir) / "export" / f"auto-{_cache_key(runner)}.json"
+        cache = Path(runner.info.run_dir) / "export" / f"auto-{_cache_key(runner, candidates)}.json"
         if cache.exists():
             return {**read_json(cache), "cached": True}
     obs = example_observation(1, runner.obs_horizon)
     prepared = {}
-    for m in CANDIDATES:  # export and compile each mode once; the rounds then only switch between them
+    for m in candidates:  # export and compile each mode once; the rounds then only switch between them
         apply(runner, m)
         prepared[m] = _state(runner)
-    chosen, medians = pick_fastest({m: (lambda m=m: _restore(runner, prepared[m])) for m in CANDIDATES},
+    chosen, medians = pick_fastest({m: (lambda m=m: _restore(runner, prepared[m])) for m in candidates},
                                    lambda: runner.predict_action_chunk(obs))
+    why = f"lowest median of {ROUNDS} interleaved rounds x {CALLS} calls at batch 1 among the exact modes"
     record = {"chosen": chosen, "median_ms": medians, "rounds": ROUNDS, "calls_per_round": CALLS, "batch": 1,
-              "why": f"lowest median of {ROUNDS} interleaved rounds x {CALLS} calls at batch 1 among the exact modes",
+              "why": why + (f" {', '.join(candidates)} ({restriction})" if restriction else ""),
               "cpu_model": cpu_model(), "cpu_flags": list(cpu_flags()), "threads": torch.get_num_threads()}
     if cache is not None:
         write_json(cache, record)

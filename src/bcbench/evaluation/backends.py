@@ -218,11 +218,13 @@ def _export_dir(runner: PolicyRunner, mode: str) -> Path | None:
     return Path(info.run_dir) / "export" / f"{prefix}-{'int8' if precision == 'int8' else 'float'}-{key}"
 
 
-def apply_mode(runner: PolicyRunner, mode: str) -> None:
+def apply_mode(runner: PolicyRunner, mode: str, torch_only: str = "") -> None:
     """Put a PolicyRunner's policy in `mode`; a trained run's exports are cached under RUN_DIR/export/. `auto`:
-    the fastest exact mode for this checkpoint on this machine (bcbench.evaluation.auto), recorded as chosen."""
+    the fastest exact mode for this checkpoint on this machine (bcbench.evaluation.auto), recorded as chosen;
+    `torch_only` (why, e.g. a strategy that needs autograd) restricts it to torch's fast form."""
     if mode == AUTO:
-        trial = choose_mode(runner, apply_mode)
+        trial = (choose_mode(runner, apply_mode, ("fast",), torch_only) if torch_only
+                 else choose_mode(runner, apply_mode))
         apply_mode(runner, trial["chosen"])
         runner.info.deployment = {**(runner.info.deployment or {}), "auto": trial}
         return

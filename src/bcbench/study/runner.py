@@ -109,14 +109,14 @@ class StudyRunner:
         if summary["stopped"] not in DONE_TRAINING:
             raise KeyboardInterrupt  # Ctrl-C during training: the checkpoint is saved; stop the study here
 
-    def _policy(self, run: RunSpec, variant: Variant) -> ChunkPolicy:
+    def _policy(self, run: RunSpec, variant: Variant, torch_only: str = "") -> ChunkPolicy:
         if run.outside:
             return outside_policy(run.policy, run.args)
         if not run.learned:
             return make_policy(run.policy, run.config, seed=run.seed)
         runner = load_runner(self.run_dir(run), use_ema=True, device=self.device)
         configure_runner(runner, variant.sampler, variant.steps, run.seed, variant.spacing)
-        apply_mode(runner, mode_name(self.spec.backend, self.spec.precision))
+        apply_mode(runner, mode_name(self.spec.backend, self.spec.precision), torch_only=torch_only)
         return runner
 
     def _eval(self, run: RunSpec, variant: Variant, check: bool = False) -> dict[str, Any]:
@@ -149,7 +149,9 @@ class StudyRunner:
         rt = self.spec.realtime or {}
         partial = self.partial_file(run, variant)
         kind = variant.strategy or "naive"
-        settings = sweep(self._policy(run, variant), rt["delays"], rt["executions"], self.spec.episodes,
+        # RTC's guidance needs autograd: under backend auto its sweep runs in torch's fast form
+        guided = "rtc's guidance needs autograd: torch only" if kind == "rtc" else ""
+        settings = sweep(self._policy(run, variant, guided), rt["delays"], rt["executions"], self.spec.episodes,
                          rt["profiles"], rt["measured"], self.progress, self.spec.max_steps, self.spec.seed_start,
                          skip_missing_profiles=True,  # e.g. the study gives no A100 time for BeT
                          done=read_json(partial) if partial.exists() else None,
