@@ -22,12 +22,12 @@ def backend(args: argparse.Namespace) -> str:
 
 
 def _needs_torch(args: argparse.Namespace) -> str:
-    """Why `auto` must stay in torch (one line), or "": Real-Time Chunking's guidance takes a vector-Jacobian
-    product through the network, which an exported graph does not compute, and a sweep runs every strategy in one
-    mode, so a sweep with rtc times every strategy in torch's fast form."""
+    """Why `auto` must stay in torch, or "": a sweep runs every strategy in one mode, so a sweep with rtc (whose
+    guidance an exported graph cannot compute) times every strategy in torch's fast form."""
+    from bcbench.evaluation.config import torch_only
+
     kinds = getattr(args, "strategy", None) or []
-    kinds = [kinds] if isinstance(kinds, str) else kinds
-    return "the sweep includes rtc, whose guidance needs autograd: torch only" if "rtc" in kinds else ""
+    return torch_only([kinds] if isinstance(kinds, str) else kinds)
 
 
 def load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:

@@ -12,6 +12,12 @@ STRATEGIES = ("naive", "rtc", "bid", "ensemble")  # what is done with chunks acr
 PROFILES = ("a100",)  # hardware latency profiles (bcbench.evaluation.latency_sources holds their times)
 
 
+def torch_only(strategies: list[str] | tuple[str, ...]) -> str:
+    """Why these strategies must run in a torch mode (one line), or "": Real-Time Chunking's guidance takes a
+    vector-Jacobian product through the network, which an exported graph does not compute."""
+    return "rtc's guidance needs autograd: torch only" if "rtc" in strategies else ""
+
+
 def check_latency_options(latency: str | None, latency_ms: float | None) -> None:
     """One line for a bad --latency / --latency-ms pair (what LatencySource.parse accepts)."""
     if latency_ms is not None and latency is not None:

@@ -26,7 +26,7 @@ import torch
 from tqdm import tqdm
 
 from bcbench.evaluation.backends import apply_mode
-from bcbench.evaluation.config import StrategyConfig
+from bcbench.evaluation.config import StrategyConfig, torch_only
 from bcbench.evaluation.evaluate import EvalConfig, evaluate
 from bcbench.evaluation.realtime import realtime_record, sweep
 from bcbench.evaluation.timing import TimingConfig, latency_record
@@ -149,9 +149,8 @@ class StudyRunner:
         rt = self.spec.realtime or {}
         partial = self.partial_file(run, variant)
         kind = variant.strategy or "naive"
-        # RTC's guidance needs autograd: under backend auto its sweep runs in torch's fast form
-        guided = "rtc's guidance needs autograd: torch only" if kind == "rtc" else ""
-        settings = sweep(self._policy(run, variant, guided), rt["delays"], rt["executions"], self.spec.episodes,
+        policy = self._policy(run, variant, torch_only([kind]))  # under backend auto, rtc stays in torch
+        settings = sweep(policy, rt["delays"], rt["executions"], self.spec.episodes,
                          rt["profiles"], rt["measured"], self.progress, self.spec.max_steps, self.spec.seed_start,
                          skip_missing_profiles=True,  # e.g. the study gives no A100 time for BeT
                          done=read_json(partial) if partial.exists() else None,
