@@ -17,13 +17,16 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Any
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 import numpy as np
 
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.config import StrategyConfig
 from bcbench.interface import CandidatePolicy, ChunkPolicy, GuidedPolicy, Observation, SelfTimedPolicy
+
+T = TypeVar("T")
 
 
 def prefix_weights(pred_horizon: int, frozen_end: int, cover_end: int) -> np.ndarray:
@@ -121,7 +124,7 @@ class Strategy:
             out["decay"] = self.cfg.ensemble_decay
         return out
 
-    def _timed(self, policy: ChunkPolicy, call: Any) -> Any:
+    def _timed(self, policy: ChunkPolicy, call: Callable[[], T]) -> T:
         """Run one policy call; add its compute time (the policy's own report when it times itself)."""
         t = time.perf_counter()
         out = call()
