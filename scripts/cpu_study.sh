@@ -7,7 +7,9 @@
 # The study runs at ONE commit from start to end: the first start pins the current (clean) HEAD and runs
 # from its own clone of it ($BCBENCH_HOME/src-<commit>), so the work tree can move on while it runs for
 # hours and every result it writes carries the same commit. Starting afresh at a newer commit means
-# deleting $BCBENCH_HOME/cpu and $BCBENCH_HOME/cpu.commit.
+# deleting $BCBENCH_HOME/cpu and $BCBENCH_HOME/cpu.commit. On a machine without the folder (a new session's machine
+# starts with an empty cache) a study with a committed export results/NAME goes on from it, at its commit
+# (bcbench.study.restore); only the stages that need a restored run's checkpoint (timing, real time) cannot.
 # Stop it before timing anything else on the machine: timings taken beside it mean nothing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -24,6 +26,11 @@ case "${1:-start}" in
     if pgrep -f "$PATTERN" >/dev/null; then echo "already running (log: $LOG)"; exit 0; fi
     make -s install
     mkdir -p "$BCBENCH_HOME"
+    # A new machine (empty cache) goes on from the committed export, at the commit its files were written at.
+    if [ ! -d "$OUT" ] && [ -f "results/$NAME/index.jsonl" ]; then
+      .venv/bin/python -m bcbench.study.restore "results/$NAME" "$OUT" > "$PIN.tmp" && mv "$PIN.tmp" "$PIN"
+      echo "restored $OUT from results/$NAME (its finished stages are skipped), pinned at $(cut -c1-12 "$PIN")"
+    fi
     if [ ! -f "$PIN" ]; then
       if [ -n "$(git status --porcelain --untracked-files=no)" ]; then
         echo "error: the work tree has uncommitted changes; commit them first (the study pins a commit)" >&2; exit 2

@@ -157,6 +157,36 @@ def test_study_killed_then_rerun_resumes_without_redoing(synthetic_zarr, tmp_pat
     assert f"({learned[0]['modes']['fast']['x_floor']:.1f}x)" in text
     assert main(cmd) == 0
     assert "0 stage(s) run" in capsys.readouterr().out
+    # a new machine (no run folder) goes on from the committed export: every finished stage is skipped
+    from bcbench.study.restore import restore
+
+    assert main(["report", str(out), "--export", str(tmp_path / "export")]) == 0
+    restored = tmp_path / "restored"
+    assert restore(tmp_path / "export", restored) == json.loads((out / index[0]["file"]).read_text())["git_commit"]
+    assert not (restored / "report").exists() and not list(restored.rglob("*.safetensors"))
+    assert main([*cmd[:3], str(restored), *cmd[4:]]) == 0
+    assert "0 stage(s) run" in capsys.readouterr().out
+
+
+def test_restore_refuses_an_existing_folder_and_mixed_commits(tmp_path):
+    from bcbench.study.restore import restore
+    from bcbench.utils.io import write_json
+
+    export = tmp_path / "export"
+    write_json(export / "spec.json", {})
+    (export / "index.jsonl").write_text("")
+    write_json(export / "runs" / "a" / "eval-default.json", {"git_commit": "c1"})
+    write_json(export / "runs" / "b" / "eval-default.json", {"git_commit": "c2"})
+    with pytest.raises(BCBenchError, match="carry 2 commits"):
+        restore(export, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+    write_json(export / "runs" / "b" / "eval-default.json", {"git_commit": "c1"})
+    (tmp_path / "taken").mkdir()
+    with pytest.raises(BCBenchError, match="exists"):
+        restore(export, tmp_path / "taken")
+    with pytest.raises(BCBenchError, match="not an exported study"):
+        restore(tmp_path / "taken", tmp_path / "out")
+    assert restore(export, tmp_path / "out") == "c1" and (tmp_path / "out" / "runs" / "b").exists()
 
 
 def test_report_from_fixture_files(tmp_path):
