@@ -39,6 +39,10 @@ def check_purpose(purpose: str | None, seed_start: int, episodes: int) -> str | 
 CONTROL_DT_S = 0.1  # Push-T's control period (10 Hz): a delay d is counted in these steps
 
 
+SYNC_SETTING = "realtime-sync"  # a real-time sweep's d = 0 reference, shared by every execution mode
+
+
 def delay_setting(execution: str, d: int) -> str:
-    """A real-time sweep's fixed-delay setting as its records name it: realtime-EXECUTION-dD (d >= 1)."""
-    return f"realtime-{execution}-d{d}"
+    """A real-time sweep's setting at fixed delay d as its records name it: realtime-EXECUTION-dD, and the sync
+    reference for d = 0 (no delay leaves nothing for the execution mode to do)."""
+    return SYNC_SETTING if d == 0 else f"realtime-{execution}-d{d}"

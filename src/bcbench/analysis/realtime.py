@@ -8,7 +8,7 @@ import math
 import statistics
 from typing import Any
 
-from bcbench.protocol import CONTROL_DT_S, delay_setting
+from bcbench.protocol import CONTROL_DT_S, SYNC_SETTING, delay_setting
 from bcbench.stats import paired_bootstrap, two_level_bootstrap
 
 
@@ -77,13 +77,13 @@ def pooled_sentence(sweeps: dict[str, dict[str, dict[str, Any]]]) -> str:
 
 def delay_vs_sync(results: dict[str, dict[str, Any]], setting: str) -> tuple[float, float, float, int]:
     """A setting's score minus sync over shared seeds, with its 95% paired-bootstrap interval and n seeds."""
-    return compare(results[setting], results["realtime-sync"])
+    return compare(results[setting], results[SYNC_SETTING])
 
 
 def largest_safe_delay(results: dict[str, dict[str, Any]], execution: str, margin: float) -> int | None:
     """The largest d whose score stays within the margin of sync (paired: the interval of d minus sync lies
     above -margin) for every delay up to it; None without a sync result."""
-    if "realtime-sync" not in results:
+    if SYNC_SETTING not in results:
         return None
     safe = 0
     delays = sorted(int(k.rsplit("-d", 1)[1]) for k in results if k.startswith(f"realtime-{execution}-d"))
@@ -96,7 +96,7 @@ def largest_safe_delay(results: dict[str, dict[str, Any]], execution: str, margi
 
 def delay_curve(results: dict[str, dict[str, Any]], execution: str) -> list[tuple[int, dict[str, Any]]]:
     """(d, mean-score estimate) of one execution mode, with sync as d = 0."""
-    pts = [(0, results["realtime-sync"]["summary"]["mean_score"])] if "realtime-sync" in results else []
+    pts = [(0, results[SYNC_SETTING]["summary"]["mean_score"])] if SYNC_SETTING in results else []
     prefix = f"realtime-{execution}-d"
     pts += sorted((int(k[len(prefix):]), r["summary"]["mean_score"]) for k, r in results.items()
                   if k.startswith(prefix))
@@ -119,7 +119,7 @@ def highest_safe_rate(safe_d: int | None, latency_ms: float) -> float | None:
 def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float) -> str:
     """One policy's largest safe delay per execution mode and, from the better mode's measured setting, its
     highest safe control rate; where no delay is shown safe, the d = 1 differences that say why."""
-    if "realtime-sync" not in settings:
+    if SYNC_SETTING not in settings:
         return ""
     safe = {e: largest_safe_delay(settings, e, margin) for e in ("async", "blocking")
             if any(k.startswith(f"realtime-{e}-d") for k in settings)}

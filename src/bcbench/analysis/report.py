@@ -169,13 +169,14 @@ def realtime_lines(realtime: dict[str, dict[str, Any]], margin: float) -> list[s
     """Per swept policy: sync, each delay, measured and profile scores, the largest safe delay and rate."""
     if not realtime:
         return []
+    intro = (f"Largest safe delay, per execution mode: the largest d up to which every score stays within the margin "
+             f"({margin}) of the sync score (paired interval of the difference above -margin); at 10 Hz, d steps "
+             "allow a call of up to d x 100 ms. Highest safe control rate, in the mode with the larger safe delay: "
+             "the fastest rate at which the policy's measured call "
+             "(median; slowest timed call) still takes at most that many steps (d / L), reading the delay curve "
+             "as holding in steps at other rates.")
     out = ["## Under real-time execution (10 Hz control)", "",
-           f"Largest safe delay, per execution mode: the largest d up to which every score stays within the margin "
-           f"({margin}) of the sync score (paired interval of the difference above -margin); at 10 Hz, d steps "
-           "allow a call of up to d x 100 ms. Highest safe control rate, in the mode with the larger safe delay: "
-           "the fastest rate at which the policy's measured call "
-           "(median; slowest timed call) still takes at most that many steps (d / L), reading the delay curve "
-           "as holding in steps at other rates." + (" " + pooled if (pooled := pooled_sentence(realtime)) else ""), ""]
+           " ".join(filter(None, [intro, pooled_sentence(realtime)])), ""]
     out += [*realtime_table(realtime), "", "Every setting with its 95% interval, and what the sweep says (a measured "
             "or profile setting whose calls all took the same d repeats that fixed-delay setting and is marked so):",
             ""]

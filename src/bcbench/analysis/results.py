@@ -183,17 +183,23 @@ def realtime_records(results: str | Path) -> list[tuple[Path, dict[str, Any]]]:
     return [(f, data) for f, data in found if data.get("type") == "realtime"]
 
 
+def sweep_label(f: Path, data: dict[str, Any]) -> str:
+    """A real-time record's label: its study label (a strategy's sweep in a study ends in ' + STRATEGY'), the
+    sampler and steps it ran, and an outside policy's name."""
+    study = data.get("study", {})
+    v = study.get("variant") or {}
+    label = study.get("label", f.parent.name) + (f" {v['sampler'].upper()}{v['steps']}" if v.get("sampler") else "")
+    if study.get("outside_policy"):
+        label += f" (outside bcbench: {study['outside_policy']})"
+    return label
+
+
 def load_realtime(results: str | Path) -> dict[str, dict[str, Any]]:
     """Real-time sweeps of a study (runs/*/realtime-*.json): label -> {setting name: evaluation result}; a label
     swept with several training seeds gets one sweep pooled over them (`analysis.realtime.pool_training_seeds`)."""
     found: dict[str, list[dict[str, Any]]] = {}
     for f, data in realtime_records(results):
-        study = data.get("study", {})
-        v = study.get("variant") or {}
-        label = study.get("label", f.parent.name) + (f" {v['sampler'].upper()}{v['steps']}" if v.get("sampler") else "")
-        if study.get("outside_policy"):
-            label += f" (outside bcbench: {study['outside_policy']})"
-        found.setdefault(label, []).append(data["settings"])
+        found.setdefault(sweep_label(f, data), []).append(data["settings"])
     return {label: pool_training_seeds(sweeps) for label, sweeps in found.items()}
 
 

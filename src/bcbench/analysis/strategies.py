@@ -21,8 +21,8 @@ from bcbench.analysis.realtime import (
     pool_training_seeds,
     pooled_sentence,
 )
-from bcbench.analysis.results import realtime_records
-from bcbench.protocol import delay_setting
+from bcbench.analysis.results import realtime_records, sweep_label
+from bcbench.protocol import SYNC_SETTING, delay_setting
 from bcbench.utils.io import atomic_path
 
 STYLE = {"naive": ("k", "o", "--"), "rtc": ("C3", "s", "-"), "bid": ("C2", "^", "-"), "ensemble": ("C0", "D", "-")}
@@ -35,19 +35,11 @@ def load_strategy_sweeps(results: str | Path) -> dict[str, dict[str, dict[str, A
     seeds are pooled over them (`analysis.realtime.pool_training_seeds`)."""
     found: dict[str, dict[str, list[dict[str, Any]]]] = {}
     for f, data in realtime_records(results):
-        study = data.get("study", {})
-        variant = study.get("variant") or {}
-        kind = variant.get("strategy") or "naive"
-        base = study.get("label", f.parent.name).removesuffix(f" + {kind}")
-        if variant.get("sampler"):
-            base += f" {variant['sampler'].upper()}{variant['steps']}"
+        kind = (data.get("study", {}).get("variant") or {}).get("strategy") or "naive"
+        base = sweep_label(f, data).replace(f" + {kind}", "", 1)  # one policy, whichever strategy it ran
         found.setdefault(base, {}).setdefault(kind, []).append(data["settings"])
     return {k: {kind: pool_training_seeds(s) for kind, s in v.items()} for k, v in found.items()
             if len(v) > 1 and "naive" in v}
-
-
-def setting_name(execution: str, d: int) -> str:
-    return "realtime-sync" if d == 0 else delay_setting(execution, d)
 
 
 def versus_naive(sweeps: dict[str, dict[str, Any]], kind: str, name: str) -> tuple[float, float, float, int] | None:
@@ -66,7 +58,7 @@ def keeps_sync_rate(sweeps: dict[str, dict[str, Any]], kind: str, margin: float,
                     ) -> tuple[int | None, float | None]:
     """(largest safe d, highest control rate in Hz) at which the strategy stays within the margin of the policy's
     plain sync score (naive's d = 0), given its own measured latency."""
-    settings = {**sweeps[kind], "realtime-sync": sweeps["naive"]["realtime-sync"]}
+    settings = {**sweeps[kind], SYNC_SETTING: sweeps["naive"][SYNC_SETTING]}
     safe = largest_safe_delay(settings, execution, margin)
     ms = measured_ms(sweeps[kind], execution)
     return safe, (highest_safe_rate(safe, ms) if ms else None)
@@ -82,13 +74,13 @@ def strategy_table(by_policy: dict[str, dict[str, dict[str, Any]]], margin: floa
         for kind in sorted(sweeps, key=lambda k: (k != "naive", k)):
             cells = []
             for d in TABLE_DELAYS:
-                r = sweeps[kind].get(setting_name(execution, d))
+                r = sweeps[kind].get(delay_setting(execution, d))
                 if r is None:
                     cells.append("")
                     continue
                 e = r["summary"]["mean_score"]
                 cell = f"{e['value']:.3f} [{e['ci95'][0]:.2f}, {e['ci95'][1]:.2f}]"
-                vs = versus_naive(sweeps, kind, setting_name(execution, d)) if kind != "naive" else None
+                vs = versus_naive(sweeps, kind, delay_setting(execution, d)) if kind != "naive" else None
                 cells.append(cell + (f"<br>{vs[0]:+.3f} [{vs[1]:+.2f}, {vs[2]:+.2f}]" if vs else ""))
             ms = measured_ms(sweeps[kind], execution)
             safe, rate = keeps_sync_rate(sweeps, kind, margin, execution)
@@ -132,10 +124,10 @@ def strategy_lines(by_policy: dict[str, dict[str, dict[str, Any]]], margin: floa
     if not by_policy:
         return []
     return ["## Execution strategies under latency", "",
-            ("Async execution at delay d (d = 0: sync, every strategy included), 95% intervals; under each score "
-            "the strategy's difference to naive async in the same setting, paired over episode seeds. "
-            f"'Keeps sync up to': the largest d (and, at the strategy's measured call time, the highest control "
-            f"rate) whose score stays within {margin} of the policy's plain sync score (paired). "
-            + pooled_sentence({f"{label} {kind}": s for label, sw in by_policy.items() for kind, s in sw.items()})
-            ).rstrip(),
+            " ".join(filter(None, [
+                "Async execution at delay d (d = 0: sync, every strategy included), 95% intervals; under each score "
+                "the strategy's difference to naive async in the same setting, paired over episode seeds. "
+                f"'Keeps sync up to': the largest d (and, at the strategy's measured call time, the highest control "
+                f"rate) whose score stays within {margin} of the policy's plain sync score (paired).",
+                pooled_sentence({f"{label} {kind}": s for label, sw in by_policy.items() for kind, s in sw.items()})])),
             "", *strategy_table(by_policy, margin), ""]

@@ -15,7 +15,7 @@ from bcbench.evaluation.evaluate import EvalConfig, evaluate
 from bcbench.evaluation.latency_sources import LatencySource, profile_ms, sampler_steps, steps_for
 from bcbench.evaluation.strategies import Strategy
 from bcbench.interface import ChunkPolicy
-from bcbench.protocol import CONTROL_DT_S, delay_setting
+from bcbench.protocol import CONTROL_DT_S, SYNC_SETTING, delay_setting
 from bcbench.utils.system import provenance
 
 
@@ -25,7 +25,7 @@ def sweep_settings(delays: list[int], executions: list[str], profiles: list[str]
     bad = [d for d in delays if d < 0]
     if bad:
         raise BCBenchError(f"delays must be >= 0, got {bad[0]}")
-    settings: list[tuple[str, str, dict[str, Any]]] = [("realtime-sync", "sync", {})]
+    settings: list[tuple[str, str, dict[str, Any]]] = [(SYNC_SETTING, "sync", {})]
     settings += [(delay_setting(e, d), e, {"latency_ms": d * CONTROL_DT_S * 1e3})
                  for e in executions for d in sorted(set(delays)) if d > 0]
     settings += [(f"realtime-{e}-{p}", e, {"latency": f"profile:{p}"}) for e in executions for p in profiles]
@@ -89,7 +89,8 @@ def fixed_twin(source: LatencySource, execution: str, done: dict[str, dict[str, 
     steps = {steps_for(m / 1e3) for m in ms}
     if len(steps) != 1 or (d := steps.pop()) < 1:
         return None
-    return delay_setting(execution, d) if delay_setting(execution, d) in done else None
+    name = delay_setting(execution, d)
+    return name if name in done else None
 
 
 def same_episodes(twin: dict[str, Any], twin_name: str, name: str, cfg: EvalConfig, source: LatencySource
