@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import sys
 import tempfile
 
@@ -74,6 +75,7 @@ def test_one_step_samplers_make_one_denoiser_call():
 
 
 @pytest.mark.parametrize("name, modes", [("diffusion", ["openvino-bf16"]), ("cnn_mlp", ["openvino-int8"]),
+                                         ("flow", ["openvino-int8w"]), ("bct", ["openvino-int8w"]),
                                          ("diffusion", ["onnxruntime-int8"]), ("bct", ["onnxruntime-int8"])])
 def test_approximate_modes_are_close_and_labelled(name, modes, exports, tmp_path, monkeypatch):
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # where an export without a cache folder goes
@@ -81,7 +83,7 @@ def test_approximate_modes_are_close_and_labelled(name, modes, exports, tmp_path
     calib = [model.example_obs(1) for _ in range(4)]
     obs = model.example_obs(2)
     c = {**_chunks(model, ["fast"], obs), **_chunks(model, modes, obs, calibration=calib,
-                                                     export_dir=None if modes[0].endswith("int8") else exports[name])}
+                                                     export_dir=None if "int8" in modes[0] else exports[name])}
     for mode in modes:
         assert np.isfinite(c[mode]).all()
         assert np.abs(c[mode] - c["fast"]).max() < 0.5, mode  # approximate, not unrelated
@@ -93,6 +95,24 @@ def test_approximate_modes_are_close_and_labelled(name, modes, exports, tmp_path
     assert model.deployed is None and model.deployment == {"backend": "torch", "precision": "fp32"}
 
 
+def test_int8w_stores_the_loop_graphs_weights_in_int8(tmp_path):
+    """Weight-only int8: the denoising loop's matrix products get int8 weights (no calibration needed); the encoder,
+    run once per call, stays float; a policy without a loop has all its graphs compressed."""
+    import openvino as ov
+
+    from bcbench.evaluation.backends import export_openvino
+
+    def int8_weights(out, graph):
+        ops = ov.Core().read_model(str(out / f"{graph}.xml")).get_ops()
+        return sum(o.get_type_name() == "Constant" and o.get_element_type() in (ov.Type.u8, ov.Type.i8) for o in ops)
+
+    flow = export_openvino(_model("flow"), "int8w", tmp_path / "flow")
+    assert int8_weights(flow, "denoise") > 0 and int8_weights(flow, "obs_film") == 0
+    cnn = export_openvino(_model("cnn_mlp"), "int8w", tmp_path / "cnn")
+    assert int8_weights(cnn, "forward") > 0
+    assert int8_weights(export_openvino(_model("flow"), "fp32", tmp_path / "float"), "denoise") == 0
+
+
 def test_mode_names_and_errors(monkeypatch):
     from bcbench.cli.parser import MODES as PARSER_MODES
 
@@ -100,6 +120,9 @@ def test_mode_names_and_errors(monkeypatch):
     assert mode_name("torch") == "fast" and mode_name("torch", reference=True) == "reference"
     assert mode_name("openvino", "int8") == "openvino-int8"
     assert mode_name("onnxruntime", "int8") == "onnxruntime-int8"
+    assert mode_name("openvino", "int8w") == "openvino-int8w"
+    with pytest.raises(BCBenchError, match="unknown backend/precision"):
+        mode_name("onnxruntime", "int8w")
     with pytest.raises(BCBenchError, match="needs --backend openvino"):
         mode_name("torch", "bf16")
     with pytest.raises(BCBenchError, match="unknown inference mode"):
@@ -124,6 +147,9 @@ def test_export_cache_and_the_eval_cli(synthetic_zarr, tmp_path, monkeypatch, ca
     assert main(["export", str(run), "--precision", "int8"]) == 0
     exports = list((run / "export").iterdir())
     assert [p.name.split("-")[1] for p in exports] == ["int8"] and (exports[0] / "forward.xml").exists()
+    assert main(["export", str(run), "--precision", "int8w"]) == 0  # its own cache folder beside int8's
+    assert sorted(p.name.split("-")[1] for p in (run / "export").iterdir()) == ["int8", "int8w"]
+    shutil.rmtree(next((run / "export").glob("openvino-int8w-*")))
 
     assert main(["eval", "--checkpoint", str(run), "--backend", "openvino", "--episodes", "2", "--max-steps", "16",
                  "--out", str(tmp_path / "ev"), "--quiet"]) == 0

@@ -4,7 +4,8 @@
     fast           torch fp32; FiLM split (bcbench.policies.denoiser): exact, the default of eval and study
     openvino-fp32  the graphs exported to OpenVINO and compiled for this CPU at f32: exact
     openvino-bf16  the same with a bf16 inference-precision hint: approximate
-    openvino-int8  NNCF post-training quantisation: approximate
+    openvino-int8  NNCF post-training quantisation (int8 weights and activations): approximate
+    openvino-int8w NNCF weight compression (int8 weights, float activations; no calibration): approximate
     onnxruntime-fp32  the graphs exported to ONNX and run by ONNX Runtime's CPU provider: exact
     onnxruntime-int8  those graphs, their matrix products quantised by ONNX Runtime (dynamic int8): approximate
 
@@ -15,10 +16,10 @@ from __future__ import annotations
 
 from bcbench.errors import BCBenchError
 
-MODES = ("reference", "fast", "openvino-fp32", "openvino-bf16", "openvino-int8", "onnxruntime-fp32",
-         "onnxruntime-int8")
+MODES = ("reference", "fast", "openvino-fp32", "openvino-bf16", "openvino-int8", "openvino-int8w",
+         "onnxruntime-fp32", "onnxruntime-int8")
 EXACT_MODES = ("reference", "fast", "openvino-fp32", "onnxruntime-fp32")
-PRECISIONS = ("fp32", "bf16", "int8")
+PRECISIONS = ("fp32", "bf16", "int8", "int8w")  # OpenVINO's; ONNX Runtime: fp32, int8
 BACKENDS = ("torch", "openvino", "onnxruntime", "auto")
 AUTO = "auto"  # the fastest exact mode on this machine for this checkpoint, measured (bcbench.evaluation.auto)
 

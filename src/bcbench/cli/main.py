@@ -314,7 +314,7 @@ def cmd_publish(args: argparse.Namespace) -> int:
 def cmd_tiers(args: argparse.Namespace) -> int:
     from bcbench.evaluation.tiers import run_tiers, tiers_table
 
-    modes = args.mode or ["openvino-fp32", "openvino-bf16", "openvino-int8"]
+    modes = args.mode or ["openvino-fp32", "openvino-bf16", "openvino-int8", "openvino-int8w"]
     tag = f"{args.sampler}{args.steps}" if args.sampler else "default"
     out = Path(args.out) if args.out else Path(args.run_dir) / f"tiers-{tag}"
     record = run_tiers(args.run_dir, modes, args.episodes, args.sampler, args.steps, out,

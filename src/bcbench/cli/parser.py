@@ -12,7 +12,7 @@ from typing import Any
 
 from bcbench import __version__
 from bcbench.evaluation.config import EXECUTIONS, STRATEGIES, EvalConfig, StrategyConfig
-from bcbench.modes import AUTO, BACKENDS, MODES
+from bcbench.modes import AUTO, BACKENDS, MODES, PRECISIONS
 from bcbench.training.options import TrainOptions
 from bcbench.utils.fields import field_default, field_docs
 
@@ -171,9 +171,9 @@ def _add_study_commands(sub: Any) -> None:
     p.add_argument("--preset", "--config", dest="preset", action="append", choices=["quick", "cpu", "paper"],
                    help="presets (default paper and quick; --config is the old name of this option)")
     p.add_argument("--mode", action="append", choices=[*MODES, AUTO],
-                   help="inference modes (default all: torch reference and fast, OpenVINO fp32, bf16 and int8, ONNX "
-                        "Runtime fp32 and int8, and auto: the fastest exact one on this machine, measured, as a user "
-                        "gets it)")
+                   help="inference modes (default all: torch reference and fast, OpenVINO fp32, bf16, int8, "
+                        "int8w, ONNX Runtime fp32 and int8, and auto: the fastest exact one on this machine, "
+                        "measured, as a user gets it)")
     p.add_argument("--sampler", action="append", choices=["ddpm", "ddim", "euler", "midpoint"],
                    help="samplers of generative policies (default ddpm and ddim; flow: euler)")
     p.add_argument("--steps", type=_positive_int, action="append",
@@ -227,9 +227,9 @@ def _add_deploy_commands(sub: Any) -> None:
     p = sub.add_parser("export", help="export a trained run's inference graphs for a deployment runtime")
     p.add_argument("run_dir", metavar="RUN_DIR", help="a trained run")
     p.add_argument("--format", default="openvino", choices=["openvino"], help="runtime format (default openvino)")
-    p.add_argument("--precision", default="fp32", choices=["fp32", "bf16", "int8"],
-                   help="fp32 (exact), bf16 (compiled with a bf16 hint) or int8 (NNCF, calibrated on the "
-                        "training split); default fp32")
+    p.add_argument("--precision", default="fp32", choices=PRECISIONS,
+                   help="fp32 (exact), bf16 (compiled with a bf16 hint), int8 (NNCF, calibrated on the "
+                        "training split) or int8w (int8 weights only, no calibration); default fp32")
     p.add_argument("--no-ema", action="store_true", help="export the raw weights even if the run kept an EMA")
     p.set_defaults(func="cmd_export")
 
@@ -246,7 +246,7 @@ def _add_deploy_commands(sub: Any) -> None:
     p = sub.add_parser("tiers", help="accuracy of each inference mode of a trained run against the exact torch one")
     p.add_argument("run_dir", metavar="RUN_DIR", help="a trained run")
     p.add_argument("--mode", action="append", choices=[m for m in MODES if m != "fast"],
-                   help="modes to compare with torch fast (default openvino fp32, bf16 and int8)")
+                   help="modes to compare with torch fast (default openvino fp32, bf16, int8 and int8w)")
     p.add_argument("--sampler", choices=["ddpm", "ddim", "euler", "midpoint"], help="generative policies' sampler")
     p.add_argument("--steps", type=_positive_int, help="generative policies' steps")
     p.add_argument("--episodes", type=_positive_int, default=100, help="test episodes per mode (default 100)")
@@ -270,8 +270,9 @@ def _add_backend_args(p: Any) -> None:
                    help="what runs a trained policy's networks: torch, openvino or onnxruntime (these two export "
                         "them, cached beside the checkpoint), auto (the fastest exact one here, measured). Default: "
                         "auto where a measured latency sets the delays (--latency measured, --measured), else torch")
-    p.add_argument("--precision", default="fp32", choices=["fp32", "bf16", "int8"],
-                   help="with --backend openvino: fp32 (exact, default), bf16 or int8 (approximate)")
+    p.add_argument("--precision", default="fp32", choices=PRECISIONS,
+                   help="with --backend openvino: fp32 (exact, default), bf16, int8 or int8w (int8 weights only; "
+                        "approximate); onnxruntime: fp32 or int8")
     p.add_argument("--reference", action="store_true",
                    help="torch's reference form (Diffusion Policy: the plain U-Net every step; same chunks)")
 

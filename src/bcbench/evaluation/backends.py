@@ -1,4 +1,5 @@
-"""Where a policy's inference graphs run: torch (reference or fast form) or OpenVINO (fp32, bf16, int8).
+"""Where a policy's inference graphs run: torch (reference or fast form), OpenVINO (fp32, bf16, int8, int8w) or ONNX
+Runtime (bcbench.evaluation.onnx_runtime).
 
 A policy's `predict_action_chunk` calls its networks through `call_graph` (bcbench.policies.learned); a
 mode only flips the policy's switches, so every mode runs the same Python around the same graphs:
@@ -9,10 +10,19 @@ mode only flips the policy's switches, so every mode runs the same Python around
     openvino-bf16  the same with a bf16 inference-precision hint: approximate (weights and math in bf16)
     openvino-int8  NNCF post-training quantisation (calibrated on training-split observations), the ops it
                    leaves in float at bf16 where the CPU computes bf16 natively: approximate
+    openvino-int8w NNCF weight compression: the matrix products' weights stored in int8 (per output channel,
+                   asymmetric) and widened on the fly, activations in float (bf16 where native); approximate
+
+Why int8w beside int8: a static int8 graph has one scale per activation tensor, fixed at calibration, while a
+denoiser's activations change range over the sampling steps (noise in, clean chunk out). On the flow recipe-B
+model (results/tiers-flow-b-explore/int8-cause/) static int8 moved chunks by 16 px on average (the U-Net
+alone: 7 px; with only its matrix products quantised: 5.5 px), weight-only int8 by 0.9 px, as bf16 does. At
+batch 1 a U-Net step is bound by reading its weights, so int8 weights keep most of int8's speed.
 
 Exports of a trained run are cached under RUN_DIR/export/ (openvino-float-KEY serves fp32 and bf16, which
-differ only in the compile hint; openvino-int8-KEY), keyed by the checkpoint, the weights (EMA or raw), the
-precision and the OpenVINO version, and rebuilt when any of them changes; files are written atomically.
+differ only in the compile hint; openvino-int8-KEY; openvino-int8w-KEY), keyed by the checkpoint, the weights
+(EMA or raw), the precision and the OpenVINO version, and rebuilt when any of them changes; files are written
+atomically.
 """
 
 from __future__ import annotations
@@ -127,6 +137,12 @@ def export_openvino(model: BCPolicy, precision: str, out_dir: Path,
             data = recorded[name][:300]
             kind = nncf.ModelType.TRANSFORMER if model.name in ("bet", "bct") else None
             ov_model = nncf.quantize(ov_model, nncf.Dataset(data), subset_size=len(data), model_type=kind)
+        elif precision == "int8w" and name in (model.loop_graphs or model.graphs):
+            # the denoising loop's graphs only, where a policy has one: the encoder runs once per call, gains
+            # little, and costs accuracy (flow recipe B: 1.3 px mean chunk deviation compressed, 0.9 px not)
+            import nncf
+
+            ov_model = nncf.compress_weights(ov_model, mode=nncf.CompressWeightsMode.INT8_ASYM)
         ov.save_model(ov_model, str(tmp / f"{name}.xml"), compress_to_fp16=False)
     shutil.rmtree(out_dir, ignore_errors=True)
     tmp.rename(out_dir)
@@ -142,7 +158,7 @@ def export_key(model: BCPolicy, precision: str, checkpoint: Path | None, weights
         f = weights_file(checkpoint, weights)
         st = f.stat()
         stat = f"{f}:{st.st_size}:{st.st_mtime_ns}"
-    graphs = "int8" if precision == "int8" else "float"  # fp32 and bf16 compile the same float graphs
+    graphs = precision if precision.startswith("int8") else "float"  # fp32 and bf16 compile the same graphs
     blob = json.dumps([model.name, stat, weights, graphs, runtime or _openvino().__version__, GRAPH_FORMAT])
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
@@ -160,7 +176,7 @@ def deploy_openvino(model: BCPolicy, precision: str, export_dir: Path | None = N
         export_openvino(model, precision, export_dir, calibration)
     core = ov.Core()
     bf16 = "bf16" in " ".join(core.get_property("CPU", "OPTIMIZATION_CAPABILITIES")).lower()
-    hint = "bf16" if precision == "bf16" or (precision == "int8" and bf16) else "f32"
+    hint = "bf16" if precision == "bf16" or (precision.startswith("int8") and bf16) else "f32"
     config = {"PERFORMANCE_HINT": "LATENCY", "NUM_STREAMS": 1, "INFERENCE_PRECISION_HINT": hint,
               "INFERENCE_NUM_THREADS": threads or torch.get_num_threads()}
     model.deployed = {name: _Compiled(core, export_dir / f"{name}.xml", config, name in model.loop_graphs)
@@ -203,7 +219,7 @@ def run_data_split(run_dir: str | Path) -> dict[str, Any]:
 
 
 def _export_dir(runner: PolicyRunner, mode: str) -> Path | None:
-    """Where a trained run caches `mode`'s export: RUN_DIR/export/{openvino|onnx}-{float|int8}-KEY, keyed by the
+    """Where a trained run caches `mode`'s export: RUN_DIR/export/{openvino|onnx}-{float|int8|int8w}-KEY, keyed by the
     checkpoint, weights, precision and runtime version (None: a torch mode, or an untrained policy)."""
     info = runner.info
     backend, _, precision = mode.partition("-")
@@ -215,7 +231,7 @@ def _export_dir(runner: PolicyRunner, mode: str) -> Path | None:
     key = export_key(runner.model, precision, Path(info.run_dir) / "checkpoints" / info.checkpoint,
                      info.weights or "ema", runtime)
     prefix = "onnx" if backend == "onnxruntime" else "openvino"  # set_mode appends -onnxruntime to the former
-    return Path(info.run_dir) / "export" / f"{prefix}-{'int8' if precision == 'int8' else 'float'}-{key}"
+    return Path(info.run_dir) / "export" / f"{prefix}-{precision if precision.startswith('int8') else 'float'}-{key}"
 
 
 def apply_mode(runner: PolicyRunner, mode: str, torch_only: str = "") -> None:

@@ -8,7 +8,7 @@ the slow calls too) and name it: at control rate f, re-planning every 8 actions 
 re-planning every step needs p99 <= 1/f.
 
 Modes (bcbench.evaluation.backends): `reference` is fp32 eager PyTorch the way the public code runs it (Diffusion
-Policy: the plain U-Net at every step); `fast` is the torch default (split FiLM); `openvino-fp32|bf16|int8`
+Policy: the plain U-Net at every step); `fast` is the torch default (split FiLM); `openvino-fp32|bf16|int8|int8w`
 run the same graphs compiled by OpenVINO. Exact forms equal the reference within 1e-4 (tested).
 """
 
