@@ -329,3 +329,16 @@ def test_bad_strategy_input_is_one_line_exit_2(args, message, capsys):
     assert rc == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
+
+
+def test_rtc_outside_its_own_execution_horizon_rule_is_noted(capsys):
+    """RTC is defined for s >= d; the default horizon s = 8 - d breaks that for d > 4: allowed, but said."""
+    from bcbench.evaluation.realtime import sweep
+
+    runner = _runner("flow")
+    runner.model.set_sampler("euler", 1)
+    for s, noted in [(None, True), (6, False)]:
+        sweep(runner, [6], ["async"], episodes=1, profiles=[], measured=False, progress=False, max_steps=2,
+              execution_horizon=s, strategy=StrategyConfig("rtc"))
+        err = capsys.readouterr().err
+        assert ("note: rtc at d = 6 executes fewer actions per chunk than the delay" in err) == noted, s

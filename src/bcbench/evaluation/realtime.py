@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import platform
+import sys
 from collections.abc import Callable
 from dataclasses import asdict
 from typing import Any
@@ -59,6 +60,11 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
             if not skip_missing_profiles:
                 raise
     settings = sweep_settings(delays, executions, usable, measured)
+    if strategy is not None and strategy.strategy == "rtc" and "async" in executions:
+        short = [d for d in delays if (execution_horizon or max(1, policy.action_horizon - d)) < d]
+        if short:  # allowed (the queue runs dry, the last target is held), but not RTC as its paper defines it
+            print(f"note: rtc at d = {', '.join(map(str, short))} executes fewer actions per chunk than the delay "
+                  f"(s < d; Real-Time Chunking needs s >= d): pass --execution-horizon for that", file=sys.stderr)
     out = {name: r for name, r in (done or {}).items() if name in {s[0] for s in settings}}
     for name, execution, latency in settings:
         if name in out:
