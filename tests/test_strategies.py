@@ -270,6 +270,48 @@ def test_backend_auto_keeps_a_sweep_with_rtc_in_torch_and_says_why():
     Strategy(StrategyConfig("rtc"), runner)  # and RTC runs in the mode chosen
 
 
+def test_diffusion_rtc_inpaints_the_clean_estimate_at_flows_fraction_and_never_overshoots():
+    """Diffusion Policy's carry-over (policies.guidance): x0 moves towards the target by min(1, (1 - tau) w(tau)),
+    tau the flow time of the state; all the way while tau <= 1/2, less near the data, nothing with beta = 0."""
+    from bcbench.policies.guidance import Guide, inpaint_clean
+
+    x0, target = torch.zeros(1, 16, 2), torch.ones(1, 16, 2)
+    weights = torch.from_numpy(prefix_weights(16, 4, 12))[None]  # (1, Tp)
+    moved = inpaint_clean(x0, 0.0025, Guide(target, weights, 5.0))  # abar = 0.0025: tau = 0.05
+    assert torch.allclose(moved[0, :, 0], weights[0])  # fraction 1: the mask itself
+    for abar in np.linspace(1e-6, 1 - 1e-6, 50):
+        frac = float(inpaint_clean(x0, float(abar), Guide(target, torch.ones(1, 16), 5.0))[0, 0, 0])
+        a, s = math.sqrt(abar), math.sqrt(1 - abar)
+        tau = a / (a + s)
+        assert 0.0 < frac <= 1.0 and frac == pytest.approx(min(1.0, 5 * (1 - tau), (tau ** 2 + (1 - tau) ** 2) / tau),
+                                                           rel=1e-5)
+    assert torch.equal(inpaint_clean(x0, 0.5, Guide(target, weights, 0.0)), x0)
+
+
+def test_diffusion_rtc_needs_no_backward_pass_and_runs_in_an_exported_graph():
+    """No Jacobian: DP's guided sampler runs where flow's cannot (an exported OpenVINO graph), equal to its torch
+    form, and `auto` is not held to torch for it."""
+    from bcbench.evaluation.backends import apply_mode
+
+    runner = _runner("diffusion")
+    assert not runner.model.guidance_autograd and runner.guidance_unavailable() is None
+    obs = example_observation(2, 2, seed=3)
+    target = np.full((2, 16, 2), 300.0, np.float32)
+    weights = np.broadcast_to(prefix_weights(16, 4, 12), (2, 16))
+
+    def guided():
+        gens = [episode_generator(0, i) for i in range(2)]
+        return runner.predict_guided_chunk({**obs, "generators": gens}, target, weights, 5.0)
+    ref = guided()
+    apply_mode(runner, "openvino-fp32")
+    assert runner.guidance_unavailable() is None
+    np.testing.assert_allclose(guided(), ref, atol=1e-2)  # pixels: the graph's float rounding only
+    runner = _runner("diffusion")
+    apply_mode(runner, "auto", torch_only="rtc's guidance needs autograd: torch only")
+    trial = runner.info.deployment["auto"]
+    assert len(trial["median_ms"]) > 1 and "autograd" not in trial["why"]  # every exact mode was a candidate
+
+
 def test_strategies_that_cannot_run_say_why_in_one_line():
     with pytest.raises(BCBenchError, match="bct does not sample its chunk"):
         Strategy(StrategyConfig("rtc"), _runner("bct"))

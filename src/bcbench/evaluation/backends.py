@@ -239,6 +239,7 @@ def apply_mode(runner: PolicyRunner, mode: str, torch_only: str = "") -> None:
     the fastest exact mode for this checkpoint on this machine (bcbench.evaluation.auto), recorded as chosen;
     `torch_only` (why, e.g. a strategy that needs autograd) restricts it to torch's fast form."""
     if mode == AUTO:
+        torch_only = torch_only if runner.model.guidance_autograd else ""  # only flow's VJP
         trial = (choose_mode(runner, apply_mode, ("fast",), torch_only) if torch_only
                  else choose_mode(runner, apply_mode))
         apply_mode(runner, trial["chosen"])

@@ -13,8 +13,9 @@ PROFILES = ("a100",)  # hardware latency profiles (bcbench.evaluation.latency_so
 
 
 def torch_only(strategies: list[str] | tuple[str, ...]) -> str:
-    """Why these strategies must run in a torch mode (one line), or "": Real-Time Chunking's guidance takes a
-    vector-Jacobian product through the network, which an exported graph does not compute."""
+    """Why these strategies must run in a torch mode (one line), or "": Real-Time Chunking's guidance on flow takes
+    a vector-Jacobian product through the network, which an exported graph does not compute (apply_mode applies it
+    to policies whose guidance needs autograd only: Diffusion Policy's needs none)."""
     return "rtc's guidance needs autograd: torch only" if "rtc" in strategies else ""
 
 

@@ -19,7 +19,7 @@ import torch.nn.functional as F
 from bcbench.errors import BCBenchError
 from bcbench.policies.config import OptimConfig, cpu_profile, pick_preset
 from bcbench.policies.denoiser import DenoiserNetConfig, DenoiserPolicy
-from bcbench.policies.guidance import Guide, guided_noise
+from bcbench.policies.guidance import Guide, inpaint_clean
 from bcbench.policies.samplers import DEFAULT_SPACING, check_spacing, make_train_scheduler, plan, run_plan
 
 
@@ -68,6 +68,7 @@ class DiffusionConfig(DenoiserNetConfig):
 class DiffusionPolicy(DenoiserPolicy):
     name = "diffusion"
     samplers = ("ddpm", "ddim")
+    guidance_autograd = False  # RTC inpaints the clean estimate: no backward pass, every backend
 
     def __init__(self, config: DiffusionConfig) -> None:
         super().__init__(config)
@@ -94,14 +95,15 @@ class DiffusionPolicy(DenoiserPolicy):
         return F.mse_loss(self.unet(noisy, t, cond), noise)
 
     def predict_action_chunk(self, obs: dict[str, torch.Tensor], guide: Guide | None = None) -> torch.Tensor:
-        """Denoise from pure noise; with `guide`, every noise prediction is Real-Time Chunking's guided one, carried
-        over to epsilon prediction through the clean estimate x0 (bcbench.policies.guidance)."""
+        """Denoise from pure noise; with `guide`, every clean estimate is inpainted towards the target (Real-Time
+        Chunking carried over to epsilon prediction without the Jacobian: bcbench.policies.guidance)."""
         model, b, device = self.denoiser(obs, self.plan.timesteps)  # the observation is encoded once
+        edit = None
         if guide is not None:
-            plain, ac = model, self.noise_scheduler.alphas_cumprod
+            ac = self.noise_scheduler.alphas_cumprod
 
-            def model(x: torch.Tensor, t: int) -> torch.Tensor:
-                return guided_noise(lambda x_in: plain(x_in, t), x, float(ac[t]), guide)
+            def edit(x0: torch.Tensor, t: int) -> torch.Tensor:
+                return inpaint_clean(x0, float(ac[t]), guide)
 
         x = self.randn(obs, (b, self.config.pred_horizon, 2), device)  # (B, Tp, 2) pure noise
-        return run_plan(self.plan, model, x, lambda shape: self.randn(obs, shape, device))
+        return run_plan(self.plan, model, x, lambda shape: self.randn(obs, shape, device), edit)

@@ -48,6 +48,7 @@ class BCPolicy(nn.Module):
     deployed: dict[str, Any] | None = None  # name -> compiled graph (set by bcbench.evaluation.backends), None = torch
     deployment: dict[str, Any] | None = None  # what runs the graphs (backend, precision), for the records
     guidable = False  # predict_action_chunk(obs, guide=...) samples towards a target (Real-Time Chunking)
+    guidance_autograd = True  # that guidance takes a backward pass (an exported graph cannot run it)
     encodes_once = False  # obs["samples"] = n: n samples per observation row, the observation encoded once
 
     def call_graph(self, name: str, *args: torch.Tensor) -> Any:
@@ -189,13 +190,13 @@ class PolicyRunner:
         """Why Real-Time Chunking's guided sampling cannot run here, or None when it can."""
         if not self.model.guidable:
             return f"{self.name} does not sample its chunk (guided inpainting needs flow or Diffusion Policy)"
-        if self.model.deployed is not None:
+        if self.model.deployed is not None and self.model.guidance_autograd:
             return ("guided inpainting needs a vector-Jacobian product through the network, which the exported "
                     f"{(self.model.deployment or {}).get('backend', 'runtime')} graph does not compute: use the torch "
                     "modes (fast or reference)")
         return None
 
-    @torch.no_grad()  # not inference mode: the guidance runs a backward pass through the network
+    @torch.no_grad()  # not inference mode: flow's guidance runs a backward pass through the network
     def predict_guided_chunk(self, obs: Observation, target: np.ndarray, weights: np.ndarray,
                              max_guidance: float) -> np.ndarray:
         """Real-Time Chunking: a chunk inpainted towards `target` (B, Tp, 2) pixels with soft mask `weights` (B, Tp)."""

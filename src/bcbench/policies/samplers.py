@@ -112,11 +112,22 @@ def plan(train_scheduler, kind: str, steps: int, spacing: str = DEFAULT_SPACING)
     return p
 
 
-def run_plan(p: SamplerPlan, denoise, x: torch.Tensor, noise: NoiseFn) -> torch.Tensor:
-    """Denoise `x` (pure noise) with `denoise(x, t) -> eps`; DDPM's fresh noise comes from `noise(shape)`."""
+# Edits the clipped clean estimate x0 (B, Tp, 2) at a visited timestep t (Real-Time Chunking's inpainting).
+CleanEdit = Callable[[torch.Tensor, int], torch.Tensor]
+
+
+def run_plan(p: SamplerPlan, denoise, x: torch.Tensor, noise: NoiseFn, edit: CleanEdit | None = None
+             ) -> torch.Tensor:
+    """Denoise `x` (pure noise) with `denoise(x, t) -> eps`; DDPM's fresh noise comes from `noise(shape)`.
+
+    `edit(x0, t)`, if given, changes the clean estimate after DP's clip and before the step uses it: the one place
+    the sampler already edits x0 (bcbench.policies.guidance.inpaint_clean).
+    """
     for k, t in enumerate(p.timesteps):
         eps = denoise(x, t)
         x0 = ((x - p.a[k] * eps) * p.b[k]).clamp_(-1.0, 1.0)
+        if edit is not None:
+            x0 = edit(x0, t)
         if p.kind == "ddpm":
             x = p.c[k] * x0 + p.d[k] * x
             if t > 0:
