@@ -39,8 +39,8 @@ class StrategyConfig:
 
     strategy: str = "naive"
     """naive (each chunk on its own), rtc (Real-Time Chunking: guided inpainting of the new chunk towards the one
-    executing; flow and Diffusion Policy under torch), bid (Bidirectional Decoding: the best of N sampled chunks)
-    or ensemble (ACT's temporal ensembling of every chunk's action for the step)"""
+    executing; flow under torch, Diffusion Policy under every backend), bid (Bidirectional Decoding: the best of
+    N sampled chunks) or ensemble (ACT's temporal ensembling of every chunk's action for the step)"""
     rtc_max_guidance: float = 5.0
     """RTC: the guidance weight's clip beta (Black et al. 2025, Sec. 4.2; their default 5; 0 = no guidance)"""
     bid_samples: int = 16
