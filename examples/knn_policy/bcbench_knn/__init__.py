@@ -23,7 +23,7 @@ PRED_HORIZON = 16
 
 def _downsample(images: np.ndarray, size: int) -> np.ndarray:
     """(N, 96, 96, 3) uint8 -> (N, size * size * 3) float32 in [0, 1] by area averaging (96 must divide by size)."""
-    n, h, w, c = images.shape
+    n, h, _, c = images.shape
     f = h // size
     out = np.empty((n, size * size * c), np.float32)
     for s in range(0, n, 2048):  # in blocks: the float copy of all frames would take 2.8 GB
