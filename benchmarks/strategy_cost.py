@@ -23,6 +23,7 @@ import torch
 
 from bcbench.evaluation.backends import apply_mode
 from bcbench.evaluation.config import StrategyConfig
+from bcbench.evaluation.controller import episode_generator
 from bcbench.evaluation.strategies import Strategy, prefix_weights
 from bcbench.interface import example_observation
 from bcbench.modes import mode_name
@@ -42,6 +43,8 @@ def main() -> None:
     ap.add_argument("--warmup", type=int, default=10, help="untimed requests per strategy first")
     ap.add_argument("--backend", default="torch", choices=["torch", "openvino", "onnxruntime"])
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--bid-samples", type=int, default=16, help="bid: N candidates (and as many of the weak policy)")
+    ap.add_argument("--bid-weak", default=None, help="bid: the weaker policy's run folder (an early checkpoint)")
     ap.add_argument("--out", default=".")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -52,10 +55,18 @@ def main() -> None:
     target = np.asarray(runner.predict_action_chunk(obs), dtype=np.float32)  # the executing chunk
     tp, cs = runner.pred_horizon, runner.chunk_start
     weights = prefix_weights(tp, cs + 1, tp - runner.action_horizon)[None]  # (1, Tp), as LatencySource times it
-    strategies = {k: Strategy(StrategyConfig(k), runner) for k in args.strategies}
+    weak = None
+    if args.bid_weak:  # run as the policy is: same sampler and mode
+        weak = load_runner(args.bid_weak, use_ema=True)
+        configure_runner(weak, args.sampler, args.steps, 0, None)
+        apply_mode(weak, runner.info.mode)
+    strategies = {k: Strategy(StrategyConfig(k, bid_samples=args.bid_samples,
+                                             bid_weak=args.bid_weak if k == "bid" else None),
+                              runner, weak if k == "bid" else None) for k in args.strategies}
+    weak_gen = [episode_generator(1, 0)]  # BID's weak policy draws from its own stream, as in the controller
 
     def request(s: Strategy) -> float:
-        s.request(obs, target, weights, None)
+        s.request(obs, target, weights, weak_gen if s.weak is not None else None)
         return s.last_compute_s * 1e3
 
     for s in strategies.values():
