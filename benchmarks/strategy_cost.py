@@ -24,8 +24,8 @@ import torch
 from bcbench.evaluation.backends import apply_mode
 from bcbench.evaluation.config import StrategyConfig
 from bcbench.evaluation.controller import episode_generator
-from bcbench.evaluation.strategies import Strategy, prefix_weights
-from bcbench.interface import example_observation
+from bcbench.evaluation.latency_sources import timed_request_inputs
+from bcbench.evaluation.strategies import Strategy
 from bcbench.modes import mode_name
 from bcbench.policies.checkpoint import configure_runner, load_runner
 from bcbench.utils.io import write_json
@@ -51,10 +51,7 @@ def main() -> None:
     runner = load_runner(args.run_dir, use_ema=True)
     configure_runner(runner, args.sampler, args.steps, 0, None)
     apply_mode(runner, mode_name(args.backend, "fp32", False))
-    obs = example_observation(1, runner.obs_horizon)
-    target = np.asarray(runner.predict_action_chunk(obs), dtype=np.float32)  # the executing chunk
-    tp, cs = runner.pred_horizon, runner.chunk_start
-    weights = prefix_weights(tp, cs + 1, tp - runner.action_horizon)[None]  # (1, Tp), as LatencySource times it
+    obs, target, weights = timed_request_inputs(runner, True)  # as the measured latency
     weak = None
     if args.bid_weak:  # run as the policy is: same sampler and mode
         weak = load_runner(args.bid_weak, use_ema=True)

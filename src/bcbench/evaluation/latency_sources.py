@@ -60,6 +60,18 @@ def profile_ms(profile: str, policy: str, steps: int | None = None) -> float:
     return PROFILES[profile][policy]
 
 
+def timed_request_inputs(runner: ChunkPolicy, uses_target: bool
+                         ) -> tuple[dict[str, Any], np.ndarray | None, np.ndarray | None]:
+    """What a timed request is made with: a batch-1 observation and, for a strategy that reads the executing chunk,
+    one the policy made (1, Tp, 2) followed over half of it, with RTC's soft mask (1, Tp)."""
+    obs = example_observation(1, runner.obs_horizon)
+    if not uses_target:
+        return obs, None, None
+    target = np.asarray(runner.predict_action_chunk(obs), dtype=np.float32)
+    tp, cs = runner.pred_horizon, runner.chunk_start
+    return obs, target, prefix_weights(tp, cs + 1, tp - runner.action_horizon)[None]
+
+
 @dataclass
 class LatencySource:
     """Where d comes from: `fixed` (ms), `measured` (call times in ms), or `profile` (a name)."""
@@ -97,12 +109,7 @@ class LatencySource:
         if self.kind == "profile":
             self.ms = profile_ms(self.name, runner.name, sampler_steps(runner))
         elif self.kind == "measured" and not self.samples_ms:
-            obs = example_observation(1, runner.obs_horizon)
-            target = weights = None
-            if strategy.uses_target:  # the executing chunk: one the policy made, followed over half the chunk
-                target = np.asarray(runner.predict_action_chunk(obs), dtype=np.float32)
-                tp, cs = runner.pred_horizon, runner.chunk_start
-                weights = prefix_weights(tp, cs + 1, tp - runner.action_horizon)[None]
+            obs, target, weights = timed_request_inputs(runner, strategy.uses_target)
             self.samples_ms = time_calls(lambda: strategy.request(obs, target, weights, None), TimingConfig(),
                                          clock=lambda: strategy.last_compute_s)["samples_ms"]
 
