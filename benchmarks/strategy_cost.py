@@ -37,7 +37,8 @@ def main() -> None:
     ap.add_argument("run_dir")
     ap.add_argument("--sampler", default="ddim")
     ap.add_argument("--steps", type=int, default=10)
-    ap.add_argument("--strategies", nargs="+", default=["naive", "rtc"])
+    ap.add_argument("--strategies", nargs="+", default=["naive", "rtc"],
+                    help="naive, rtc, rtc-no-jacobian (rtc with J = I), bid, ensemble")
     ap.add_argument("--rounds", type=int, default=20)
     ap.add_argument("--calls", type=int, default=5, help="timed requests per strategy and round")
     ap.add_argument("--warmup", type=int, default=10, help="untimed requests per strategy first")
@@ -57,7 +58,9 @@ def main() -> None:
         weak = load_runner(args.bid_weak, use_ema=True)
         configure_runner(weak, args.sampler, args.steps, 0, None)
         apply_mode(weak, runner.info.mode)
-    strategies = {k: Strategy(StrategyConfig(k, bid_samples=args.bid_samples,
+    # "rtc-no-jacobian": rtc with --rtc-no-jacobian (J = I), timed beside the paper's form
+    strategies = {k: Strategy(StrategyConfig(k.split("-")[0], rtc_jacobian=k != "rtc-no-jacobian",
+                                             bid_samples=args.bid_samples,
                                              bid_weak=args.bid_weak if k == "bid" else None),
                               runner, weak if k == "bid" else None) for k in args.strategies}
     weak_gen = [episode_generator(1, 0)]  # BID's weak policy draws from its own stream, as in the controller

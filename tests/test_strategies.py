@@ -318,6 +318,55 @@ def test_diffusion_rtc_needs_no_backward_pass_and_runs_in_an_exported_graph(monk
     assert asked == {"diffusion": None, "flow": ("fast",)}  # None: every exact mode a candidate
 
 
+def test_flow_rtc_without_the_jacobian_moves_the_clean_estimate_by_the_fraction():
+    """--rtc-no-jacobian (J = I): the guided velocity lands the clean estimate x + (1 - tau) v' exactly
+    clean_fraction(tau) of the way to the target on the mask; beta = 0 is the unguided velocity."""
+    from bcbench.policies.guidance import Guide, clean_fraction, guided_velocity
+
+    x = torch.randn(2, 16, 2, generator=torch.Generator().manual_seed(0))
+    target = torch.ones(2, 16, 2)
+    weights = torch.from_numpy(prefix_weights(16, 4, 12))[None].repeat(2, 1)  # (B, Tp)
+
+    def velocity(x_in):
+        return 0.5 * x_in - 0.2  # any field
+    for tau in (0.0, 0.3, 0.5, 0.8, 0.95):
+        v = guided_velocity(velocity, x, tau, Guide(target, weights, 5.0, jacobian=False))
+        a1 = x + (1 - tau) * velocity(x)
+        expected = a1 + clean_fraction(tau, 5.0) * weights[..., None] * (target - a1)
+        assert torch.allclose(x + (1 - tau) * v, expected, atol=1e-6)
+        assert 0.0 < clean_fraction(tau, 5.0) <= 1.0
+    assert torch.equal(guided_velocity(velocity, x, 0.3, Guide(target, weights, 0.0, jacobian=False)), velocity(x))
+
+
+def test_flow_rtc_without_the_jacobian_runs_in_an_exported_graph_and_leaves_auto_free():
+    from bcbench.cli.parser import build_parser
+    from bcbench.cli.policies import _needs_torch
+    from bcbench.evaluation.backends import apply_mode
+
+    runner = _runner("flow")
+    for d in (1, 3):  # guidance 0 is naive in this form too; beta 5 acts
+        naive = _drive(runner, "naive", "async", d, seed=7)
+        assert _same(_drive(runner, "rtc", "async", d, seed=7, rtc_max_guidance=0.0, rtc_jacobian=False), naive)
+        assert not _same(_drive(runner, "rtc", "async", d, seed=7, rtc_jacobian=False), naive)
+    obs = example_observation(2, 2, seed=3)
+    target = np.full((2, 16, 2), 300.0, np.float32)
+    weights = np.broadcast_to(prefix_weights(16, 4, 12), (2, 16))
+
+    def guided(jacobian):
+        gens = [episode_generator(0, i) for i in range(2)]
+        return runner.predict_guided_chunk({**obs, "generators": gens}, target, weights, 5.0, jacobian)
+    ref, with_jacobian = guided(False), guided(True)
+    assert not np.allclose(ref, with_jacobian)  # another method, not the paper's under a new name
+    apply_mode(runner, "openvino-fp32")
+    assert runner.guidance_unavailable(jacobian=False) is None and runner.guidance_unavailable() is not None
+    np.testing.assert_allclose(guided(False), ref, atol=1e-2)  # pixels: the graph's float rounding only
+    Strategy(StrategyConfig("rtc", rtc_jacobian=False), runner)  # accepted in the exported mode
+    parse = build_parser().parse_args
+    assert _needs_torch(parse(["realtime", "--checkpoint", "r", "--measured", "--strategy", "rtc",
+                               "--rtc-no-jacobian"])) == ""
+    assert Strategy(StrategyConfig("rtc", rtc_jacobian=False), _runner("flow")).describe()["jacobian"] is False
+
+
 def test_strategies_that_cannot_run_say_why_in_one_line():
     with pytest.raises(BCBenchError, match="bct does not sample its chunk"):
         Strategy(StrategyConfig("rtc"), _runner("bct"))

@@ -91,12 +91,13 @@ class SelfTimedPolicy(Protocol):
 class GuidedPolicy(Protocol):
     """Real-Time Chunking's guided inpainting inside the policy's sampler (bcbench.policies.guidance)."""
 
-    def guidance_unavailable(self) -> str | None:
-        """None when guided sampling can run (in the current inference mode), else the reason, in one line."""
+    def guidance_unavailable(self, jacobian: bool = True) -> str | None:
+        """None when guided sampling can run (in the current inference mode), else the reason, in one line;
+        `jacobian`: through the network's Jacobian where the policy's guidance has one (False: J = I)."""
         ...
 
     def predict_guided_chunk(self, obs: Observation, target: np.ndarray, weights: np.ndarray,
-                             max_guidance: float) -> np.ndarray:
+                             max_guidance: float, jacobian: bool = True) -> np.ndarray:
         """(B, Tp, 2) pixels, guided towards target (B, Tp, 2) pixels with soft mask weights (B, Tp) in [0, 1]."""
         ...
 

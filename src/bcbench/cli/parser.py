@@ -52,7 +52,8 @@ def _field(p: argparse.ArgumentParser, flag: str, cls: type, name: str | None = 
     """An option whose default and help are a config dataclass field's own (written once, under the field)."""
     name = name or flag.lstrip("-").replace("-", "_")
     default = kw.pop("default", field_default(cls, name))
-    shown = f" (default {default})" if default not in (None, False) else ""
+    flag_only = kw.get("action") in ("store_true", "store_false")  # its presence says it all
+    shown = f" (default {default})" if default not in (None, False) and not flag_only else ""
     p.add_argument(flag, default=default, help=field_docs(cls)[name] + shown, **kw)
 
 
@@ -286,6 +287,7 @@ def _add_strategy_args(p: argparse.ArgumentParser, sweep: bool = False) -> None:
     else:
         _field(p, "--strategy", StrategyConfig, choices=STRATEGIES)
     _field(p, "--rtc-max-guidance", StrategyConfig, type=_number(float, 0), metavar="BETA")
+    _field(p, "--rtc-no-jacobian", StrategyConfig, name="rtc_jacobian", dest="rtc_jacobian", action="store_false")
     _field(p, "--bid-samples", StrategyConfig, type=_positive_int, metavar="N")
     _field(p, "--bid-modes", StrategyConfig, type=_positive_int, metavar="K")
     _field(p, "--bid-weak", StrategyConfig, metavar="RUN_DIR")

@@ -27,7 +27,7 @@ def _needs_torch(args: argparse.Namespace) -> str:
     from bcbench.evaluation.config import torch_only
 
     kinds = getattr(args, "strategy", None) or []
-    return torch_only([kinds] if isinstance(kinds, str) else kinds)
+    return torch_only([kinds] if isinstance(kinds, str) else kinds, getattr(args, "rtc_jacobian", True))
 
 
 def load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
@@ -69,7 +69,7 @@ def strategy_config(args: argparse.Namespace, kind: str, several: bool = False) 
     strategies, where --bid-weak belongs to bid alone)."""
     from bcbench.evaluation.config import StrategyConfig
 
-    return StrategyConfig(kind, args.rtc_max_guidance, args.bid_samples, args.bid_modes,
+    return StrategyConfig(kind, args.rtc_max_guidance, args.rtc_jacobian, args.bid_samples, args.bid_modes,
                           args.bid_weak if kind == "bid" or not several else None, args.ensemble_decay)
 
 

@@ -12,11 +12,11 @@ STRATEGIES = ("naive", "rtc", "bid", "ensemble")  # what is done with chunks acr
 PROFILES = ("a100",)  # hardware latency profiles (bcbench.evaluation.latency_sources holds their times)
 
 
-def torch_only(strategies: list[str] | tuple[str, ...]) -> str:
+def torch_only(strategies: list[str] | tuple[str, ...], rtc_jacobian: bool = True) -> str:
     """Why these strategies must run in a torch mode (one line), or "": Real-Time Chunking's guidance on flow takes
     a vector-Jacobian product through the network, which an exported graph does not compute (apply_mode applies it
-    to policies whose guidance needs autograd only: Diffusion Policy's needs none)."""
-    return "rtc's guidance needs autograd: torch only" if "rtc" in strategies else ""
+    to policies whose guidance needs autograd only: Diffusion Policy's needs none; nor does --rtc-no-jacobian)."""
+    return "rtc's guidance needs autograd: torch only" if "rtc" in strategies and rtc_jacobian else ""
 
 
 def check_latency_options(latency: str | None, latency_ms: float | None) -> None:
@@ -43,6 +43,10 @@ class StrategyConfig:
     N sampled chunks) or ensemble (ACT's temporal ensembling of every chunk's action for the step)"""
     rtc_max_guidance: float = 5.0
     """RTC: the guidance weight's clip beta (Black et al. 2025, Sec. 4.2; their default 5; 0 = no guidance)"""
+    rtc_jacobian: bool = True
+    """RTC: guide through the network's Jacobian (a backward pass), as the paper does, where the policy's guidance has
+    one (flow; Diffusion Policy always takes J = I); off: J = I for flow too, the clean estimate moved directly (no
+    backward pass, naive's cost, every backend; an extension, not the paper's method)"""
     bid_samples: int = 16
     """BID: chunks sampled per call, N (Liu et al. 2024)"""
     bid_modes: int = 3

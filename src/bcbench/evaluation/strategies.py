@@ -101,7 +101,9 @@ class Strategy:
             if not isinstance(policy, GuidedPolicy):
                 raise BCBenchError(f"--strategy rtc: {policy.name} has no guided sampler (flow and Diffusion Policy "
                                    "do, under the torch modes)")
-            reason = policy.guidance_unavailable()
+            # the switch is passed only when off, so a guided policy written before it keeps working
+            self._jacobian_kw = {} if self.cfg.rtc_jacobian else {"jacobian": False}
+            reason = policy.guidance_unavailable(**self._jacobian_kw)
             if reason:
                 raise BCBenchError(f"--strategy rtc: {reason}")
         if weak is not None and (self.kind != "bid" or (weak.pred_horizon, weak.chunk_start)
@@ -118,6 +120,8 @@ class Strategy:
         out: dict[str, Any] = {"strategy": self.kind}
         if self.kind == "rtc":
             out["max_guidance"] = self.cfg.rtc_max_guidance
+            if not self.cfg.rtc_jacobian:  # absent in records from before the switch: the Jacobian where one exists
+                out["jacobian"] = False
         if self.kind == "bid":
             out.update(samples=self.cfg.bid_samples, modes=self.cfg.bid_modes, weak=self.cfg.bid_weak)
         if self.kind == "ensemble":
@@ -149,7 +153,7 @@ class Strategy:
         self._compute, self._calls_wall, t0 = 0.0, 0.0, time.perf_counter()
         if self.kind == "rtc":
             chunks = self._timed(self.policy, lambda: self.policy.predict_guided_chunk(
-                obs, target, weights, self.cfg.rtc_max_guidance))
+                obs, target, weights, self.cfg.rtc_max_guidance, **self._jacobian_kw))
         elif self.kind == "bid":
             cands = self._candidates(self.policy, obs, self.cfg.bid_samples)
             weak = None

@@ -15,6 +15,11 @@ with the pseudo-inverse guidance of PiGDM (Song et al. 2023) that the paper uses
 (default 5). The vector-Jacobian product needs autograd through the U-Net: flow's guidance runs under the torch
 modes only, not in an exported OpenVINO or ONNX Runtime graph (which computes forward passes only).
 
+`jacobian=False` (`--rtc-no-jacobian`) takes the same pseudo-inverse step with J = I, as Diffusion Policy always
+does (below): the clean estimate moves towards the target by f = min(1, (1 - tau) w(tau)) on the mask, and the
+velocity is the one that lands there, v' = v + f / (1 - tau) diag(W) (target - A1_hat). Not the paper's method
+(an extension: no backward pass, naive's cost, every backend); the record names it.
+
 Diffusion Policy (epsilon prediction) is carried over without the Jacobian, in its clean estimate. Its state
 x_t / (sqrt(abar) + sqrt(1 - abar)) is a rectified-flow state at tau = sqrt(abar) / (sqrt(abar) + sqrt(1 - abar))
 with the same clean estimate x0, so flow's correction moves that estimate by (1 - tau) w(tau) J J^T diag(W) e to
@@ -48,10 +53,17 @@ class Guide:
     target: torch.Tensor
     weights: torch.Tensor
     max_guidance: float  # beta
+    jacobian: bool = True  # flow: through the network's Jacobian (the paper); False: J = I (module docstring)
 
     def repeat(self, n: int) -> Guide:
         """The same guide for n candidates of every row (rows repeated in place: r0, r0, ..., r1, ...)."""
-        return Guide(self.target.repeat_interleave(n, 0), self.weights.repeat_interleave(n, 0), self.max_guidance)
+        return Guide(self.target.repeat_interleave(n, 0), self.weights.repeat_interleave(n, 0), self.max_guidance,
+                     self.jacobian)
+
+
+def clean_fraction(tau: float, max_guidance: float) -> float:
+    """How far a J = I step moves the clean estimate towards the target: min(1, (1 - tau) w(tau))."""
+    return min(1.0, (1 - tau) * guidance_weight(tau, max_guidance))
 
 
 def guidance_weight(tau: float, max_guidance: float) -> float:
@@ -77,10 +89,15 @@ def correction(clean: Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]
 
 def guided_velocity(velocity: Callable[[torch.Tensor], torch.Tensor], x: torch.Tensor, tau: float, guide: Guide
                     ) -> torch.Tensor:
-    """Flow: v'(x, tau) = v + w(tau) g, with the clean estimate x + (1 - tau) v."""
+    """Flow: v'(x, tau) = v + w(tau) g, with the clean estimate x + (1 - tau) v; J = I: the velocity that moves that
+    estimate by clean_fraction of the way to the target."""
     w = guidance_weight(tau, guide.max_guidance)
     if w == 0.0:
         return velocity(x)  # no guidance: exactly the unguided step (and no backward pass)
+    if not guide.jacobian:
+        v = velocity(x)
+        error = guide.weights[..., None] * (guide.target - (x + (1 - tau) * v))  # (B, Tp, 2)
+        return v + clean_fraction(tau, guide.max_guidance) / (1 - tau) * error
 
     def clean(x_in: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         v = velocity(x_in)
@@ -93,8 +110,7 @@ def guided_velocity(velocity: Callable[[torch.Tensor], torch.Tensor], x: torch.T
 def inpaint_clean(x0: torch.Tensor, alpha_bar: float, guide: Guide) -> torch.Tensor:
     """Diffusion Policy: x0 + f(tau) W (target - x0), tau the flow time of the state (module docstring)."""
     a, s = math.sqrt(alpha_bar), math.sqrt(1 - alpha_bar)
-    tau = a / (a + s)
-    f = min(1.0, (1 - tau) * guidance_weight(tau, guide.max_guidance))
+    f = clean_fraction(a / (a + s), guide.max_guidance)
     if f == 0.0:
         return x0  # no guidance: exactly the unguided step
     return x0 + f * guide.weights[..., None] * (guide.target - x0)  # (B, Tp, 2)

@@ -186,28 +186,29 @@ class PolicyRunner:
         chunk = self.model.predict_action_chunk(self.prepare(obs))  # (B, Tp, 2) normalised
         return self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()
 
-    def guidance_unavailable(self) -> str | None:
+    def guidance_unavailable(self, jacobian: bool = True) -> str | None:
         """Why Real-Time Chunking's guided sampling cannot run here, or None when it can."""
         if not self.model.guidable:
             return f"{self.name} does not sample its chunk (guided inpainting needs flow or Diffusion Policy)"
-        if self.model.deployed is not None and self.model.guidance_autograd:
+        if self.model.deployed is not None and self.model.guidance_autograd and jacobian:
             return ("guided inpainting needs a vector-Jacobian product through the network, which the exported "
                     f"{(self.model.deployment or {}).get('backend', 'runtime')} graph does not compute: use the torch "
-                    "modes (fast or reference)")
+                    "modes (fast or reference), or --rtc-no-jacobian")
         return None
 
     def predict_guided_chunk(self, obs: Observation, target: np.ndarray, weights: np.ndarray,
-                             max_guidance: float) -> np.ndarray:
+                             max_guidance: float, jacobian: bool = True) -> np.ndarray:
         """Real-Time Chunking: a chunk inpainted towards `target` (B, Tp, 2) pixels with soft mask `weights` (B, Tp)."""
-        reason = self.guidance_unavailable()
+        reason = self.guidance_unavailable(jacobian)
         if reason:
             raise BCBenchError(reason)
         # flow's guidance runs a backward pass, which inference mode forbids; a guidance without one keeps
         # naive's inference mode (no_grad alone cost Diffusion Policy 2 ms of 46 a call, interleaved)
-        with torch.no_grad() if self.model.guidance_autograd else torch.inference_mode():
+        with torch.no_grad() if self.model.guidance_autograd and jacobian else torch.inference_mode():
             target_t = torch.as_tensor(np.array(target, dtype=np.float32), device=self.device)
             guide = Guide(self.normalizer.normalize("action", target_t),
-                          torch.as_tensor(np.array(weights, dtype=np.float32), device=self.device), float(max_guidance))
+                          torch.as_tensor(np.array(weights, dtype=np.float32), device=self.device), float(max_guidance),
+                          jacobian)
             chunk = self.model.predict_action_chunk(self.prepare(obs), guide=guide)  # (B, Tp, 2) normalised
         return self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()
 
