@@ -365,6 +365,9 @@ def test_flow_rtc_without_the_jacobian_runs_in_an_exported_graph_and_leaves_auto
     assert _needs_torch(parse(["realtime", "--checkpoint", "r", "--measured", "--strategy", "rtc",
                                "--rtc-no-jacobian"])) == ""
     assert Strategy(StrategyConfig("rtc", rtc_jacobian=False), _runner("flow")).describe()["jacobian"] is False
+    assert StrategyConfig("rtc", rtc_jacobian=False).variant_extra() == {"rtc_jacobian": False}  # sweep records
+    assert StrategyConfig("rtc").variant_extra() == {} and "jacobian" not in Strategy(StrategyConfig("rtc"),
+                                                                                       _runner("flow")).describe()
 
 
 def test_strategies_that_cannot_run_say_why_in_one_line():

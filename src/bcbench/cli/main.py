@@ -277,7 +277,8 @@ def cmd_realtime(args: argparse.Namespace) -> int:
         # run's own sweep, with another --backend), `bcbench report` shows it under its label.
         label = base if kind == "naive" else f"{base} + {kind}"
         write_json(where / "realtime-sweep.json", realtime_record(
-            results, "bcbench realtime", label, {**variant, "strategy": kind}, DEFAULT_MARGIN, args.device))
+            results, "bcbench realtime", label, {**variant, "strategy": kind, **strategy.variant_extra()},
+            DEFAULT_MARGIN, args.device))
     if len(strategies) > 1:
         from bcbench.analysis.strategies import load_strategy_sweeps, strategy_figure, strategy_table
 

@@ -57,6 +57,10 @@ class StrategyConfig:
     ensemble_decay: float = 0.01
     """ensemble: w_i = exp(-m i) over the chunks predicting a step, i = 0 the oldest (ACT's m, Zhao et al. 2023)"""
 
+    def variant_extra(self) -> dict[str, bool]:
+        """What a sweep's record adds to its variant beyond the strategy's name: RTC's form when not the paper's."""
+        return {"rtc_jacobian": False} if self.strategy == "rtc" and not self.rtc_jacobian else {}
+
     def __post_init__(self) -> None:
         if self.strategy not in STRATEGIES:
             raise BCBenchError(f"--strategy must be one of {', '.join(STRATEGIES)}, got '{self.strategy}'")
