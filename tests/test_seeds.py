@@ -120,7 +120,8 @@ def test_a_confirm_study_checks_convergence_on_validation_only(tmp_path):
     plan = [(stage, run.label, run.seed) for stage, run, _ in StudyRunner(spec, tmp_path).stages()]
     assert [p for p in plan if p[0] == "eval"] == [("eval", "base", 0), ("eval", "base", 1), ("eval", "base", 2)]
     assert [p for p in plan if p[0] == "check"] == [("check", "base", 0), ("check", "2x", 0)]
-    assert ("latency", "2x", 0) not in plan and ("latency", "base", 2) in plan
+    # timed once per setting, on its lowest training seed: an exact mode's time does not depend on the weights
+    assert [p for p in plan if p[0] == "latency"] == [("latency", "base", 0)]
     with pytest.raises(Exception, match="check_episodes"):
         parse_spec(tomllib.loads('run = [{ policy = "cnn_mlp" }]\n[study]\ncheck_episodes = 20\n'))
 

@@ -59,6 +59,7 @@ eval = [{{ sampler = "ddpm", steps = [2] }}, {{ sampler = "ddim", steps = [2] }}
     ("[[run]]\npolicy = 'cnn_mlp'\ncolour = 'red'", "unknown key(s) colour"),
     ("[study]\nepisodes = 0\n[[run]]\npolicy = 'random'", "study.episodes"),
     ("[study]\nrealtime = {strategies = ['smooth']}\n[[run]]\npolicy = 'random'", "study.realtime.strategies"),
+    ("[study]\nrealtime = {rtc_jacobian = 'no'}\n[[run]]\npolicy = 'random'", "study.realtime.rtc_jacobian"),
     # the seed protocol: an explore study (where choices are made) never reads the test seeds 100000-100099
     ("[study]\npurpose = 'explore'\nepisodes = 50\n[[run]]\npolicy = 'random'", "validation seeds"),
     ("[study]\npurpose = 'explore'\nseed_start = 99990\nepisodes = 50\n[[run]]\npolicy = 'random'",
@@ -109,6 +110,21 @@ def test_config_hash_changes_with_the_config():
     a = parse_spec(tomllib.loads("[[run]]\npolicy='cnn_mlp'"), "a").runs[0]
     b = parse_spec(tomllib.loads("[[run]]\npolicy='cnn_mlp'\nset={hidden=10}"), "b").runs[0]
     assert a.key(0.1) != b.key(0.1) and a.key(0.1) != a.key(0.2) and a.key(0.1) == a.key(0.1)
+
+
+def test_a_runs_steps_are_its_budget_whatever_the_presets_epochs():
+    """`steps` beyond what the preset's epochs hold still runs: the 32,000-step arm of cpu-explore-dpflow (a098acf)
+    stopped at the cpu preset's 60 epochs, 20,520 steps. Epochs the spec gives itself stay."""
+    import tomllib
+
+    from bcbench.policies import make_config
+
+    run = parse_spec(tomllib.loads("[[run]]\npolicy='diffusion'\npreset='cpu'\nsteps=32000"), "a").runs[0]
+    cfg = make_config("diffusion", "cpu", run.overrides)
+    assert cfg.optim.max_steps == 32000 and cfg.optim.epochs >= 32000  # >= 1 step per epoch: steps bind
+    own = parse_spec(tomllib.loads("[[run]]\npolicy='diffusion'\npreset='cpu'\nsteps=500\nset={'optim.epochs'=3}"),
+                     "b").runs[0]
+    assert make_config("diffusion", "cpu", own.overrides).optim.epochs == 3
 
 
 KILL_AFTER_3_STAGES = """

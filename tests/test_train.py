@@ -221,9 +221,10 @@ def test_precision_is_fixed_at_the_first_segment_and_every_segment_names_its_cpu
 
 def test_a_run_records_its_presets_values_and_deviations(synthetic_zarr, tmp_path):
     """What the report (which reads files only) needs of the preset is in run.json."""
-    run = new_run("diffusion", "cpu", {"optim.batch_size": 64, "optim.lr": 5e-4}, tmp_path / "r", _opts(synthetic_zarr))
+    run = new_run("diffusion", "cpu", {"optim.batch_size": 256, "optim.lr": 1e-3}, tmp_path / "r",
+                  _opts(synthetic_zarr))
     meta = json.loads((run / "run.json").read_text())
-    assert meta["preset_values"] == {"optim.batch_size": 256, "optim.lr": 1e-3}
+    assert meta["preset_values"] == {"optim.batch_size": 64, "optim.lr": 5e-4}
     assert "U-Net" in meta["preset_deviations"]
 
 

@@ -73,8 +73,9 @@ class StudyRunner:
                 out += [("eval", run, v) for v in run.variants]
             if self.spec.checks_on_validation(run):
                 out += [("check", run, v) for v in run.variants]
-        if self.spec.latency:
-            out += [("latency", run, v) for run in shown for v in run.variants]
+        if self.spec.latency:  # one training seed per label: the time of an exact mode does not depend on weights
+            lowest = {r.label: min(x.seed for x in shown if x.label == r.label) for r in shown}
+            out += [("latency", run, v) for run in shown if run.seed == lowest[run.label] for v in run.variants]
         if self.spec.realtime:  # last: its 'measured' setting times the policy too; one sweep per strategy
             kinds = self.spec.realtime.get("strategies", ["naive"])
             out += [("realtime", run, replace(v, strategy=None if k == "naive" else k))
@@ -149,15 +150,17 @@ class StudyRunner:
         rt = self.spec.realtime or {}
         partial = self.partial_file(run, variant)
         kind = variant.strategy or "naive"
-        policy = self._policy(run, variant, torch_only([kind]))  # under backend auto, rtc stays in torch
+        strategy = StrategyConfig(kind, rtc_jacobian=rt.get("rtc_jacobian", True))
+        policy = self._policy(run, variant, torch_only([kind], strategy.rtc_jacobian))  # auto: the paper's rtc in torch
         settings = sweep(policy, rt["delays"], rt["executions"], self.spec.episodes,
                          rt["profiles"], rt["measured"], self.progress, self.spec.max_steps, self.spec.seed_start,
                          skip_missing_profiles=True,  # e.g. the study gives no A100 time for BeT
                          done=read_json(partial) if partial.exists() else None,
                          on_setting=lambda results: write_json(partial, results),
-                         execution_horizon=rt.get("execution_horizon"), strategy=StrategyConfig(kind))
+                         execution_horizon=rt.get("execution_horizon"), strategy=strategy)
         label = run.label if kind == "naive" else f"{run.label} + {kind}"
-        return realtime_record(settings, self.spec.name, label, {**asdict(variant), "strategy": kind}, self.spec.margin,
+        return realtime_record(settings, self.spec.name, label, {**asdict(variant), "strategy": kind,
+                                                                  **strategy.variant_extra()}, self.spec.margin,
                                self.device, run.policy if run.outside else None)
 
     def after_stage(self) -> None:

@@ -16,11 +16,16 @@
     purpose = "explore"     # explore: validation seeds 200000+ only, >= 50 episodes (choices are made here);
                             # confirm: fixed presets on the test seeds 100000+ (bcbench.protocol)
     check_episodes = 100    # confirm: validation episodes of the twice-the-steps checks (>= 50)
+    realtime = { delays = [1, 2, 4], execution = ["async"], profiles = ["a100"], measured = true,
+                 strategies = ["naive", "rtc"], execution_horizon = 8, rtc_jacobian = false }
+                            # the real-time sweep of the runs that ask for one (run key `realtime`): defaults
+                            # [1, 2, 4, 8], both executions, no profile, measured, naive, s = 8 - d, the paper's RTC
 
     [[run]]
     policy = "diffusion"
     preset = "quick"        # diffusion also has quick_linear / paper_linear (`config` is the old name of this key)
-    steps = 3000            # training budget in optimiser steps (optional; default: the preset's epochs)
+    steps = 3000            # training budget in optimiser steps (optional; default: the preset's epochs); the
+                            # preset's epochs do not cut it short (they are lifted unless `set` gives them)
     max_minutes = 60        # safety stop (optional): a run that hits it is marked "schedule not finished"
     eval_every = 500        # learning curve: rollouts every 500 steps on validation seeds (optional)
     seeds = [0]             # one training run per seed
@@ -57,7 +62,7 @@ STUDY_KEYS = {"name", "episodes", "seed_start", "val_fraction", "latency", "thre
               "check_episodes", "backend", "precision", "latency_modes", "resources", "purpose"}
 RUN_KEYS = {"policy", "preset", "config", "steps", "max_minutes", "seeds", "set", "eval", "label", "eval_every",
             "realtime", "args", "doubles"}
-REALTIME_KEYS = {"delays", "execution", "profiles", "measured", "strategies", "execution_horizon"}
+REALTIME_KEYS = {"delays", "execution", "profiles", "measured", "strategies", "execution_horizon", "rtc_jacobian"}
 
 
 @dataclass(frozen=True)
@@ -209,7 +214,9 @@ def _run_specs(i: int, run: Any) -> list[RunSpec]:
         steps = run["steps"]
         if not isinstance(steps, int) or isinstance(steps, bool) or steps < 1:
             raise BCBenchError(f"{_where(i, run)}: steps must be a whole number >= 1, got {steps!r}")
-        overrides = {**overrides, "optim.max_steps": steps}
+        # `steps` is the budget: every epoch has >= 1 step, so epochs = steps never stops training first (the
+        # preset's 60 epochs cut a 32,000-step arm of cpu-explore-dpflow to 20,520 steps); explicit epochs stay
+        overrides = {"optim.epochs": steps, **overrides, "optim.max_steps": steps}
     try:
         make_config(policy, config, overrides)
     except BCBenchError as exc:
@@ -279,7 +286,8 @@ def _realtime_table(rt: Any) -> dict[str, Any]:
         raise BCBenchError(f"study.realtime must be a table with keys {', '.join(sorted(REALTIME_KEYS))}")
     out = {"delays": rt.get("delays", [1, 2, 4, 8]), "executions": rt.get("execution", ["blocking", "async"]),
            "profiles": rt.get("profiles", []), "measured": rt.get("measured", True),
-           "strategies": rt.get("strategies", ["naive"]), "execution_horizon": rt.get("execution_horizon")}
+           "strategies": rt.get("strategies", ["naive"]), "execution_horizon": rt.get("execution_horizon"),
+           "rtc_jacobian": rt.get("rtc_jacobian", True)}  # RTC's form (StrategyConfig.rtc_jacobian)
     if not out["strategies"] or any(k not in STRATEGIES for k in out["strategies"]):
         raise BCBenchError(f"study.realtime.strategies must list some of {', '.join(STRATEGIES)}")
     s = out["execution_horizon"]
@@ -290,6 +298,8 @@ def _realtime_table(rt: Any) -> dict[str, Any]:
     if not set(out["executions"]) <= {"blocking", "async"} or not out["executions"]:
         raise BCBenchError("study.realtime.execution must list blocking and/or async")
 
+    if not isinstance(out["rtc_jacobian"], bool):
+        raise BCBenchError("study.realtime.rtc_jacobian must be true (the paper's RTC) or false (J = I)")
     if any(p not in PROFILES for p in out["profiles"]) or not isinstance(out["measured"], bool):
         raise BCBenchError(f"study.realtime.profiles must be among {', '.join(PROFILES)}; measured true or false")
     return out

@@ -14,6 +14,7 @@ learning-rate schedule is sized to them, so it always finishes; a wall-clock lim
 from __future__ import annotations
 
 import math
+import sys
 import time
 from dataclasses import asdict, dataclass, fields
 from datetime import UTC, datetime
@@ -160,6 +161,9 @@ def prepare(run_dir: str | Path, opts: TrainOptions) -> Run:
         raise BCBenchError(f"only {len(train_ds)} training windows for a batch of {o.batch_size}")
     steps_per_epoch = len(train_ds) // o.batch_size  # drop_last: every batch is full
     total_steps = min(o.epochs * steps_per_epoch, o.max_steps or math.inf)
+    if o.max_steps and o.max_steps > total_steps:  # a budget that silently never binds is how a study arm gets lost
+        print(f"note: {o.epochs} epochs of {steps_per_epoch} steps end training at step {total_steps}, before "
+              f"max_steps {o.max_steps}; raise optim.epochs to reach it", file=sys.stderr)
     # channels_last: the 2-D convolutions of the image encoders run on oneDNN's NHWC kernels (and tensor cores)
     channels_last_convs(model.to(device))
     ema = EMA(model, o.ema_power, o.ema_max_decay) if o.ema else None
