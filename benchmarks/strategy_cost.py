@@ -23,8 +23,7 @@ import torch
 
 from bcbench.evaluation.backends import apply_mode
 from bcbench.evaluation.config import StrategyConfig
-from bcbench.evaluation.controller import episode_generator
-from bcbench.evaluation.latency_sources import timed_request_inputs
+from bcbench.evaluation.latency_sources import interleaved_request_ms
 from bcbench.evaluation.strategies import Strategy
 from bcbench.modes import mode_name
 from bcbench.policies.checkpoint import configure_runner, load_runner
@@ -52,7 +51,6 @@ def main() -> None:
     runner = load_runner(args.run_dir, use_ema=True)
     configure_runner(runner, args.sampler, args.steps, 0, None)
     apply_mode(runner, mode_name(args.backend, "fp32", False))
-    obs, target, weights = timed_request_inputs(runner, True)  # as the measured latency
     weak = None
     if args.bid_weak:  # run as the policy is: same sampler and mode
         weak = load_runner(args.bid_weak, use_ema=True)
@@ -63,19 +61,7 @@ def main() -> None:
                                              bid_samples=args.bid_samples,
                                              bid_weak=args.bid_weak if k == "bid" else None),
                               runner, weak if k == "bid" else None) for k in args.strategies}
-    weak_gen = [episode_generator(1, 0)]  # BID's weak policy draws from its own stream, as in the controller
-
-    def request(s: Strategy) -> float:
-        s.request(obs, target, weights, weak_gen if s.weak is not None else None)
-        return s.last_compute_s * 1e3
-
-    for s in strategies.values():
-        for _ in range(args.warmup):
-            request(s)
-    ms: dict[str, list[list[float]]] = {k: [] for k in strategies}
-    for _ in range(args.rounds):
-        for k, s in strategies.items():
-            ms[k].append([request(s) for _ in range(args.calls)])
+    ms = interleaved_request_ms(runner, strategies, args.rounds, args.calls, args.warmup)
     base = next(iter(strategies))
     out = {"type": "strategy-cost", "run_dir": str(args.run_dir), "sampler": args.sampler, "steps": args.steps,
            "mode": runner.info.mode, "batch": 1, "rounds": args.rounds, "calls_per_round": args.calls,

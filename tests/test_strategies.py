@@ -250,6 +250,29 @@ def test_a_strategys_extra_compute_is_in_the_measured_latency():
     assert measured(StrategyConfig("rtc")) == pytest.approx(90.0, abs=1.0)
 
 
+def test_strategies_are_timed_in_interleaved_rounds_and_a_sweep_takes_those_times(tmp_path, capsys):
+    """A sweep of several strategies times them all together before any episode (one after another's episodes ran
+    slower, results/strategies-dp-a); the sweep's measured setting uses the times it is given."""
+    from bcbench.cli.main import main
+    from bcbench.evaluation.latency_sources import interleaved_request_ms
+    from bcbench.evaluation.realtime import sweep
+
+    policy = Clocked()
+    both = {"naive": Strategy(StrategyConfig(), policy), "rtc": Strategy(StrategyConfig("rtc"), policy)}
+    rounds = interleaved_request_ms(policy, both, rounds=3, calls=2, warmup=1)
+    assert [len(rounds[k]) for k in ("naive", "rtc")] == [3, 3] and all(len(r) == 2 for r in rounds["rtc"])
+    assert np.median(rounds["naive"]) == pytest.approx(30.0, abs=1.0)
+    assert np.median(rounds["rtc"]) == pytest.approx(90.0, abs=1.0)
+    runner = _runner("cnn_mlp")
+    out = sweep(runner, [], ["async"], 1, [], True, progress=False, max_steps=10, measured_ms=[250.0] * 100)
+    source = out["realtime-async-measured"]["summary"]["latency_source"]
+    assert source["median_ms"] == 250.0 and source["calls"] == 100  # given, not timed: d = 3
+    assert main(["realtime", "--policy", "scripted", "--episodes", "1", "--delays", "1", "--execution", "async",
+                 "--strategy", "naive", "ensemble", "--measured", "--max-steps", "10", "--quiet", "--out",
+                 str(tmp_path / "rt")]) == 0
+    assert "timed in 20 interleaved rounds before any episode: naive" in capsys.readouterr().out
+
+
 def test_backend_auto_keeps_a_sweep_with_rtc_in_torch_and_says_why():
     """--measured defaults to --backend auto, whose fastest mode may be an exported graph that cannot take RTC's
     vector-Jacobian product: a sweep with rtc chooses among the torch modes only, and the record says why."""

@@ -250,8 +250,18 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     weak = load_weak(args, policy) if "bid" in strategies else None
     from bcbench.evaluation.strategies import Strategy
 
-    for c in configs:  # each strategy can run on this policy: checked before hours of episodes
-        Strategy(c, policy, weak if c.strategy == "bid" else None)
+    # each strategy can run on this policy: checked before hours of episodes
+    built = {k: Strategy(c, policy, weak if k == "bid" else None) for k, c in zip(strategies, configs, strict=True)}
+    measured_ms: dict[str, list[float]] = {}
+    if args.measured and len(strategies) > 1:  # timed together, before any episode (latency_sources says why)
+        from statistics import median
+
+        from bcbench.evaluation.latency_sources import interleaved_request_ms
+
+        rounds = interleaved_request_ms(policy, built)
+        measured_ms = {k: [ms for r in rs for ms in r] for k, rs in rounds.items()}
+        print("measured latency, each strategy's request timed in 20 interleaved rounds before any episode: "
+              + ", ".join(f"{k} {median(v):.1f} ms" for k, v in measured_ms.items()))
     out = Path(args.out) if args.out else default_out.with_name(default_out.name.replace("eval-", "realtime-"))
     mode = policy.info.mode if isinstance(policy, PolicyRunner) else None  # what apply_mode set; baselines: none
     base = args.label or (f"{policy.name} ({mode})" if mode else policy.name)
@@ -262,7 +272,7 @@ def cmd_realtime(args: argparse.Namespace) -> int:
         results = sweep(policy, args.delays, args.execution, args.episodes, args.profile or [], args.measured,
                         progress=not args.quiet, max_steps=args.max_steps, seed_start=args.seed_start,
                         execution_horizon=args.execution_horizon, strategy=strategy,
-                        weak=weak if kind == "bid" else None)
+                        weak=weak if kind == "bid" else None, measured_ms=measured_ms.get(kind))
         print(f"{policy.name}, strategy {kind}: score under real-time execution ({args.episodes} episodes each)")
         for name, r in results.items():
             write_json(where / f"{name}.json", r)

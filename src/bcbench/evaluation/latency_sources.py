@@ -23,6 +23,7 @@ import numpy as np
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.config import PROFILES as PROFILE_NAMES
 from bcbench.evaluation.config import check_latency_options
+from bcbench.evaluation.controller import WEAK_STREAM, episode_generator
 from bcbench.evaluation.strategies import Strategy, prefix_weights
 from bcbench.evaluation.timing import TimingConfig, time_calls
 from bcbench.interface import ChunkPolicy, example_observation, is_generative
@@ -70,6 +71,28 @@ def timed_request_inputs(runner: ChunkPolicy, uses_target: bool
     target = np.asarray(runner.predict_action_chunk(obs), dtype=np.float32)
     tp, cs = runner.pred_horizon, runner.chunk_start
     return obs, target, prefix_weights(tp, cs + 1, tp - runner.action_horizon)[None]
+
+
+def interleaved_request_ms(runner: ChunkPolicy, strategies: dict[str, Strategy], rounds: int = 20, calls: int = 5,
+                           warmup: int = 10) -> dict[str, list[list[float]]]:
+    """Each strategy's request times (ms), `rounds` x `calls`, in interleaved rounds after `warmup` untimed calls
+    each: strategy -> per-round lists. Timing one strategy after another's hundred episodes made the second 6-9 ms
+    slower for the same request (results/strategies-dp-a); interleaving shares whatever the machine drifts."""
+    obs, target, weights = timed_request_inputs(runner, True)  # strategies that read no target ignore it
+    weak_generators = [episode_generator(WEAK_STREAM, 0)]
+
+    def request(s: Strategy) -> float:
+        s.request(obs, target, weights, weak_generators if s.weak is not None else None)
+        return s.last_compute_s * 1e3
+
+    for s in strategies.values():
+        for _ in range(warmup):
+            request(s)
+    out: dict[str, list[list[float]]] = {k: [] for k in strategies}
+    for _ in range(rounds):
+        for k, s in strategies.items():
+            out[k].append([request(s) for _ in range(calls)])
+    return out
 
 
 @dataclass

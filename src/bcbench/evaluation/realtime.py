@@ -40,7 +40,7 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
           skip_missing_profiles: bool = False, done: dict[str, dict[str, Any]] | None = None,
           on_setting: Callable[[dict[str, dict[str, Any]]], None] | None = None,
           execution_horizon: int | None = None, strategy: StrategyConfig | None = None,
-          weak: ChunkPolicy | None = None) -> dict[str, dict[str, Any]]:
+          weak: ChunkPolicy | None = None, measured_ms: list[float] | None = None) -> dict[str, dict[str, Any]]:
     """Score against delay d for each execution mode (sync as the d = 0 reference), plus the policy's score at
     its measured latency on this machine and under each hardware profile: evaluation results by setting.
     `done`: settings finished by an interrupted sweep (kept, not rerun); `on_setting(results so far)` is called
@@ -48,7 +48,8 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
     profile or measured setting whose every call takes the d of a fixed setting already swept reuses its episodes
     (`fixed_twin`): a fast policy's A100 and measured settings cost no episodes.
     `execution_horizon`: s of the async settings (see bcbench.evaluation.controller); `strategy` (and BID's
-    `weak` policy): how consecutive chunks are joined, in every setting, sync included."""
+    `weak` policy): how consecutive chunks are joined, in every setting, sync included. `measured_ms`: the measured
+    setting's call times, taken by the caller (e.g. interleaved with other strategies'); else timed here."""
     if execution_horizon is not None:  # checked before hours of episodes
         EvalConfig(execution="async", execution_horizon=execution_horizon)
     usable = []
@@ -75,6 +76,8 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
         source, twin = None, None
         if "latency" in latency:  # a profile or the measured latency: its delays are known before any episode
             source = LatencySource.parse(cfg.latency, None)
+            if source.kind == "measured" and measured_ms is not None:
+                source.samples_ms = list(measured_ms)  # resolve keeps them
             source.resolve(policy, Strategy(cfg.strategy, policy, weak))
             twin = fixed_twin(source, execution, out)
         if twin is not None:
