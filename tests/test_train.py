@@ -316,3 +316,15 @@ def test_a_crafted_pickle_in_a_checkpoint_is_refused_with_one_line(synthetic_zar
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "refused" in err and "state.pt" in err
     assert not os.path.exists("/tmp/bcbench-pwned")  # nothing ran
+
+
+def test_a_max_steps_the_epochs_never_reach_is_said(synthetic_zarr, tmp_path, capsys):
+    """max_steps beyond epochs x steps per epoch cannot bind; the trainer says so rather than stopping short quietly."""
+    run = new_run("cnn_mlp", "quick", tiny_overrides("cnn_mlp", epochs=1, max_steps=10**6), tmp_path / "r",
+                  _opts(synthetic_zarr))
+    r = prepare(run, _opts(synthetic_zarr))
+    err = capsys.readouterr().err
+    assert f"end training at step {r.total_steps}, before max_steps 1000000" in err
+    prepare(new_run("cnn_mlp", "quick", tiny_overrides("cnn_mlp", epochs=1, max_steps=1), tmp_path / "s",
+                    _opts(synthetic_zarr)), _opts(synthetic_zarr))
+    assert "max_steps" not in capsys.readouterr().err  # a cap that binds is not noted
