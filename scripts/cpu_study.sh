@@ -11,6 +11,10 @@
 # starts with an empty cache) a study with a committed export results/NAME goes on from it, at its commit
 # (bcbench.study.restore); only the stages that need a restored run's checkpoint (timing, real time) cannot.
 # Stop it before timing anything else on the machine: timings taken beside it mean nothing.
+# nice 10 yields to other work of the same login session only: with the kernel's autogroup scheduling
+# (/proc/sys/kernel/sched_autogroup_enabled = 1 on this project's VMs) a job started in another session (nohup,
+# setsid) gets an equal share whatever its nice. To give foreground work the machine, pause the study:
+#   pkill -STOP -f "bcbench.cli study"   ...   pkill -CONT -f "bcbench.cli study"
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export BCBENCH_HOME="${BCBENCH_HOME:-$HOME/.cache/bcbench}"
