@@ -407,6 +407,25 @@ def test_strategies_that_cannot_run_say_why_in_one_line():
     assert EvalConfig(strategy={"strategy": "bid", "bid_samples": 4}).strategy.bid_samples == 4  # from a record
 
 
+def test_the_report_names_rtcs_form_when_it_is_not_the_papers(tmp_path):
+    """A sweep of RTC with J = I shows as 'rtc (J = I)', still paired with the same policy's naive sweep."""
+    from bcbench.analysis.strategies import load_strategy_sweeps, strategy_table
+    from bcbench.utils.io import write_json
+
+    def record(kind: str, extra: dict) -> dict:
+        episodes = [{"seed": 100_000 + i, "score": 0.5 + 0.1 * (kind == "rtc") * (i % 2)} for i in range(4)]
+        summary = {"mean_score": {"value": 0.5, "ci95": [0.4, 0.6]}, "n": 4}
+        settings = {name: {"episodes": episodes, "summary": summary, "realtime": {"setting": name}}
+                    for name in ("realtime-sync", "realtime-async-d4")}
+        return {"type": "realtime", "study": {"name": "t", "label": "flow" + ("" if kind == "naive" else
+                f" + {kind}"), "variant": {"strategy": kind, **extra}}, "margin": 0.05, "settings": settings}
+    write_json(tmp_path / "naive" / "realtime-sweep.json", record("naive", {}))
+    write_json(tmp_path / "rtc" / "realtime-sweep.json", record("rtc", {"rtc_jacobian": False}))
+    sweeps = load_strategy_sweeps(tmp_path)
+    assert list(sweeps) == ["flow"] and sorted(sweeps["flow"]) == ["naive", "rtc (J = I)"]
+    assert any("| flow | rtc (J = I) |" in line for line in strategy_table(sweeps, 0.05))
+
+
 def test_realtime_sweeps_each_strategy_and_the_report_pairs_them_with_naive(tmp_path, capsys):
     from bcbench.analysis.strategies import load_strategy_sweeps, strategy_lines
     from bcbench.cli.main import main

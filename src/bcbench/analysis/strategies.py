@@ -35,9 +35,11 @@ def load_strategy_sweeps(results: str | Path) -> dict[str, dict[str, dict[str, A
     seeds are pooled over them (`analysis.realtime.pool_training_seeds`)."""
     found: dict[str, dict[str, list[dict[str, Any]]]] = {}
     for f, data in realtime_records(results):
-        kind = (data.get("study", {}).get("variant") or {}).get("strategy") or "naive"
+        variant = data.get("study", {}).get("variant") or {}
+        kind = variant.get("strategy") or "naive"
         base = sweep_label(f, data).replace(f" + {kind}", "", 1)  # one policy, whichever strategy it ran
-        found.setdefault(base, {}).setdefault(kind, []).append(data["settings"])
+        shown = kind + (" (J = I)" if variant.get("rtc_jacobian") is False else "")  # RTC's form when not the paper's
+        found.setdefault(base, {}).setdefault(shown, []).append(data["settings"])
     return {k: {kind: pool_training_seeds(s) for kind, s in v.items()} for k, v in found.items()
             if len(v) > 1 and "naive" in v}
 
@@ -100,7 +102,7 @@ def strategy_figure(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path,
     for ax, (label, sweeps) in zip(axes[0], by_policy.items(), strict=True):
         for kind, settings in sweeps.items():
             pts = delay_curve(settings, execution)
-            colour, marker, ls = STYLE.get(kind, ("C7", "x", "-"))
+            colour, marker, ls = STYLE.get(kind.split(" ")[0], ("C7", "x", "-"))
             err = [[e["value"] - e["ci95"][0] for _, e in pts], [e["ci95"][1] - e["value"] for _, e in pts]]
             ax.errorbar([d for d, _ in pts], [e["value"] for _, e in pts], yerr=err, capsize=3, marker=marker,
                         ls=ls, color=colour, label=kind)
