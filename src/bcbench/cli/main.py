@@ -260,8 +260,8 @@ def cmd_realtime(args: argparse.Namespace) -> int:
 
         rounds = interleaved_request_ms(policy, built)
         measured_ms = {k: [ms for r in rs for ms in r] for k, rs in rounds.items()}
-        print("measured latency, each strategy's request timed in 20 interleaved rounds before any episode: "
-              + ", ".join(f"{k} {median(v):.1f} ms" for k, v in measured_ms.items()))
+        print(f"measured latency, each strategy's request timed in {len(rounds[strategies[0]])} interleaved rounds "
+              "before any episode: " + ", ".join(f"{k} {median(v):.1f} ms" for k, v in measured_ms.items()))
     out = Path(args.out) if args.out else default_out.with_name(default_out.name.replace("eval-", "realtime-"))
     mode = policy.info.mode if isinstance(policy, PolicyRunner) else None  # what apply_mode set; baselines: none
     base = args.label or (f"{policy.name} ({mode})" if mode else policy.name)
