@@ -50,8 +50,9 @@ case "${1:-start}" in
     # The clone has no ../shared beside it: name the data explicitly. PYTHONPATH puts the pinned code
     # ahead of the work tree's editable install; the work tree's .venv supplies the libraries.
     export BCBENCH_DATA="${BCBENCH_DATA:-$PWD/../shared/data/pusht/pusht_cchi_v7_replay.zarr}"
-    (cd "$SRC" && PYTHONPATH="$SRC/src" nohup nice -n 10 "$OLDPWD/.venv/bin/python" -m bcbench.cli \
-        study "$SPEC" --out "$OUT" >>"$LOG" 2>&1 &)
+    # exec: no shell stays behind holding the caller's stdout open (a tool that waits for EOF would hang).
+    (cd "$SRC" && PYTHONPATH="$SRC/src" exec nohup nice -n 10 "$OLDPWD/.venv/bin/python" -m bcbench.cli \
+        study "$SPEC" --out "$OUT" >>"$LOG" 2>&1 </dev/null &)
     echo "started at commit ${COMMIT:0:12}: results in $OUT, log $LOG" ;;
   stop)
     pkill -INT -f "$PATTERN" && echo "asked to stop (it checkpoints and exits)" || echo "not running" ;;
