@@ -61,11 +61,12 @@ def main() -> None:
                                              bid_samples=args.bid_samples,
                                              bid_weak=args.bid_weak if k == "bid" else None),
                               runner, weak if k == "bid" else None) for k in args.strategies}
-    ms = interleaved_request_ms(runner, strategies, args.rounds, args.calls, args.warmup)
+    ms, contention = interleaved_request_ms(runner, strategies, args.rounds, args.calls, args.warmup)
     base = next(iter(strategies))
     out = {"type": "strategy-cost", "run_dir": str(args.run_dir), "sampler": args.sampler, "steps": args.steps,
            "mode": runner.info.mode, "batch": 1, "rounds": args.rounds, "calls_per_round": args.calls,
-           "warmup": args.warmup, "relative_to": base, "strategies": {}, **provenance()}
+           "warmup": args.warmup, "relative_to": base, "cpu_contention": contention, "strategies": {},
+           **provenance()}
     for k, rounds in ms.items():
         flat = np.array(rounds).ravel()  # (rounds * calls,)
         ratio = np.median([np.median(r) / np.median(b) for r, b in zip(rounds, ms[base], strict=True)])

@@ -104,3 +104,42 @@ def test_the_floor_counts_weights_per_use_and_flops():
     assert ten["weight_bytes"] > one["weight_bytes"] > 0 and ten["flops"] > one["flops"] > 0
     f = floor_ms(ten, {"read_gb_per_s": 10.0, "gemm_gflop_per_s": 1e6})
     assert f["bound"] == "memory" and f["floor_ms"] == pytest.approx(ten["weight_bytes"] / 1e10 * 1e3)
+
+
+def test_a_timing_records_and_warns_when_another_process_used_the_cpus(capsys):
+    """The brief's rule (never report a timing taken while something else ran) becomes checkable: every timing
+    records the CPUs other processes used meanwhile, and says so on stderr when they did."""
+    import subprocess
+    import sys
+    import time
+
+    from bcbench.utils.system import machine_cpu_seconds
+
+    if machine_cpu_seconds() is None:
+        pytest.skip("no /proc/stat on this system")
+    spin = subprocess.Popen([sys.executable, "-c", "import time\nt = time.time()\nwhile time.time() - t < 5: pass"])
+    try:
+        time.sleep(0.3)  # the spinner is running
+        stats = time_calls(lambda: time.sleep(0.01), TimingConfig(warmup=0, min_calls=100, min_seconds=1.5,
+                                                                max_calls=1000), what="a sleeping call")
+    finally:
+        spin.kill()
+        spin.wait()
+    busy = stats["cpu_contention"]
+    assert busy["other_cpus"] > 0.5 and busy["seconds"] >= 1.5  # one spinning core, whatever else ran
+    assert "while timing a sleeping call, other processes used" in capsys.readouterr().err
+
+
+
+def test_a_timings_own_cpu_use_is_not_counted_as_other(monkeypatch):
+    """A machine where only this process runs (its busy time is this process's CPU time): nothing "other"."""
+    import time
+
+    from bcbench.utils import system
+
+    monkeypatch.setattr(system, "machine_cpu_seconds", lambda: (time.process_time() + 100.0, 7.0))
+    with system.CpuContention() as own:
+        t = time.perf_counter()
+        while time.perf_counter() - t < 0.3:
+            pass
+    assert own.result is not None and own.result["other_cpus"] < 0.02 and own.result["steal_cpus"] == 0.0

@@ -259,7 +259,7 @@ def test_strategies_are_timed_in_interleaved_rounds_and_a_sweep_takes_those_time
 
     policy = Clocked()
     both = {"naive": Strategy(StrategyConfig(), policy), "rtc": Strategy(StrategyConfig("rtc"), policy)}
-    rounds = interleaved_request_ms(policy, both, rounds=3, calls=2, warmup=1)
+    rounds, _ = interleaved_request_ms(policy, both, rounds=3, calls=2, warmup=1)
     assert [len(rounds[k]) for k in ("naive", "rtc")] == [3, 3] and all(len(r) == 2 for r in rounds["rtc"])
     assert np.median(rounds["naive"]) == pytest.approx(30.0, abs=1.0)
     assert np.median(rounds["rtc"]) == pytest.approx(90.0, abs=1.0)
@@ -484,3 +484,40 @@ def test_rtc_outside_its_own_execution_horizon_rule_is_noted(capsys):
               execution_horizon=s, strategy=StrategyConfig("rtc"))
         err = capsys.readouterr().err
         assert ("note: rtc at d = 6 executes fewer actions per chunk than the delay" in err) == noted, s
+
+
+def test_a_horizon_no_chunk_allows_fails_before_any_episode(capsys):
+    """d = 8 with s = 8 needs 17 actions of Diffusion Policy's 16 (the current step's at index 1): the sweep says
+    so before its first setting, not after the settings before d = 8 ran (a lost sweep, results/strategies-confirm)."""
+    from bcbench.cli.main import main
+    from bcbench.evaluation.realtime import sweep
+
+    runner = _runner("diffusion")
+    calls = []
+    runner.predict_action_chunk = lambda obs: calls.append(1)  # any episode would call it
+    with pytest.raises(BCBenchError, match=r"async d = 8 with execution horizon 8 needs 17 actions .* at s = 8 the "
+                                           r"delays can be \[1, 2, 4, 6\], at d = 8 s can be at most 7"):
+        sweep(runner, [1, 2, 4, 6, 8], ["async"], 1, [], False, progress=False, execution_horizon=8)
+    assert not calls
+    assert main(["realtime", "--policy", "scripted", "--episodes", "1", "--delays", "1", "16", "--execution", "async",
+                 "--quiet"]) == 2
+    assert "async d = 16 with execution horizon 1" in capsys.readouterr().err
+
+
+def test_a_sweep_keeps_each_finished_setting_when_a_later_one_fails(tmp_path, monkeypatch):
+    from bcbench.cli.main import main
+    from bcbench.evaluation import realtime
+
+    real, calls = realtime.evaluate, []
+
+    def failing_third(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise BCBenchError("the machine went away")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(realtime, "evaluate", failing_third)
+    out = tmp_path / "rt"
+    assert main(["realtime", "--policy", "scripted", "--episodes", "1", "--delays", "1", "2", "--execution", "async",
+                 "--max-steps", "10", "--quiet", "--out", str(out)]) == 2
+    assert sorted(p.name for p in out.glob("*.json")) == ["realtime-async-d1.json", "realtime-sync.json"]

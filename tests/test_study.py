@@ -347,6 +347,26 @@ def test_provenance_reads_every_file_kind_and_states_the_reason(tmp_path):
     assert provenance_notes([], {"aaa": ["evaluations"]}) == ["Produced at commit: aaa."]  # one commit: no warning
 
 
+def test_provenance_names_the_timings_taken_beside_other_work():
+    """A timing records what else used the CPUs; the report warns about the rows timed on a busy machine, and says so
+    when every recorded timing was quiet (older files, which recorded nothing, are neither)."""
+    from bcbench.analysis.provenance import timing_conditions
+    from bcbench.analysis.results import Row
+
+    def row(label: str, **modes: dict) -> Row:
+        return Row(key=label, label=label, policy="diffusion", preset="cpu", variant="ddim10", sampler="ddim",
+                   steps=10, spacing=None, beta_schedule=None, params=1, summary={}, latency=modes)
+
+    quiet = {"median_ms": 5.0, "cpu_contention": {"other_cpus": 0.01, "steal_cpus": 0.0, "seconds": 2.0}}
+    busy = {"median_ms": 9.0, "cpu_contention": {"other_cpus": 0.97, "steal_cpus": 0.0, "seconds": 2.0}}
+    assert timing_conditions([row("a", fast=quiet)]) == (
+        "Every one of the 1 timings that recorded it ran on a quiet machine (other processes and the hypervisor's "
+        "steal under 0.1 CPUs each).")
+    note = timing_conditions([row("a", fast=quiet), row("DP", reference=busy, fast={"median_ms": 4.0})])
+    assert note.startswith("Warning: 1 of 2 timings") and "DP ddim10 reference (0.97 CPUs other" in note
+    assert timing_conditions([row("old", fast={"median_ms": 4.0})]) == ""
+
+
 def test_twice_the_steps_decides_convergence():
     """The 2x check: paired over shared episodes, two-sided; strict studies need it, older ones keep the curve rule."""
     import numpy as np

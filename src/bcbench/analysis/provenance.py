@@ -7,6 +7,7 @@ from pathlib import Path
 
 from bcbench.analysis.results import Row
 from bcbench.analysis.seeds import episodes_and_seeds
+from bcbench.utils.system import CONTENDED_CPUS
 
 
 def _hw_cell(r: Row) -> str:
@@ -69,4 +70,30 @@ def provenance_notes(rows: list[Row], commits_by_kind: dict[str, list[str]] | No
                      + ".")
     elif nodes:
         notes.append(f"Timed on {next(iter(nodes))}.")
+    quiet = timing_conditions(rows)
+    if quiet:
+        notes.append(quiet)
     return notes
+
+
+def timing_conditions(rows: list[Row]) -> str:
+    """Whether the machine was quiet while each row was timed, from the CPU use its timing recorded (other processes
+    and the hypervisor's steal, in CPUs; bcbench.utils.system.CpuContention): a warning naming the rows timed beside
+    other work, a statement when every recorded timing was quiet, nothing when no timing recorded it (older files)."""
+    recorded, busy = 0, []
+    for r in rows:
+        for mode, stats in r.latency.items():
+            c = stats.get("cpu_contention") if isinstance(stats, dict) else None
+            if not c:
+                continue
+            recorded += 1
+            if max(c["other_cpus"], c["steal_cpus"]) > CONTENDED_CPUS:
+                busy.append(f"{r.label} {r.variant} {mode} ({c['other_cpus']:.2f} CPUs other, "
+                            f"{c['steal_cpus']:.2f} stolen)")
+    if busy:
+        return (f"Warning: {len(busy)} of {recorded} timings were taken while other work used the CPUs (more than "
+                f"{CONTENDED_CPUS} CPUs): " + "; ".join(busy) + ". Their times are not quiet-machine times.")
+    if recorded:
+        return (f"Every one of the {recorded} timings that recorded it ran on a quiet machine (other processes and "
+                f"the hypervisor's steal under {CONTENDED_CPUS} CPUs each).")
+    return ""

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -253,12 +254,13 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     # each strategy can run on this policy: checked before hours of episodes
     built = {k: Strategy(c, policy, weak if k == "bid" else None) for k, c in zip(strategies, configs, strict=True)}
     measured_ms: dict[str, list[float]] = {}
+    contention = None
     if args.measured and len(strategies) > 1:  # timed together, before any episode (latency_sources says why)
         from statistics import median
 
         from bcbench.evaluation.latency_sources import interleaved_request_ms
 
-        rounds = interleaved_request_ms(policy, built)
+        rounds, contention = interleaved_request_ms(policy, built)
         measured_ms = {k: [ms for r in rs for ms in r] for k, rs in rounds.items()}
         print(f"measured latency, each strategy's request timed in {len(rounds[strategies[0]])} interleaved rounds "
               "before any episode: " + ", ".join(f"{k} {median(v):.1f} ms" for k, v in measured_ms.items()))
@@ -272,7 +274,8 @@ def cmd_realtime(args: argparse.Namespace) -> int:
         results = sweep(policy, args.delays, args.execution, args.episodes, args.profile or [], args.measured,
                         progress=not args.quiet, max_steps=args.max_steps, seed_start=args.seed_start,
                         execution_horizon=args.execution_horizon, strategy=strategy,
-                        weak=weak if kind == "bid" else None, measured_ms=measured_ms.get(kind))
+                        weak=weak if kind == "bid" else None, measured_ms=measured_ms.get(kind),
+                        measured_contention=contention, on_setting=partial(_write_newest, where))
         print(f"{policy.name}, strategy {kind}: score under real-time execution ({args.episodes} episodes each)")
         for name, r in results.items():
             write_json(where / f"{name}.json", r)
@@ -308,6 +311,12 @@ def cmd_export(args: argparse.Namespace) -> int:
     print(f"{runner.name}: {args.format} {args.precision} graphs ({', '.join(runner.model.graphs)}) in "
           f"{runner.model.deployment['export']}")
     return 0
+
+
+def _write_newest(folder: Path, done: dict[str, dict[str, Any]]) -> None:
+    """A sweep's newest finished setting, written as it finishes: a sweep stopped at its fifth setting keeps four."""
+    name, result = next(reversed(done.items()))
+    write_json(folder / f"{name}.json", result)
 
 
 def cmd_publish(args: argparse.Namespace) -> int:

@@ -29,6 +29,7 @@ from bcbench.evaluation.timing import TimingConfig, time_calls
 from bcbench.interface import ChunkPolicy, example_observation, is_generative
 from bcbench.protocol import CONTROL_DT_S
 from bcbench.reference import A100_DP_MS, A100_MS
+from bcbench.utils.system import CpuContention
 
 # Diffusion Policy (and flow matching, the same network) at K steps on the A100: the encoder-and-overhead
 # share plus K U-Net calls, from the study's two measured points (K = 10, 100).
@@ -74,10 +75,11 @@ def timed_request_inputs(runner: ChunkPolicy, uses_target: bool
 
 
 def interleaved_request_ms(runner: ChunkPolicy, strategies: dict[str, Strategy], rounds: int = 20, calls: int = 5,
-                           warmup: int = 10) -> dict[str, list[list[float]]]:
+                           warmup: int = 10) -> tuple[dict[str, list[list[float]]], dict[str, float] | None]:
     """Each strategy's request times (ms), `rounds` x `calls`, in interleaved rounds after `warmup` untimed calls
-    each: strategy -> per-round lists. Timing one strategy after another's hundred episodes made the second 6-9 ms
-    slower for the same request (results/strategies-dp-a); interleaving shares whatever the machine drifts."""
+    each: strategy -> per-round lists; and what else used the CPUs meanwhile (`CpuContention`, warned about on
+    stderr). Timing one strategy after another's hundred episodes made the second 6-9 ms slower for the same
+    request (results/strategies-dp-a); interleaving shares whatever the machine drifts."""
     obs, target, weights = timed_request_inputs(runner, True)  # strategies that read no target ignore it
     weak_generators = [episode_generator(WEAK_STREAM, 0)]
 
@@ -89,10 +91,12 @@ def interleaved_request_ms(runner: ChunkPolicy, strategies: dict[str, Strategy],
         for _ in range(warmup):
             request(s)
     out: dict[str, list[list[float]]] = {k: [] for k in strategies}
-    for _ in range(rounds):
-        for k, s in strategies.items():
-            out[k].append([request(s) for _ in range(calls)])
-    return out
+    with CpuContention() as contention:
+        for _ in range(rounds):
+            for k, s in strategies.items():
+                out[k].append([request(s) for _ in range(calls)])
+    contention.warn(f"the strategies {', '.join(strategies)}")
+    return out, contention.result
 
 
 @dataclass
@@ -103,6 +107,8 @@ class LatencySource:
     ms: float = 0.0
     samples_ms: list[float] = field(default_factory=list)
     name: str = ""
+    contention: dict[str, float] | None = None
+    """measured: what else used the CPUs while the calls were timed (bcbench.utils.system.CpuContention)"""
 
     @classmethod
     def parse(cls, latency: str | None, latency_ms: float | None) -> LatencySource:
@@ -123,7 +129,8 @@ class LatencySource:
             out.update(name=self.name, ms=self.ms)
         if self.kind == "measured":
             ms = np.array(self.samples_ms)
-            out.update(calls=int(ms.size), median_ms=float(np.median(ms)), max_ms=float(ms.max()))
+            out.update(calls=int(ms.size), median_ms=float(np.median(ms)), max_ms=float(ms.max()),
+                       cpu_contention=self.contention)
         return out
 
     def resolve(self, runner: ChunkPolicy, strategy: Strategy) -> None:
@@ -133,8 +140,9 @@ class LatencySource:
             self.ms = profile_ms(self.name, runner.name, sampler_steps(runner))
         elif self.kind == "measured" and not self.samples_ms:
             obs, target, weights = timed_request_inputs(runner, strategy.uses_target)
-            self.samples_ms = time_calls(lambda: strategy.request(obs, target, weights, None), TimingConfig(),
-                                         clock=lambda: strategy.last_compute_s)["samples_ms"]
+            stats = time_calls(lambda: strategy.request(obs, target, weights, None), TimingConfig(),
+                               clock=lambda: strategy.last_compute_s, what=f"{runner.name} ({strategy.kind})")
+            self.samples_ms, self.contention = stats["samples_ms"], stats["cpu_contention"]
 
     def delay_fn(self, seeds: dict[int, int]) -> Callable[[int], int]:
         """env id -> d for its next call; measured draws come from each episode's own stream."""

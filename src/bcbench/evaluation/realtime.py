@@ -40,7 +40,8 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
           skip_missing_profiles: bool = False, done: dict[str, dict[str, Any]] | None = None,
           on_setting: Callable[[dict[str, dict[str, Any]]], None] | None = None,
           execution_horizon: int | None = None, strategy: StrategyConfig | None = None,
-          weak: ChunkPolicy | None = None, measured_ms: list[float] | None = None) -> dict[str, dict[str, Any]]:
+          weak: ChunkPolicy | None = None, measured_ms: list[float] | None = None,
+          measured_contention: dict[str, float] | None = None) -> dict[str, dict[str, Any]]:
     """Score against delay d for each execution mode (sync as the d = 0 reference), plus the policy's score at
     its measured latency on this machine and under each hardware profile: evaluation results by setting.
     `done`: settings finished by an interrupted sweep (kept, not rerun); `on_setting(results so far)` is called
@@ -52,6 +53,8 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
     setting's call times, taken by the caller (e.g. interleaved with other strategies'); else timed here."""
     if execution_horizon is not None:  # checked before hours of episodes
         EvalConfig(execution="async", execution_horizon=execution_horizon)
+    if "async" in executions:
+        check_async_delays(policy, delays, execution_horizon)
     usable = []
     for p in profiles:  # fail before hours of episodes, not after (or, in a study, leave that profile out)
         try:
@@ -77,7 +80,7 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
         if "latency" in latency:  # a profile or the measured latency: its delays are known before any episode
             source = LatencySource.parse(cfg.latency, None)
             if source.kind == "measured" and measured_ms is not None:
-                source.samples_ms = list(measured_ms)  # resolve keeps them
+                source.samples_ms, source.contention = list(measured_ms), measured_contention  # resolve keeps them
             source.resolve(policy, Strategy(cfg.strategy, policy, weak))
             twin = fixed_twin(source, execution, out)
         if twin is not None:
@@ -88,6 +91,21 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
         if on_setting is not None:
             on_setting(out)
     return out
+
+
+def check_async_delays(policy: ChunkPolicy, delays: list[int], execution_horizon: int | None) -> None:
+    """Fail before any episode when a fixed delay cannot run asynchronously with this chunk: the action for the
+    current step sits at index chunk_start, so d + s actions must follow within the pred_horizon. The controller
+    checks every call; this checks the sweep's fixed delays up front, not after the settings before them ran."""
+    room = policy.pred_horizon - policy.chunk_start  # actions from the current step's onwards
+    s = execution_horizon or 1  # the default horizon shrinks with d, to 1 at least
+    bad = [d for d in sorted(set(delays)) if d > 0 and d + s > room]
+    if bad:
+        fits = [d for d in sorted(set(delays)) if d + s <= room]
+        raise BCBenchError(f"async d = {bad[0]} with execution horizon {s} needs {policy.chunk_start + bad[0] + s} "
+                           f"actions of {policy.name}'s chunk of {policy.pred_horizon} (the current step's at index "
+                           f"{policy.chunk_start}; s <= H - d): at s = {s} the delays can be {fits or 'none'}, at "
+                           f"d = {bad[0]} s can be at most {max(room - bad[0], 0)}")
 
 
 def fixed_twin(source: LatencySource, execution: str, done: dict[str, dict[str, Any]]) -> str | None:

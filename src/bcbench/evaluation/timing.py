@@ -27,7 +27,7 @@ from bcbench.evaluation.backends import apply_mode
 from bcbench.evaluation.floor import against_floor, call_work, machine_limits
 from bcbench.interface import ChunkPolicy, SelfTimedPolicy, example_observation
 from bcbench.policies.learned import PolicyRunner
-from bcbench.utils.system import provenance
+from bcbench.utils.system import CpuContention, provenance
 
 ACTION_HORIZON = 8
 
@@ -50,9 +50,12 @@ class TimingConfig:
             raise BCBenchError("need warmup >= 0 and 1 <= min_calls <= max_calls")
 
 
-def time_calls(fn: Any, cfg: TimingConfig, cuda: bool = False, clock: Any = None) -> dict[str, Any]:
-    """Time `fn()`; returns statistics in milliseconds. `clock()`, where given, returns the call's own compute
-    seconds (a policy in another process reports them) and replaces the wall time."""
+def time_calls(fn: Any, cfg: TimingConfig, cuda: bool = False, clock: Any = None, what: str = "calls"
+               ) -> dict[str, Any]:
+    """Time `fn()`; returns statistics in milliseconds, and what else used the CPUs meanwhile (`cpu_contention`;
+    a warning on stderr naming `what` when the machine was not quiet, none when `what` is empty). `clock()`, where
+    given, returns the call's own compute seconds (a policy in another process reports them) and replaces the wall
+    time."""
     def once() -> float:
         if cuda:
             torch.cuda.synchronize()
@@ -66,15 +69,18 @@ def time_calls(fn: Any, cfg: TimingConfig, cuda: bool = False, clock: Any = None
         if once() > 1.0 and i == 0:
             break  # a call of over a second is its own warm-up; more would only cost minutes
     times: list[float] = []
-    start = time.perf_counter()
-    while len(times) < cfg.max_calls:
-        times.append(once())
-        elapsed = time.perf_counter() - start
-        if len(times) >= cfg.min_calls and elapsed >= cfg.min_seconds:
-            break
-        if elapsed >= cfg.max_seconds and len(times) >= 3:
-            break
-    return summarize_ms(np.array(times) * 1e3)
+    with CpuContention() as contention:
+        start = time.perf_counter()
+        while len(times) < cfg.max_calls:
+            times.append(once())
+            elapsed = time.perf_counter() - start
+            if len(times) >= cfg.min_calls and elapsed >= cfg.min_seconds:
+                break
+            if elapsed >= cfg.max_seconds and len(times) >= 3:
+                break
+    if what:
+        contention.warn(what)
+    return {**summarize_ms(np.array(times) * 1e3), "cpu_contention": contention.result}
 
 
 MIN_CALLS_FOR_PERCENTILES = 100
@@ -112,7 +118,7 @@ def verdicts(tail_ms: float, rate_hz: float, action_horizon: int = ACTION_HORIZO
     }
 
 
-def measure_runner(runner: ChunkPolicy, cfg: TimingConfig, rate_hz: float = 10.0) -> dict[str, Any]:
+def measure_runner(runner: ChunkPolicy, cfg: TimingConfig, rate_hz: float = 10.0, what: str = "") -> dict[str, Any]:
     """Time `runner.predict_action_chunk` on a batch-1 raw observation."""
     obs = example_observation(1, runner.obs_horizon)
     out = runner.predict_action_chunk(obs)
@@ -120,7 +126,9 @@ def measure_runner(runner: ChunkPolicy, cfg: TimingConfig, rate_hz: float = 10.0
         raise BCBenchError(f"{runner.name} returned {np.asarray(out).shape}, expected (1, {runner.pred_horizon}, 2)")
     cuda = getattr(runner, "device", torch.device("cpu")).type == "cuda"
     clock = self_clock(runner)
-    stats = time_calls(lambda: runner.predict_action_chunk(obs), cfg, cuda, clock)
+    # a self-timed policy's worker process is "other" CPU use: recorded, not warned about
+    stats = time_calls(lambda: runner.predict_action_chunk(obs), cfg, cuda, clock,
+                       what="" if clock is not None else what or runner.name)
     if clock is not None:  # what the pipe adds, for the record (not in the latency)
         wall = time_calls(lambda: runner.predict_action_chunk(obs), TimingConfig(warmup=0, min_calls=20,
                                                                                 min_seconds=0.0, max_calls=20))
@@ -148,7 +156,7 @@ def latency_record(policy: ChunkPolicy, cfg: TimingConfig, rate_hz: float = 10.0
             apply_mode(policy, mode)
             # this machine's floor (bcbench.evaluation.floor): its limits measured right before each mode
             limits = machine_limits() if device == "cpu" else None
-            stats = measure_runner(policy, cfg, rate_hz)
+            stats = measure_runner(policy, cfg, rate_hz, what=f"{policy.name} ({mode})")
             work = {"machine_limits": limits, **call_work(policy)} if limits else {}
             out["modes"][mode] = {**stats, "deployment": policy.model.deployment, **work}
         out["machine_limits"] = against_floor(list(out["modes"].values()))  # each mode against the best limits

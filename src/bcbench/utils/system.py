@@ -6,6 +6,8 @@ import functools
 import os
 import platform
 import subprocess
+import sys
+import time
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -125,3 +127,52 @@ def provenance(device: str | None = None) -> dict[str, Any]:
     commit = git_commit()
     return {"git_commit": commit, "git_clean": None if commit is None else not commit.endswith("-dirty"),
             "hardware": hardware(device), "versions": versions()}
+
+
+# ------------------------------------------------------------------ was the machine quiet while we timed?
+CONTENDED_CPUS = 0.1  # other processes' CPU use (in CPUs) above which a timing is flagged as not from a quiet machine
+
+
+def machine_cpu_seconds() -> tuple[float, float] | None:
+    """(busy, steal) CPU seconds of the whole machine since boot, summed over its CPUs, from /proc/stat's first
+    line (user nice system idle iowait irq softirq steal ...); None where it cannot be read (not Linux)."""
+    try:
+        fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()
+    except OSError:
+        return None
+    if not fields or fields[0] != "cpu" or len(fields) < 9:
+        return None
+    user, nice, system, _idle, _iowait, irq, softirq, steal = (int(v) for v in fields[1:9])
+    tick = os.sysconf("SC_CLK_TCK")
+    return (user + nice + system + irq + softirq) / tick, steal / tick
+
+
+class CpuContention:
+    """What else used this machine's CPUs during a `with` block: the machine's busy CPU time minus this process's
+    own (all its threads), per second of wall time, in CPUs; and the hypervisor's steal time likewise (a VM's
+    neighbours). A timing is only a quiet-machine timing when both are near 0: the record keeps them, so a reader
+    can check the brief's rule (never report a timing taken while something else ran) instead of trusting it.
+    Resolution is the kernel's tick (10 ms), so blocks under a second read coarsely. A policy in a worker process
+    of its own (a LeRobot sidecar) counts as "other": its record says it timed itself (`timed_as`)."""
+
+    def __enter__(self) -> CpuContention:
+        self._machine0, self._self0, self._t0 = machine_cpu_seconds(), time.process_time(), time.perf_counter()
+        self.result: dict[str, float] | None = None
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        machine1, self1, wall = machine_cpu_seconds(), time.process_time(), time.perf_counter() - self._t0
+        if self._machine0 is None or machine1 is None or wall <= 0:
+            return
+        busy, steal = (b - a for a, b in zip(self._machine0, machine1, strict=True))
+        other = max(0.0, busy - (self1 - self._self0))
+        self.result = {"other_cpus": round(other / wall, 3), "steal_cpus": round(steal / wall, 3),
+                       "seconds": round(wall, 3)}
+
+    def warn(self, what: str) -> None:
+        """One line on stderr when other processes (or the VM's neighbours) used more than CONTENDED_CPUS."""
+        r = self.result
+        if r and max(r["other_cpus"], r["steal_cpus"]) > CONTENDED_CPUS:
+            print(f"bcbench: warning: while timing {what}, other processes used {r['other_cpus']:.2f} CPUs and the "
+                  f"hypervisor stole {r['steal_cpus']:.2f} (of {os.cpu_count()}): not a quiet-machine timing "
+                  "(recorded as cpu_contention)", file=sys.stderr)
