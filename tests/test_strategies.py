@@ -504,15 +504,15 @@ def test_a_horizon_no_chunk_allows_fails_before_any_episode(capsys):
     assert "async d = 16 with execution horizon 1" in capsys.readouterr().err
 
 
-def test_a_sweep_keeps_each_finished_setting_when_a_later_one_fails(tmp_path, monkeypatch):
+def test_a_sweep_keeps_each_finished_setting_and_resumes_from_them(tmp_path, monkeypatch):
     from bcbench.cli.main import main
     from bcbench.evaluation import realtime
 
-    real, calls = realtime.evaluate, []
+    real, calls, fail_at = realtime.evaluate, [], [3]
 
     def failing_third(*args, **kwargs):
         calls.append(1)
-        if len(calls) == 3:
+        if len(calls) == fail_at[0]:
             raise BCBenchError("the machine went away")
         return real(*args, **kwargs)
 
@@ -521,3 +521,11 @@ def test_a_sweep_keeps_each_finished_setting_when_a_later_one_fails(tmp_path, mo
     assert main(["realtime", "--policy", "scripted", "--episodes", "1", "--delays", "1", "2", "--execution", "async",
                  "--max-steps", "10", "--quiet", "--out", str(out)]) == 2
     assert sorted(p.name for p in out.glob("*.json")) == ["realtime-async-d1.json", "realtime-sync.json"]
+    # --resume keeps what matches exactly and runs only the rest; another episode count keeps nothing
+    calls.clear()
+    fail_at[0] = 0  # no failure this time
+    args = ["realtime", "--policy", "scripted", "--episodes", "1", "--delays", "1", "2", "--execution", "async",
+            "--max-steps", "10", "--quiet", "--out", str(out), "--resume"]
+    assert main(args) == 0 and len(calls) == 1  # d = 2 only
+    assert main(args) == 0 and len(calls) == 1  # everything kept
+    assert main([*args[:4], "2", *args[5:]]) == 0 and len(calls) == 4  # 2 episodes: sync, d = 1, d = 2 again

@@ -241,7 +241,7 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     from bcbench.analysis.figures import figure5_realtime, realtime_figure
     from bcbench.analysis.findings import DEFAULT_MARGIN
     from bcbench.analysis.realtime import safe_delay_sentence
-    from bcbench.evaluation.realtime import realtime_record, sweep
+    from bcbench.evaluation.realtime import finished_settings, realtime_record, sweep
     from bcbench.policies.learned import PolicyRunner
 
     args.no_ema = False
@@ -271,11 +271,15 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     for kind, strategy in zip(strategies, configs, strict=True):
         # naive alone writes to --out itself (as before strategies); several: one folder each
         where = out if strategies == ["naive"] else out / kind
+        done = finished_settings(where, policy, args.episodes, args.seed_start, args.max_steps,
+                                 args.execution_horizon, strategy) if args.resume else None
+        if done:
+            print(f"{kind}: resuming, {len(done)} settings kept from {where}: {', '.join(done)}")
         results = sweep(policy, args.delays, args.execution, args.episodes, args.profile or [], args.measured,
                         progress=not args.quiet, max_steps=args.max_steps, seed_start=args.seed_start,
                         execution_horizon=args.execution_horizon, strategy=strategy,
                         weak=weak if kind == "bid" else None, measured_ms=measured_ms.get(kind),
-                        measured_contention=contention, on_setting=partial(_write_newest, where))
+                        measured_contention=contention, on_setting=partial(_write_newest, where), done=done)
         print(f"{policy.name}, strategy {kind}: score under real-time execution ({args.episodes} episodes each)")
         for name, r in results.items():
             write_json(where / f"{name}.json", r)

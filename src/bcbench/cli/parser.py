@@ -213,6 +213,9 @@ def _add_study_commands(sub: Any) -> None:
     p.add_argument("--out", metavar="DIR", help="output folder (its realtime-sweep.json is what a report reads: "
                    "put it inside a study's folder to add this sweep to the study's report)")
     p.add_argument("--label", help="the sweep's name in reports (default: the policy and its inference mode)")
+    p.add_argument("--resume", action="store_true",
+                   help="keep the settings an interrupted sweep already wrote to --out when they match this one "
+                        "exactly (policy, checkpoint, episodes, seeds, strategy, horizon); measured ones are re-run")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func="cmd_realtime")
 

@@ -4,10 +4,12 @@ hardware profiles; its record is what the report reads (bcbench.analysis.realtim
 from __future__ import annotations
 
 import copy
+import json
 import platform
 import sys
 from collections.abc import Callable
 from dataclasses import asdict
+from pathlib import Path
 from typing import Any
 
 from bcbench.errors import BCBenchError
@@ -17,6 +19,7 @@ from bcbench.evaluation.latency_sources import LatencySource, profile_ms, sample
 from bcbench.evaluation.strategies import Strategy
 from bcbench.interface import ChunkPolicy
 from bcbench.protocol import CONTROL_DT_S, SYNC_SETTING, delay_setting
+from bcbench.utils.io import read_json
 from bcbench.utils.system import provenance
 
 
@@ -90,6 +93,27 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
                                  weak=weak, source=source)
         if on_setting is not None:
             on_setting(out)
+    return out
+
+
+def finished_settings(folder: Path, policy: ChunkPolicy, episodes: int, seed_start: int, max_steps: int,
+                      execution_horizon: int | None, strategy: StrategyConfig) -> dict[str, dict[str, Any]]:
+    """The settings an interrupted sweep already wrote to `folder` (one file each, as they finish) that this sweep
+    would repeat exactly: same policy (weights, checkpoint, sampler, deployment), episodes, seeds, step cap,
+    strategy and async horizon. Measured settings are never kept (their times belong to the machine of the day)."""
+    def plain(x: Any) -> Any:  # as a result file holds it (tuples as lists)
+        return json.loads(json.dumps(x, default=str))
+
+    want = plain({"episodes": episodes, "seed_start": seed_start, "max_steps": max_steps, "strategy": asdict(strategy)})
+    described, out = plain(policy.describe()), {}
+    for f in sorted(folder.glob("realtime-*.json")) if folder.is_dir() else []:
+        r = read_json(f)
+        cfg, name = r.get("eval_config") or {}, f.stem
+        if name.endswith("-measured") or r.get("policy") != described:
+            continue
+        horizon = execution_horizon if cfg.get("execution") == "async" else None
+        if {k: cfg.get(k) for k in want} == want and cfg.get("execution_horizon") == horizon:
+            out[name] = r
     return out
 
 
