@@ -119,3 +119,24 @@ def test_cli_flag_and_resource_specs_are_checked():
         parse_spec({"study": {"resources": {"training": {"cpus": 1}}}, "run": [{"policy": "random"}]})
     with pytest.raises(BCBenchError, match=r"study.resources.eval must be"):
         parse_spec({"study": {"resources": {"eval": {"cpus": 0}}}, "run": [{"policy": "random"}]})
+
+
+def test_a_stage_given_n_cpus_runs_n_threads_and_a_check_reads_evals_resources():
+    """Two 1-CPU trainings side by side train more samples/s than one 2-thread training on a 2-core CPU, so a
+    stage runs as many torch threads as the CPUs its kind asks for (spec threads otherwise); a confirm study's
+    check stage asks what an evaluation asks."""
+    from bcbench.study.on_ray import _options, stage_cpus
+
+    spec = parse_spec({"study": {"threads": 2, "resources": {"train": {"cpus": 1}, "eval": {"cpus": 1}}},
+                       "run": [{"policy": "random"}]})
+    assert [stage_cpus(spec, s) for s in ("train", "eval", "check", "latency")] == [1, 1, 1, 2]
+    assert _options(spec, "check")["num_cpus"] == 1 and _options(spec, "latency")["resources"] == {
+        "bcbench_node": 1000}
+
+
+def test_a_ray_training_task_runs_the_threads_of_its_cpus(synthetic_zarr, tmp_path, local_ray):
+    spec = load_spec(_spec(tmp_path))
+    spec.threads = 2  # the spec's own; the training stage asks for 1 CPU
+    run_study(spec, tmp_path / "ray", str(synthetic_zarr), progress=False, ray="local", ray_cpus=2)
+    seg = json.loads(next((tmp_path / "ray" / "runs").glob("cnn_mlp-*/segments.jsonl")).read_text().splitlines()[0])
+    assert seg["threads"] == 1
