@@ -147,21 +147,28 @@ def machine_cpu_seconds() -> tuple[float, float] | None:
     return (user + nice + system + irq + softirq) / tick, steal / tick
 
 
+def own_cpu_seconds() -> float:
+    """CPU seconds of this process (all its threads) and of its children that it has waited for."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
 class CpuContention:
     """What else used this machine's CPUs during a `with` block: the machine's busy CPU time minus this process's
-    own (all its threads), per second of wall time, in CPUs; and the hypervisor's steal time likewise (a VM's
-    neighbours). A timing is only a quiet-machine timing when both are near 0: the record keeps them, so a reader
-    can check the brief's rule (never report a timing taken while something else ran) instead of trusting it.
-    Resolution is the kernel's tick (10 ms), so blocks under a second read coarsely. A policy in a worker process
-    of its own (a LeRobot sidecar) counts as "other": its record says it timed itself (`timed_as`)."""
+    own (all its threads, and the child processes it waited for), per second of wall time, in CPUs; and the
+    hypervisor's steal time likewise (a VM's neighbours). A timing is only a quiet-machine timing when both are
+    near 0: the record keeps them, so a reader can check the brief's rule (never report a timing taken while
+    something else ran) instead of trusting it. Resolution is the kernel's tick (10 ms), so blocks under a second
+    read coarsely. A policy in a worker process of its own (a LeRobot sidecar) counts as "other": its record says
+    it timed itself (`timed_as`)."""
 
     def __enter__(self) -> CpuContention:
-        self._machine0, self._self0, self._t0 = machine_cpu_seconds(), time.process_time(), time.perf_counter()
+        self._machine0, self._self0, self._t0 = machine_cpu_seconds(), own_cpu_seconds(), time.perf_counter()
         self.result: dict[str, float] | None = None
         return self
 
     def __exit__(self, *exc: object) -> None:
-        machine1, self1, wall = machine_cpu_seconds(), time.process_time(), time.perf_counter() - self._t0
+        machine1, self1, wall = machine_cpu_seconds(), own_cpu_seconds(), time.perf_counter() - self._t0
         if self._machine0 is None or machine1 is None or wall <= 0:
             return
         busy, steal = (b - a for a, b in zip(self._machine0, machine1, strict=True))
