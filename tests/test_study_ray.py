@@ -122,7 +122,7 @@ def test_cli_flag_and_resource_specs_are_checked():
 
 
 def test_a_stage_given_n_cpus_runs_n_threads_and_a_check_reads_evals_resources():
-    """Two 1-CPU trainings side by side train more samples/s than one 2-thread training on a 2-core CPU, so a
+    """Two 1-CPU trainings side by side can train more samples/s than one 2-thread training on 2 cores, so a
     stage runs as many torch threads as the CPUs its kind asks for (spec threads otherwise); a confirm study's
     check stage asks what an evaluation asks."""
     from bcbench.study.on_ray import _options, stage_cpus
