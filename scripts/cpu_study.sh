@@ -14,7 +14,11 @@
 # nice 10 yields to other work of the same login session only: with the kernel's autogroup scheduling
 # (/proc/sys/kernel/sched_autogroup_enabled = 1 on this project's VMs) a job started in another session (nohup,
 # setsid) gets an equal share whatever its nice. To give foreground work the machine, pause the study:
-#   pkill -STOP -f "bcbench.cli study"   ...   pkill -CONT -f "bcbench.cli study"
+#   scripts/cpu_study.sh pause [SPEC]   ...   scripts/cpu_study.sh resume [SPEC]   (SIGSTOP / SIGCONT of its processes)
+# A spec with a `resources` table (e.g. resources = { train = { cpus = 1 }, eval = { cpus = 1 } }) runs its stages as
+# Ray tasks on this machine's cores, side by side where the table allows (`bcbench study --ray`): independent
+# trainings with 1 thread each train more samples/s in all than one at a time with every thread
+# (results/train-throughput/threads/). Timing stages still run alone.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export BCBENCH_HOME="${BCBENCH_HOME:-$HOME/.cache/bcbench}"
@@ -51,15 +55,22 @@ case "${1:-start}" in
     # ahead of the work tree's editable install; the work tree's .venv supplies the libraries.
     export BCBENCH_DATA="${BCBENCH_DATA:-$PWD/../shared/data/pusht/pusht_cchi_v7_replay.zarr}"
     # exec: no shell stays behind holding the caller's stdout open (a tool that waits for EOF would hang).
+    RAY=()
+    if grep -Eq '^[[:space:]]*resources[[:space:]]*=' "$SRC/$SPEC"; then RAY=(--ray --ray-cpus "$(nproc)"); fi
     (cd "$SRC" && PYTHONPATH="$SRC/src" exec nohup nice -n 10 "$OLDPWD/.venv/bin/python" -m bcbench.cli \
-        study "$SPEC" --out "$OUT" >>"$LOG" 2>&1 </dev/null &)
+        study "$SPEC" --out "$OUT" "${RAY[@]}" >>"$LOG" 2>&1 </dev/null &)
     echo "started at commit ${COMMIT:0:12}: results in $OUT, log $LOG" ;;
   stop)
     pkill -INT -f "$PATTERN" && echo "asked to stop (it checkpoints and exits)" || echo "not running" ;;
+  pause|resume)  # the driver and, under Ray, its workers (ray::...): nothing of the study computes while paused
+    SIG=$([ "$1" = pause ] && echo STOP || echo CONT)
+    pgrep -f "$PATTERN" >/dev/null || { echo "not running"; exit 0; }
+    pkill -"$SIG" -f "$PATTERN"; pkill -"$SIG" -f "^ray::" || true
+    echo "${1}d" ;;
   status)
     pgrep -f "$PATTERN" >/dev/null && echo "running" || echo "not running"
     [ -f "$PIN" ] && echo "pinned commit: $(cut -c1-12 "$PIN")"
     [ -f "$OUT/index.jsonl" ] && echo "finished stages: $(wc -l < "$OUT/index.jsonl")"
     tail -c 400 "$LOG" 2>/dev/null | tr '\r' '\n' | grep -v '^$' | tail -1 ;;
-  *) echo "usage: $0 [start|stop|status] [SPEC]" >&2; exit 2 ;;
+  *) echo "usage: $0 [start|stop|status|pause|resume] [SPEC]" >&2; exit 2 ;;
 esac
