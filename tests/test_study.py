@@ -411,3 +411,19 @@ def test_a_doubling_run_is_checked(doubled, message):
     ok = parse_spec(tomllib.loads('run = [{ policy = "cnn_mlp", label = "base", steps = 20 }, '
                                   '{ policy = "cnn_mlp", label = "2x", steps = 40, doubles = "base" }]'))
     assert ok.runs[1].doubles == "base"
+
+
+def test_the_recipe_a_report_states_is_each_runs_own_config_not_a_recorded_text():
+    """A run's recorded deviation text went stale once (it named batch 256 and lr 1e-3 for a run trained at 64 and
+    5e-4); the report states the network from bcbench.reference and the recipe from each run's config."""
+    from bcbench.analysis.report import deviation_lines
+    from bcbench.analysis.results import Row, recipe_text
+
+    optim = {"optimizer": "adamw", "lr": 5e-4, "batch_size": 64, "epochs": 20400, "max_steps": 20400,
+             "schedule": "cosine", "warmup_steps": 100, "precision": "fp32", "ema": True}
+    assert recipe_text(optim) == "adamw lr 0.0005, batch 64, 20,400 steps, cosine, 100 warm-up steps, fp32, EMA"
+    row = Row(key="r:ddim10", label="DP", policy="diffusion", preset="cpu", variant="ddim10", sampler="ddim",
+              steps=10, spacing=None, beta_schedule=None, params=1, summary={},
+              deviations="AdamW 1e-3 at batch 256 (stale)", recipe=recipe_text(optim))
+    line = deviation_lines([row])[2]
+    assert "stale" not in line and line.endswith("trained as run: " + recipe_text(optim)) and "U-Net" in line

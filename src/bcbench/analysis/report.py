@@ -203,18 +203,22 @@ def time_lines(results: Path) -> list[str]:
 
 
 def deviation_lines(rows: list[Row]) -> list[str]:
-    """How each cpu-preset policy departs from its paper's recipe (as its runs record it, else bcbench.reference)."""
-    recorded = {r.policy: r.deviations for r in rows if r.deviations}
-    table = {**CPU_DEVIATIONS, **recorded}
-    cpu = sorted({r.policy for r in rows if (r.preset or "").startswith("cpu") and r.policy in table})
+    """How each cpu-preset policy departs from its paper: the network (bcbench.reference; runs also record a copy,
+    which went stale once and is not read here) and the recipe each of its runs trained with (its own config)."""
+    cpu = sorted({r.policy for r in rows if (r.preset or "").startswith("cpu") and r.policy in CPU_DEVIATIONS})
     if not cpu:
         return []
+
+    def recipes(policy: str) -> str:
+        found = list(dict.fromkeys(r.recipe for r in rows if r.policy == policy and r.recipe))
+        return f"; trained as run: {' / '.join(found)}" if found else ""
+
     return ["## Deviations from the papers' recipes (cpu presets)", "",
-            *[f"- {p}: {table[p]}" for p in cpu], *preset_change_lines(rows), ""]
+            *[f"- {p}: {CPU_DEVIATIONS[p]}{recipes(p)}" for p in cpu], *preset_change_lines(rows), ""]
 
 
-# not recipe changes: how a run is kept, and its step budget (the table's training column shows the epochs)
-_NOT_RECIPE = {"optim.checkpoint_every", "seed", "optim.max_steps"}
+# not recipe changes: how a run is kept, and its budget (the recipe line and the training column state it)
+_NOT_RECIPE = {"optim.checkpoint_every", "seed", "optim.max_steps", "optim.epochs"}
 
 
 def preset_change_lines(rows: list[Row]) -> list[str]:
