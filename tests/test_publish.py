@@ -119,15 +119,17 @@ def test_published_model_is_not_resumable_and_has_no_raw_weights(trained, tmp_pa
 def test_committed_model_reproduces_its_committed_scores(model_dir):
     """Every model under models/ re-scores the first episodes of the committed evaluation it was published with.
 
-    The scores are the simulator's after 300 steps of closed loop, so they reproduce exactly where the weights,
-    the code and the floating-point kernels are the same; a CPU with other vector units (the file records the
-    one that computed them) may round the network's sums differently."""
+    The scores are the simulator's after 300 steps of closed loop. On a CPU with the same vector units they agree
+    to rounding: not bit for bit, because the study ran its 100 episodes as one batch (shrinking as episodes
+    finish) and this runs 3, and matrix kernels sum in another order at another batch size (the DP confirm model:
+    differences of 0 to 1e-5 on these seeds). A CPU with other vector units (the file records the one that
+    computed them) rounds differently in every call, and 300 steps of contact dynamics amplify that."""
     record = verify(model_dir)
     hw = record["scores"]["hardware"]
     torch.set_num_threads(hw.get("torch_threads") or 2)
     if tuple(hw.get("cpu_flags") or ()) == cpu_flags():
         rows = _reproduce(model_dir, record, 3)
-        assert rows and all(abs(then - now) < 1e-9 for _, then, now in rows), rows
+        assert rows and all(abs(then - now) < 1e-3 for _, then, now in rows), rows
         return
     # Other vector units: the chunks differ in the last bits and 300 steps of contact dynamics amplify that
     # episode by episode, so only the mean over more episodes is comparable (a wrong or untrained model fails it).
