@@ -264,7 +264,8 @@ def test_strategies_are_timed_in_interleaved_rounds_and_a_sweep_takes_those_time
     assert np.median(rounds["naive"]) == pytest.approx(30.0, abs=1.0)
     assert np.median(rounds["rtc"]) == pytest.approx(90.0, abs=1.0)
     runner = _runner("cnn_mlp")
-    out = sweep(runner, [], ["async"], 1, [], True, progress=False, max_steps=10, measured_ms=[250.0] * 100)
+    given = LatencySource("measured", samples_ms=[250.0] * 100)
+    out = sweep(runner, [], ["async"], 1, [], True, progress=False, max_steps=10, measured_source=given)
     source = out["realtime-async-measured"]["summary"]["latency_source"]
     assert source["median_ms"] == 250.0 and source["calls"] == 100  # given, not timed: d = 3
     assert main(["realtime", "--policy", "scripted", "--episodes", "1", "--delays", "1", "--execution", "async",

@@ -65,7 +65,6 @@ class Row:
     source: str = ""
     overrides: dict[str, Any] = field(default_factory=dict)  # dotted preset overrides (its run.json)
     preset_values: dict[str, Any] = field(default_factory=dict)  # the preset's value of each overridden key
-    deviations: str = ""  # how its preset departs from the paper's recipe, as the run recorded it
     recipe: str = ""  # the optimiser recipe it trained with, from its run.json config (`recipe_text`)
     run_label: str = ""  # the study's label of its run (variants of one run share it)
     doubles: str | None = None  # this run checks the convergence of the run so labelled (twice its steps)
@@ -132,7 +131,6 @@ def _row_from_eval(path: Path, margin: float = 0.05) -> Row:
     if (run_dir / "run.json").exists():
         meta = read_json(run_dir / "run.json")
         row.overrides, row.preset_values = meta.get("overrides") or {}, meta.get("preset_values") or {}
-        row.deviations = meta.get("preset_deviations") or ""
         row.recipe = recipe_text((meta.get("config") or {}).get("optim") or {})
     if (run_dir / "train_summary.json").exists():
         row.train = read_json(run_dir / "train_summary.json")
@@ -145,12 +143,11 @@ def recipe_text(optim: dict[str, Any]) -> str:
     """'adamw lr 0.0005, batch 64, 20,400 steps, cosine, 100 warm-up steps, fp32, EMA' from a run's optim config."""
     if not optim:
         return ""
-    budget = (f"{optim['max_steps']:,} steps" if optim.get("max_steps") else f"{optim.get('epochs')} epochs")
-    parts = [f"{optim.get('optimizer', '?')} lr {optim.get('lr'):g}" if optim.get("lr") is not None
-             else str(optim.get("optimizer", "?")), f"batch {optim.get('batch_size')}", budget,
-             str(optim.get("schedule", "?")), f"{optim.get('warmup_steps', 0)} warm-up steps",
-             str(optim.get("precision", "?"))]
-    return ", ".join(parts) + (", EMA" if optim.get("ema") else "")
+    budget = f"{optim['max_steps']:,} steps" if optim.get("max_steps") else f"{optim.get('epochs')} epochs"
+    parts = [f"{optim.get('optimizer')} lr {optim.get('lr'):g}", f"batch {optim.get('batch_size')}", budget,
+             str(optim.get("schedule")), f"{optim.get('warmup_steps', 0)} warm-up steps", str(optim.get("precision")),
+             *(["EMA"] if optim.get("ema") else [])]
+    return ", ".join(parts)
 
 
 def load_rows(results: str | Path, extra_dirs: list[str] | None = None, margin: float = 0.05) -> list[Row]:

@@ -241,6 +241,7 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     from bcbench.analysis.figures import figure5_realtime, realtime_figure
     from bcbench.analysis.findings import DEFAULT_MARGIN
     from bcbench.analysis.realtime import safe_delay_sentence
+    from bcbench.evaluation.latency_sources import LatencySource
     from bcbench.evaluation.realtime import finished_settings, realtime_record, sweep
     from bcbench.policies.learned import PolicyRunner
 
@@ -253,17 +254,17 @@ def cmd_realtime(args: argparse.Namespace) -> int:
 
     # each strategy can run on this policy: checked before hours of episodes
     built = {k: Strategy(c, policy, weak if k == "bid" else None) for k, c in zip(strategies, configs, strict=True)}
-    measured_ms: dict[str, list[float]] = {}
-    contention = None
+    measured: dict[str, LatencySource] = {}
     if args.measured and len(strategies) > 1:  # timed together, before any episode (latency_sources says why)
         from statistics import median
 
         from bcbench.evaluation.latency_sources import interleaved_request_ms
 
         rounds, contention = interleaved_request_ms(policy, built)
-        measured_ms = {k: [ms for r in rs for ms in r] for k, rs in rounds.items()}
+        measured = {k: LatencySource("measured", samples_ms=[ms for r in rs for ms in r], contention=contention)
+                    for k, rs in rounds.items()}
         print(f"measured latency, each strategy's request timed in {len(rounds[strategies[0]])} interleaved rounds "
-              "before any episode: " + ", ".join(f"{k} {median(v):.1f} ms" for k, v in measured_ms.items()))
+              "before any episode: " + ", ".join(f"{k} {median(v.samples_ms):.1f} ms" for k, v in measured.items()))
     out = Path(args.out) if args.out else default_out.with_name(default_out.name.replace("eval-", "realtime-"))
     mode = policy.info.mode if isinstance(policy, PolicyRunner) else None  # what apply_mode set; baselines: none
     base = args.label or (f"{policy.name} ({mode})" if mode else policy.name)
@@ -278,11 +279,10 @@ def cmd_realtime(args: argparse.Namespace) -> int:
         results = sweep(policy, args.delays, args.execution, args.episodes, args.profile or [], args.measured,
                         progress=not args.quiet, max_steps=args.max_steps, seed_start=args.seed_start,
                         execution_horizon=args.execution_horizon, strategy=strategy,
-                        weak=weak if kind == "bid" else None, measured_ms=measured_ms.get(kind),
-                        measured_contention=contention, on_setting=partial(_write_newest, where), done=done)
+                        weak=weak if kind == "bid" else None, measured_source=measured.get(kind),
+                        on_setting=partial(_write_newest, where), done=done)  # each setting's file as it finishes
         print(f"{policy.name}, strategy {kind}: score under real-time execution ({args.episodes} episodes each)")
         for name, r in results.items():
-            write_json(where / f"{name}.json", r)
             s = r["summary"]
             d = ", ".join(f"d={k}: {v}" for k, v in s["delay_steps"].items()) or "d=0"
             print(f"  {name:<28} {fmt_estimate(s['mean_score'])}   ({d} calls)")

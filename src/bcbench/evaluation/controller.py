@@ -67,6 +67,12 @@ class _Chunk:
     actions: list[np.ndarray]  # what it puts in the queue
 
 
+def async_actions_needed(chunk_start: int, d: int, s: int | None) -> int:
+    """How many actions of a chunk async execution needs after a delay of d steps: the current step's index,
+    the d that pass before the chunk arrives, then s to execute (at least one; Real-Time Chunking: s <= H - d)."""
+    return chunk_start + d + (s or 1)
+
+
 class ChunkedController:
     """Observation history and action queues for a set of environments keyed by id."""
 
@@ -139,12 +145,12 @@ class ChunkedController:
         d = int(self.delay(env_id))
         if d < 0:
             raise BCBenchError(f"a delay of {d} steps is negative")
-        if self.execution == "async" and self.chunk_start + d >= self.pred_horizon:
+        if self.execution == "async" and async_actions_needed(self.chunk_start, d, None) > self.pred_horizon:
             raise BCBenchError(f"async execution with a delay of {d} steps: the chunk of {self.pred_horizon} actions "
                                f"(the current one at index {self.chunk_start}) would be entirely in the past")
-        s = self.execution_horizon
-        if self.execution == "async" and s is not None and self.chunk_start + d + s > self.pred_horizon:
-            raise BCBenchError(f"execution horizon {s} after a delay of {d} steps needs {self.chunk_start + d + s} "
+        s, need = self.execution_horizon, async_actions_needed(self.chunk_start, d, self.execution_horizon)
+        if self.execution == "async" and s is not None and need > self.pred_horizon:
+            raise BCBenchError(f"execution horizon {s} after a delay of {d} steps needs {need} "
                                f"actions of a chunk of {self.pred_horizon} (s <= H - d, as Real-Time Chunking)")
         return d
 

@@ -14,6 +14,7 @@ from typing import Any
 
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.config import StrategyConfig
+from bcbench.evaluation.controller import async_actions_needed
 from bcbench.evaluation.evaluate import EvalConfig, evaluate
 from bcbench.evaluation.latency_sources import LatencySource, profile_ms, sampler_steps, steps_for
 from bcbench.evaluation.strategies import Strategy
@@ -43,8 +44,8 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
           skip_missing_profiles: bool = False, done: dict[str, dict[str, Any]] | None = None,
           on_setting: Callable[[dict[str, dict[str, Any]]], None] | None = None,
           execution_horizon: int | None = None, strategy: StrategyConfig | None = None,
-          weak: ChunkPolicy | None = None, measured_ms: list[float] | None = None,
-          measured_contention: dict[str, float] | None = None) -> dict[str, dict[str, Any]]:
+          weak: ChunkPolicy | None = None, measured_source: LatencySource | None = None
+          ) -> dict[str, dict[str, Any]]:
     """Score against delay d for each execution mode (sync as the d = 0 reference), plus the policy's score at
     its measured latency on this machine and under each hardware profile: evaluation results by setting.
     `done`: settings finished by an interrupted sweep (kept, not rerun); `on_setting(results so far)` is called
@@ -52,8 +53,8 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
     profile or measured setting whose every call takes the d of a fixed setting already swept reuses its episodes
     (`fixed_twin`): a fast policy's A100 and measured settings cost no episodes.
     `execution_horizon`: s of the async settings (see bcbench.evaluation.controller); `strategy` (and BID's
-    `weak` policy): how consecutive chunks are joined, in every setting, sync included. `measured_ms`: the measured
-    setting's call times, taken by the caller (e.g. interleaved with other strategies'); else timed here."""
+    `weak` policy): how consecutive chunks are joined, in every setting, sync included. `measured_source`: the
+    measured setting's calls, timed by the caller (e.g. interleaved with other strategies'); else timed here."""
     if execution_horizon is not None:  # checked before hours of episodes
         EvalConfig(execution="async", execution_horizon=execution_horizon)
     if "async" in executions:
@@ -82,8 +83,8 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
         source, twin = None, None
         if "latency" in latency:  # a profile or the measured latency: its delays are known before any episode
             source = LatencySource.parse(cfg.latency, None)
-            if source.kind == "measured" and measured_ms is not None:
-                source.samples_ms, source.contention = list(measured_ms), measured_contention  # resolve keeps them
+            if source.kind == "measured" and measured_source is not None:
+                source = copy.deepcopy(measured_source)  # timed by the caller: resolve keeps its calls
             source.resolve(policy, Strategy(cfg.strategy, policy, weak))
             twin = fixed_twin(source, execution, out)
         if twin is not None:
@@ -118,18 +119,17 @@ def finished_settings(folder: Path, policy: ChunkPolicy, episodes: int, seed_sta
 
 
 def check_async_delays(policy: ChunkPolicy, delays: list[int], execution_horizon: int | None) -> None:
-    """Fail before any episode when a fixed delay cannot run asynchronously with this chunk: the action for the
-    current step sits at index chunk_start, so d + s actions must follow within the pred_horizon. The controller
-    checks every call; this checks the sweep's fixed delays up front, not after the settings before them ran."""
-    room = policy.pred_horizon - policy.chunk_start  # actions from the current step's onwards
-    s = execution_horizon or 1  # the default horizon shrinks with d, to 1 at least
-    bad = [d for d in sorted(set(delays)) if d > 0 and d + s > room]
+    """Fail before any episode when a fixed delay cannot run asynchronously with this chunk (the controller's rule,
+    `async_actions_needed`, which it checks at every call), not after the settings before it ran."""
+    need = {d: async_actions_needed(policy.chunk_start, d, execution_horizon) for d in sorted(set(delays)) if d > 0}
+    bad = [d for d, n in need.items() if n > policy.pred_horizon]
     if bad:
-        fits = [d for d in sorted(set(delays)) if d + s <= room]
-        raise BCBenchError(f"async d = {bad[0]} with execution horizon {s} needs {policy.chunk_start + bad[0] + s} "
-                           f"actions of {policy.name}'s chunk of {policy.pred_horizon} (the current step's at index "
+        s = execution_horizon or 1  # the default horizon shrinks with d, to 1 at least
+        fits = [d for d, n in need.items() if n <= policy.pred_horizon]
+        raise BCBenchError(f"async d = {bad[0]} with execution horizon {s} needs {need[bad[0]]} actions of "
+                           f"{policy.name}'s chunk of {policy.pred_horizon} (the current step's at index "
                            f"{policy.chunk_start}; s <= H - d): at s = {s} the delays can be {fits or 'none'}, at "
-                           f"d = {bad[0]} s can be at most {max(room - bad[0], 0)}")
+                           f"d = {bad[0]} s can be at most {max(policy.pred_horizon - policy.chunk_start - bad[0], 0)}")
 
 
 def fixed_twin(source: LatencySource, execution: str, done: dict[str, dict[str, Any]]) -> str | None:

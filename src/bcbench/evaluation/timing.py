@@ -50,7 +50,7 @@ class TimingConfig:
             raise BCBenchError("need warmup >= 0 and 1 <= min_calls <= max_calls")
 
 
-def time_calls(fn: Any, cfg: TimingConfig, cuda: bool = False, clock: Any = None, what: str = "calls"
+def time_calls(fn: Any, cfg: TimingConfig, cuda: bool = False, clock: Any = None, what: str = ""
                ) -> dict[str, Any]:
     """Time `fn()`; returns statistics in milliseconds, and what else used the CPUs meanwhile (`cpu_contention`;
     a warning on stderr naming `what` when the machine was not quiet, none when `what` is empty). `clock()`, where
@@ -128,7 +128,7 @@ def measure_runner(runner: ChunkPolicy, cfg: TimingConfig, rate_hz: float = 10.0
     clock = self_clock(runner)
     # a self-timed policy's worker process is "other" CPU use: recorded, not warned about
     stats = time_calls(lambda: runner.predict_action_chunk(obs), cfg, cuda, clock,
-                       what="" if clock is not None else what or runner.name)
+                       what=(what or runner.name) if clock is None else "")
     if clock is not None:  # what the pipe adds, for the record (not in the latency)
         wall = time_calls(lambda: runner.predict_action_chunk(obs), TimingConfig(warmup=0, min_calls=20,
                                                                                 min_seconds=0.0, max_calls=20))

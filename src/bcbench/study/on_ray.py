@@ -48,10 +48,10 @@ def _execute(spec: StudySpec, out: str, data: str | None, stage: str, run_index:
              variant: Variant | None) -> dict[str, Any]:
     """One stage in a Ray worker: compute it and hand the record back (the driver writes it)."""
     git_commit()  # the worker's code, read before the stage runs (as the CLI does)
-    if stage_kind(stage) in spec.resources and "cpus" in spec.resources[stage_kind(stage)]:
-        # a stage given N CPUs runs N torch threads: two 1-CPU trainings side by side train 1.08-1.29x the
+    cpus = spec.resources.get(stage_kind(stage), {}).get("cpus")
+    if cpus:  # a stage given N CPUs runs N torch threads: two 1-CPU trainings side by side train 1.08-1.29x the
         # samples/s of one 2-thread training on a 2-core AMD EPYC (results/train-throughput/threads/)
-        spec = replace(spec, threads=max(1, int(stage_cpus(spec, stage))))
+        spec = replace(spec, threads=max(1, int(cpus)))
     runner = StudyRunner(spec, out, data, progress=False)
     started = time.monotonic()
     record = runner.compute(stage, spec.runs[run_index], variant)
