@@ -428,3 +428,20 @@ def test_the_recipe_a_report_states_is_each_runs_own_config_not_a_recorded_text(
               recipe=recipe_text(optim))
     line = deviation_lines([row])[2]
     assert "stale" not in line and line.endswith("trained as run: " + recipe_text(optim)) and "U-Net" in line
+
+
+def test_a_resumed_runs_training_cell_states_its_overall_rate_beside_its_last_sessions():
+    """train_summary's samples/s is its last session's; beside the run's total minutes it read as a contradiction
+    (DP seed 0: 112 min at '389 samples/s' for 1.3 M samples), so a resumed run also states samples / minutes."""
+    from bcbench.analysis.report import _train_cell
+    from bcbench.analysis.results import Row
+
+    def cell(**train):
+        return _train_cell(Row(key="r", label="DP", policy="diffusion", preset="cpu", variant="ddim10",
+                               sampler="ddim", steps=10, spacing=None, beta_schedule=None, params=1, summary={},
+                               train={"epochs": 1.0, "stopped": "finished", **train}))
+
+    resumed = cell(samples=600_000, train_time_s=3000.0, samples_per_s=400.0)
+    assert "50.0 min, 200 samples/s overall (400 in its last session)" in resumed
+    one_session = cell(samples=600_000, train_time_s=1500.0, samples_per_s=400.0)
+    assert "25.0 min, 400 samples/s;" in one_session + ";" and "overall" not in one_session

@@ -66,9 +66,15 @@ def _train_cell(r: Row) -> str:
     t = r.train
     if not t:
         return "none (baseline)"
-    minutes = (t.get("train_time_s") or t.get("train_time_s_this_session") or 0) / 60
-    sps = t.get("samples_per_s")
-    cell = f"{t.get('epochs', 0):.2f} epochs, {minutes:.1f} min" + (f", {sps:.0f} samples/s" if sps else "")
+    seconds = t.get("train_time_s") or t.get("train_time_s_this_session") or 0
+    # the summary's samples/s is its last session's; a run resumed across sessions states its overall rate too,
+    # so minutes and samples/s agree (an earlier session that shared its machine trained slower)
+    last, overall = t.get("samples_per_s"), (t["samples"] / seconds if seconds and t.get("samples") else None)
+    cell = f"{t.get('epochs', 0):.2f} epochs, {seconds / 60:.1f} min"
+    if overall and last and abs(overall / last - 1) > 0.05:
+        cell += f", {overall:.0f} samples/s overall ({last:.0f} in its last session)"
+    elif last:
+        cell += f", {last:.0f} samples/s"
     if t.get("stopped") not in (None, "finished"):
         cell += f" ({t['stopped']})"  # e.g. "stopped by time: schedule not finished"
     # where it trained: every session's CPU (segments), else the summary's machine; samples/s depend on it
