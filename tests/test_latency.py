@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 import torch
@@ -143,3 +144,36 @@ def test_a_timings_own_cpu_use_is_not_counted_as_other(monkeypatch):
         while time.perf_counter() - t < 0.3:
             pass
     assert own.result is not None and own.result["other_cpus"] < 0.02 and own.result["steal_cpus"] == 0.0
+
+
+CPUINFO = """processor\t: 0
+vendor_id\t: AuthenticAMD
+cpu family\t: 25
+model\t\t: 17
+model name\t: AMD EPYC
+stepping\t: 1
+flags\t\t: fpu avx2 avx512f
+
+processor\t: 1
+vendor_id\t: GenuineIntel
+cpu family\t: 6
+model\t\t: 207
+model name\t: other
+stepping\t: 2
+"""
+
+
+def test_a_record_names_the_cpu_by_family_and_model_not_only_by_its_generic_name():
+    from bcbench.analysis.results import cpu_text
+    from bcbench.utils.system import _cpuinfo_first, cpu_id_of, hardware
+
+    fields = _cpuinfo_first(CPUINFO)  # the first processor's block only
+    assert fields["model name"] == "AMD EPYC" and cpu_id_of(fields) == "AuthenticAMD family 25 model 17 stepping 1"
+    assert cpu_id_of({"model name": "Neoverse", "CPU part": "0xd0c"}) is None  # ARM's cpuinfo has no family
+    hw = {"cpu_model": "AMD EPYC", "cpu_id": cpu_id_of(fields), "cpu_flags": ["avx2", "avx512f"]}
+    assert cpu_text(hw) == "AMD EPYC [AuthenticAMD family 25 model 17 stepping 1] (avx2, avx512f)"
+    assert cpu_text({"cpu_model": "AMD EPYC", "cpu_flags": ["avx2"]}) == "AMD EPYC (avx2)"  # older records as before
+    rec = hardware()
+    assert "cpu_id" in rec
+    if Path("/proc/cpuinfo").exists() and "vendor_id" in Path("/proc/cpuinfo").read_text():
+        assert rec["cpu_id"] and " family " in rec["cpu_id"]

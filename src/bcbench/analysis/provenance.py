@@ -5,16 +5,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from bcbench.analysis.results import Row
+from bcbench.analysis.results import Row, cpu_text
 from bcbench.analysis.seeds import episodes_and_seeds
 from bcbench.utils.system import CONTENDED_CPUS
 
 
 def _hw_cell(r: Row) -> str:
     h = r.hardware
-    dev = h.get("gpu") or h.get("cpu_model", "?")
-    flags = "" if h.get("gpu") or not h.get("cpu_flags") else f" ({', '.join(h['cpu_flags'])})"
-    return f"{dev}{flags}, {h.get('torch_threads', '?')} threads"
+    return f"{h.get('gpu') or cpu_text(h)}, {h.get('torch_threads', '?')} threads"
 
 
 def hardware_line(rows: list[Row]) -> str:

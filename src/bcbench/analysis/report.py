@@ -25,6 +25,7 @@ from bcbench.analysis.provenance import MIXING_REASON, lead_line, provenance_not
 from bcbench.analysis.realtime import pooled_sentence, safe_delay_sentence
 from bcbench.analysis.results import (
     Row,
+    cpu_text,
     file_commits,
     load_check_rows,
     load_realtime,
@@ -79,8 +80,7 @@ def _train_cell(r: Row) -> str:
         cell += f" ({t['stopped']})"  # e.g. "stopped by time: schedule not finished"
     # where it trained: every session's CPU (segments), else the summary's machine; samples/s depend on it
     segs = t.get("segments") or ([{**t["hardware"], "precision": t.get("precision")}] if t.get("hardware") else [])
-    machines = sorted({f"{g.get('cpu_model', '?')}" + (f" ({', '.join(g['cpu_flags'])})" if g.get("cpu_flags") else "")
-                       + (f", {g['precision']}" if g.get("precision") else "") for g in segs})
+    machines = sorted({cpu_text(g) + (f", {g['precision']}" if g.get("precision") else "") for g in segs})
     return cell + (f"; trained on {' and '.join(machines)}" if machines else "")
 
 

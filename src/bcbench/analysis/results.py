@@ -239,6 +239,13 @@ def study_time(results: str | Path) -> dict[str, float]:
     return out
 
 
+def cpu_text(h: dict[str, Any]) -> str:
+    """A record's CPU as a reader needs it: model name, family and model where recorded (KVM's names are generic),
+    ISA flags."""
+    text = h.get("cpu_model", "?") + (f" [{h['cpu_id']}]" if h.get("cpu_id") else "")
+    return text + (f" ({', '.join(h['cpu_flags'])})" if h.get("cpu_flags") else "")
+
+
 def study_machines(results: str | Path) -> list[str]:
     """The CPUs (model and ISA flags) a study's training sessions and evaluations ran on, from its records."""
     seen: set[str] = set()
@@ -248,6 +255,5 @@ def study_machines(results: str | Path) -> list[str]:
         rec = read_json(f)
         for h in [*(rec.get("segments") or []), rec.get("hardware") or {}]:
             if h.get("cpu_model"):
-                flags = h.get("cpu_flags")
-                seen.add(h["cpu_model"] + (f" ({', '.join(flags)})" if flags else ""))
+                seen.add(cpu_text(h))
     return sorted(seen)

@@ -59,7 +59,7 @@ from bcbench.training.parts import (
 )
 from bcbench.utils.device import pick_device
 from bcbench.utils.io import append_jsonl, read_json, read_jsonl, write_json, write_jsonl
-from bcbench.utils.system import cpu_flags, cpu_has_bf16, cpu_model, git_commit, provenance
+from bcbench.utils.system import cpu_flags, cpu_has_bf16, cpu_id, cpu_model, git_commit, provenance
 
 STOPPED_BY_TIME = "stopped by time: schedule not finished"
 
@@ -197,7 +197,7 @@ def _log_segment(r: Run) -> None:
         "start_step": r.state.step, "started": datetime.now(UTC).isoformat(timespec="seconds"),
         "precision": r.precision, "precision_requested": r.o.precision, "precision_native": native,
         **({} if native else {"note": "bf16 autocast is emulated on this CPU (no AVX512-BF16 or AMX): slower"}),
-        "device": str(r.device), "cpu_model": cpu_model(), "cpu_flags": list(cpu_flags()),
+        "device": str(r.device), "cpu_model": cpu_model(), "cpu_id": cpu_id(), "cpu_flags": list(cpu_flags()),
         "threads": torch.get_num_threads(), "git_commit": git_commit()})
 
 

@@ -17,14 +17,45 @@ from bcbench.errors import BCBenchError
 _PACKAGES = ("bcbench", "torch", "numpy", "gymnasium", "gym-pusht", "pymunk", "shapely", "zarr", "diffusers")
 
 
-def cpu_model() -> str:
+def _cpuinfo_first(text: str) -> dict[str, str]:
+    """The fields of the first processor in /proc/cpuinfo's text (every core of these machines is the same)."""
+    out: dict[str, str] = {}
+    for line in text.splitlines():
+        if not line.strip():
+            if out:
+                break
+            continue
+        key, _, value = line.partition(":")
+        out.setdefault(key.strip(), value.strip())
+    return out
+
+
+@functools.cache
+def _cpuinfo() -> dict[str, str]:
     try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
+        return _cpuinfo_first(Path("/proc/cpuinfo").read_text())
     except OSError:
-        pass
-    return platform.processor() or platform.machine()
+        return {}
+
+
+def cpu_model() -> str:
+    return _cpuinfo().get("model name") or platform.processor() or platform.machine()
+
+
+def cpu_id_of(fields: dict[str, str]) -> str | None:
+    """'GenuineIntel family 6 model 207 stepping 2' from cpuinfo fields; None where they are missing (ARM).
+    Why: under KVM the model name is generic ("AMD EPYC", "Intel(R) Xeon(R) Processor") and one name has covered
+    CPUs as different as a Zen 3 and a Zen 5; family and model tell them apart in a record."""
+    keys = ("vendor_id", "cpu family", "model", "stepping")
+    if not all(fields.get(k) for k in keys):
+        return None
+    vendor, family, model, stepping = (fields[k] for k in keys)
+    return f"{vendor} family {family} model {model} stepping {stepping}"
+
+
+def cpu_id() -> str | None:
+    """This CPU's vendor, family, model and stepping (`cpu_id_of`)."""
+    return cpu_id_of(_cpuinfo())
 
 
 # The instruction-set features that decide which kernels (and precisions) run fast on a CPU.
@@ -110,6 +141,7 @@ def hardware(device: str | None = None) -> dict[str, Any]:
     info: dict[str, Any] = {
         "device": device,
         "cpu_model": cpu_model(),
+        "cpu_id": cpu_id(),
         "cpu_flags": list(cpu_flags()),
         "cpu_count": os.cpu_count(),
         "torch_threads": torch.get_num_threads(),
