@@ -1,7 +1,7 @@
 """The committed HTML reports as a reader sees them, in headless Chromium (scripts/check_report.py): Figure 5 and
 the "which policy" table in a laptop's first screen, no sideways scrolling, every figure decoded.
 
-Runs where Chromium is installed (`apt-get install chromium`); skipped elsewhere (CI's image has none)."""
+Runs where Chromium is installed (`apt-get install chromium`; `.ci/run` installs it where it can); skipped elsewhere."""
 
 from __future__ import annotations
 
