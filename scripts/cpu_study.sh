@@ -9,7 +9,8 @@
 # hours and every result it writes carries the same commit. Starting afresh at a newer commit means
 # deleting $BCBENCH_HOME/cpu and $BCBENCH_HOME/cpu.commit. On a machine without the folder (a new session's machine
 # starts with an empty cache) a study with a committed export results/NAME goes on from it, at its commit
-# (bcbench.study.restore); only the stages that need a restored run's checkpoint (timing, real time) cannot.
+# (bcbench.study.restore); the stages that need a restored run's weights (timing, real time) run where those weights
+# are published under models/ (seed 0 of a confirm study), and cannot elsewhere.
 # Stop it before timing anything else on the machine: timings taken beside it mean nothing.
 # nice 10 yields to other work of the same login session only: with the kernel's autogroup scheduling
 # (/proc/sys/kernel/sched_autogroup_enabled = 1 on this project's VMs) a job started in another session (nohup,
@@ -39,6 +40,9 @@ case "${1:-start}" in
       .venv/bin/python -m bcbench.study.restore "results/$NAME" "$OUT" > "$PIN.tmp" && mv "$PIN.tmp" "$PIN"
       echo "restored $OUT from results/$NAME (its finished stages are skipped), pinned at $(cut -c1-12 "$PIN")"
     fi
+    # A restored run whose inference weights are published (models/NAME, training seed 0) gets them back, so its
+    # timing and real-time stages can run here too (idempotent; runs with checkpoints of their own are left alone).
+    if [ -d "$OUT/runs" ]; then .venv/bin/python -m bcbench.study.restore --attach "$OUT" models; fi
     if [ ! -f "$PIN" ]; then
       if [ -n "$(git status --porcelain --untracked-files=no)" ]; then
         echo "error: the work tree has uncommitted changes; commit them first (the study pins a commit)" >&2; exit 2

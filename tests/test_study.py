@@ -445,3 +445,52 @@ def test_a_resumed_runs_training_cell_states_its_overall_rate_beside_its_last_se
     assert "50.0 min, 200 samples/s overall (400 in its last session)" in resumed
     one_session = cell(samples=600_000, train_time_s=1500.0, samples_per_s=400.0)
     assert "25.0 min, 400 samples/s;" in one_session + ";" and "overall" not in one_session
+
+
+def test_a_restored_run_gets_its_published_weights_back_and_nothing_else_does(tmp_path, capsys):
+    """A new machine's restored study finds seed 0's inference weights in models/ (same run.json, sha256 checked),
+    so its timing and real-time stages can run; other studies' models, runs with checkpoints and tampered weights
+    are left alone or refused."""
+    import hashlib
+
+    import torch
+    from safetensors.torch import save_file
+
+    from bcbench.study.restore import attach_published, main
+    from bcbench.utils.io import write_json
+
+    run = {"policy": "diffusion", "config": {"seed": 0}, "git_commit": "c1"}
+    models = tmp_path / "models"
+    ckpt = models / "dp" / "checkpoints" / "step_0000010"
+    ckpt.mkdir(parents=True)
+    save_file({"w": torch.ones(3)}, str(ckpt / "ema.safetensors"))
+    write_json(models / "dp" / "checkpoints" / "latest.json", {"step": 10, "dir": "step_0000010"})
+    write_json(models / "dp" / "run.json", run)
+    sha = hashlib.sha256((ckpt / "ema.safetensors").read_bytes()).hexdigest()
+    meta = {"weights": "ema", "source": {"run": "dp-s0", "checkpoint": "step_0000010", "git_commit": "c1"},
+            "file": {"path": "checkpoints/step_0000010/ema.safetensors", "sha256": sha}}
+    write_json(models / "dp" / "model.json", meta)
+    out = tmp_path / "study"
+    write_json(out / "runs" / "dp-s0" / "run.json", run)
+    write_json(out / "runs" / "other-s0" / "run.json", {**run, "git_commit": "c2"})
+    assert attach_published(out, models) == ["dp-s0: step_0000010 (ema weights) from " + str(models / "dp")]
+    assert (out / "runs" / "dp-s0" / "checkpoints" / "step_0000010" / "ema.safetensors").read_bytes() == \
+        (ckpt / "ema.safetensors").read_bytes()
+    assert not (out / "runs" / "other-s0" / "checkpoints").exists()
+    assert attach_published(out, models) == []  # idempotent: the run now has checkpoints
+    main(["--attach", str(out), str(models)])  # the command line says nothing on stdout (it carries the commit)
+    assert capsys.readouterr().out == ""
+    # the same run name at another commit is another study's run: left alone
+    other = tmp_path / "other"
+    write_json(other / "runs" / "dp-s0" / "run.json", {**run, "git_commit": "c2"})
+    assert attach_published(other, models) == []
+    # a run.json that differs at the same commit, or weights that do not match their sha256: refused, nothing copied
+    bad = tmp_path / "bad"
+    write_json(bad / "runs" / "dp-s0" / "run.json", {**run, "config": {"seed": 1}})
+    with pytest.raises(BCBenchError, match=r"run\.json differs"):
+        attach_published(bad, models)
+    save_file({"w": torch.zeros(3)}, str(ckpt / "ema.safetensors"))
+    write_json(bad / "runs" / "dp-s0" / "run.json", run)
+    with pytest.raises(BCBenchError, match="sha256"):
+        attach_published(bad, models)
+    assert not (bad / "runs" / "dp-s0" / "checkpoints").exists()
