@@ -248,3 +248,48 @@ def test_tiers_compare_modes_paired_on_the_seeds_asked(synthetic_zarr, tmp_path,
     assert rows["onnxruntime-int8"]["paired_vs_fast"]["n"] == 2
     seeds = [e["seed"] for e in json.loads((tmp_path / "t" / "eval-fast" / "eval.json").read_text())["episodes"]]
     assert seeds == [200_000, 200_001]
+
+
+@pytest.mark.parametrize("name", ["cnn_mlp", "diffusion"])
+def test_a_deployed_policy_runs_its_torch_glue_on_one_thread_and_gives_the_threads_back(name):
+    """With a runtime running the graphs, torch's intra-op workers would spin on the cores the runtime uses:
+    every entry point of the runner computes its glue on one torch thread, and the torch modes keep theirs."""
+    from bcbench.evaluation.benchmark import _normalizer
+    from bcbench.interface import example_observation
+    from bcbench.policies.learned import PolicyRunner
+
+    model = _model(name)
+    set_mode(model, "fast")  # the graphs' torch form, which the stand-in runtime below calls
+    runner = PolicyRunner(model, _normalizer())
+    obs = example_observation(2, runner.obs_horizon)
+    seen: list[int] = []
+
+    def graph(method):
+        def call(*args):
+            seen.append(torch.get_num_threads())
+            return getattr(model, method)(*args)
+        return call
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        model.reset_noise(0)
+        torch_mode = runner.predict_action_chunk(obs)
+        model.deployed = {g: graph(g) for g in model.graphs}  # a stand-in runtime: the torch methods, counted
+        model.reset_noise(0)
+        deployed = runner.predict_action_chunk(obs)
+        assert seen and set(seen) == {1} and torch.get_num_threads() == 2
+        # the same chunk, up to the stand-in network's own sums on one thread (TOL: normalised units, 256 px each)
+        np.testing.assert_allclose(deployed, torch_mode, atol=TOL * 256)
+        seen.clear()
+        runner.predict_candidates(obs, 2)
+        if runner.model.guidable:
+            runner.predict_guided_chunk(obs, torch_mode, np.ones(torch_mode.shape[:2]), 5.0, jacobian=False)
+        assert seen and set(seen) == {1} and torch.get_num_threads() == 2
+        model.deployed = None
+        model.call_graph = lambda g, *a: seen.append(torch.get_num_threads()) or getattr(model, g)(*a)
+        seen.clear()
+        runner.predict_action_chunk(obs)
+        assert set(seen) == {2}  # torch modes run their networks with every thread
+    finally:
+        torch.set_num_threads(before)

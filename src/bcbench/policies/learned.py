@@ -20,6 +20,8 @@ training windows' alignment), so the runner's `chunk_start` is obs_horizon - 1.
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -132,6 +134,26 @@ class GraphModule(nn.Module):
         return getattr(self.policy, self.method)(*args)
 
 
+@contextlib.contextmanager
+def glue_threads(model: BCPolicy) -> Iterator[None]:
+    """One torch thread for the torch work around a deployed policy's graphs (normalisation, a sampler's update).
+
+    Why: when OpenVINO or ONNX Runtime runs the networks with every core, torch's own intra-op workers, woken by
+    the glue's few element-wise ops (an image's conversion is big enough to go parallel), spin after each parallel
+    region and take those cores from the runtime's threads. On a 2-core Intel Xeon this cost ResNet-50 2.7 ms of
+    11.5 a call (8.8 with one torch thread), CNN-MLP 0.4 ms of 1.3. The torch modes keep their threads (they run
+    the networks in torch)."""
+    if model.deployed is None:
+        yield
+        return
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
+
+
 class PolicyRunner:
     """Raw observations -> action chunk in world pixels, for the controller and the latency benchmark."""
 
@@ -183,8 +205,9 @@ class PolicyRunner:
 
     @torch.inference_mode()
     def predict_action_chunk(self, obs: Observation) -> np.ndarray:
-        chunk = self.model.predict_action_chunk(self.prepare(obs))  # (B, Tp, 2) normalised
-        return self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()
+        with glue_threads(self.model):
+            chunk = self.model.predict_action_chunk(self.prepare(obs))  # (B, Tp, 2) normalised
+            return self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()
 
     def guidance_unavailable(self, jacobian: bool = True) -> str | None:
         """Why Real-Time Chunking's guided sampling cannot run here, or None when it can."""
@@ -204,18 +227,23 @@ class PolicyRunner:
             raise BCBenchError(reason)
         # flow's guidance runs a backward pass, which inference mode forbids; a guidance without one keeps
         # naive's inference mode (no_grad alone cost Diffusion Policy 2 ms of 46 a call, interleaved)
-        with torch.no_grad() if self.model.guidance_autograd and jacobian else torch.inference_mode():
+        with (torch.no_grad() if self.model.guidance_autograd and jacobian else torch.inference_mode(),
+              glue_threads(self.model)):
             target_t = torch.as_tensor(np.array(target, dtype=np.float32), device=self.device)
             guide = Guide(self.normalizer.normalize("action", target_t),
                           torch.as_tensor(np.array(weights, dtype=np.float32), device=self.device), float(max_guidance),
                           jacobian)
             chunk = self.model.predict_action_chunk(self.prepare(obs), guide=guide)  # (B, Tp, 2) normalised
-        return self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()
+            return self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()
 
     @torch.inference_mode()
     def predict_candidates(self, obs: Observation, n: int) -> np.ndarray:
         """n chunks per observation row (B, n, Tp, 2), for Bidirectional Decoding. Row r's candidates draw their noise
         one after the other from row r's stream, so n = 1 is exactly predict_action_chunk."""
+        with glue_threads(self.model):
+            return self._candidates(obs, n)
+
+    def _candidates(self, obs: Observation, n: int) -> np.ndarray:
         prepared = self.prepare(obs)
         rows = prepared["agent_pos"].shape[0]
         if prepared.get("generators") is not None:
