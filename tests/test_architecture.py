@@ -149,9 +149,12 @@ def test_behaviour_is_unchanged_since_before_the_restructuring():
     got = json.loads(json.dumps(pipeline()))
     assert sorted(got) == sorted(golden)
     for name, episodes in golden.items():
-        # seeds, scores and lengths exactly; final states to fp32 rounding (a9bb32f computes the CNN-MLP's first
-        # layer channels-last: the same sums in another order move a final state by ~3e-7 px)
-        assert [(e["seed"], e["score"], e["length"]) for e in got[name]] == \
-            [(e["seed"], e["score"], e["length"]) for e in episodes], name
+        # seeds and lengths exactly; scores and final states up to another CPU's rounding, which the closed loop
+        # carries on: on the AMD EPYCs the golden was checked on, final states moved by ~3e-7 px (a9bb32f computes the
+        # CNN-MLP's first layer channels-last); on an Intel Xeon (AVX-512) the tiny DP's second score moved by 4e-8
+        # and BeT's agent ended 0.021 px away. A changed pipeline moves scores, lengths or states far more.
+        assert [(e["seed"], e["length"]) for e in got[name]] == [(e["seed"], e["length"]) for e in episodes], name
+        np.testing.assert_allclose([e["score"] for e in got[name]], [e["score"] for e in episodes], rtol=0,
+                                   atol=1e-6, err_msg=name)
         np.testing.assert_allclose([e["final_state"] for e in got[name]], [e["final_state"] for e in episodes],
-                                   rtol=1e-6, atol=1e-4, err_msg=name)
+                                   rtol=0, atol=0.05, err_msg=name)
