@@ -262,7 +262,7 @@ def test_report_from_fixture_files(tmp_path):
 
 
 def test_export_copies_results_but_no_checkpoints(tmp_path):
-    from bcbench.analysis.report import export_results
+    from bcbench.analysis.export import export_results
     from bcbench.utils.io import write_json
 
     src = tmp_path / "study"
@@ -270,8 +270,30 @@ def test_export_copies_results_but_no_checkpoints(tmp_path):
     write_json(src / "runs" / "a" / "train_summary.json", {"x": 1})
     (src / "runs" / "a" / "checkpoints" / "step_1").mkdir(parents=True)
     (src / "runs" / "a" / "checkpoints" / "step_1" / "model.safetensors").write_bytes(b"w")
-    assert export_results(src, tmp_path / "out") == 2
+    assert export_results(src, tmp_path / "out") == (2, [])
     assert not (tmp_path / "out" / "runs" / "a" / "checkpoints").exists()
+
+
+def test_export_leaves_out_a_run_still_training(tmp_path):
+    """A run whose training has not ended cannot be carried on from an export (no checkpoints), and a restoring
+    machine would append a new training's curve to its files: the export leaves it out."""
+    from bcbench.analysis.export import export_results
+    from bcbench.utils.io import write_json
+
+    src = tmp_path / "study"
+    write_json(src / "spec.json", {})
+    (src / "index.jsonl").write_text("")
+    for run, summary in (("done", {"stopped": "finished"}), ("timed", {"stopped": "stopped by time: schedule not "
+                                                                      "finished"}),
+                         ("interrupted", {"stopped": "interrupted"}), ("training", None)):
+        write_json(src / "runs" / run / "run.json", {"git_commit": "c1"})
+        write_json(src / "runs" / run / "eval-default.json", {"git_commit": "c1"})
+        if summary:
+            write_json(src / "runs" / run / "train_summary.json", summary)
+    write_json(src / "runs" / "baseline" / "eval-default.json", {"git_commit": "c1"})  # nothing to train
+    n, left_out = export_results(src, tmp_path / "out")
+    assert n == 9 and [d.name for d in left_out] == ["interrupted", "training"]
+    assert sorted(p.name for p in (tmp_path / "out" / "runs").iterdir()) == ["baseline", "done", "timed"]
 
 
 def test_study_time_sums_the_recorded_work(tmp_path):

@@ -13,6 +13,8 @@ TEST_EPISODES = 100
 VALIDATION_SEED_START = 200_000
 MIN_CHOICE_EPISODES = 50  # episodes behind any choice (a 20-episode curve point is too noisy: SE ~0.06)
 PURPOSES = ("explore", "confirm")
+# how a training stage may end and count as done (the latter is marked in the report)
+DONE_TRAINING = ("finished", "stopped by time: schedule not finished")
 
 
 def overlaps_test_seeds(seed_start: int, episodes: int) -> bool:

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import base64
 import html
-import shutil
 from pathlib import Path
 from typing import Any
 
@@ -377,22 +376,3 @@ def _html(intro: str, findings: list[Any], table: tuple[list[str], list[list[str
             f"evidence</h2><p>{html.escape(rules_intro)}</p><ol>{items}</ol><h2>Results</h2>"
             f"{_html_table(*table)}<h2>Training: converged?</h2><ul>{train_items}</ul>{images}{tail}"
             "</body></html>\n")
-
-
-EXPORTED = ("spec.json", "index.jsonl", "run.json", "train_summary.json", "normalizer.json", "metrics.jsonl",
-            "segments.jsonl", "mixing-reason.txt")
-
-
-def export_results(results: str | Path, dest: str | Path) -> int:
-    """Copy a study's result files (no checkpoints, no videos) to `dest`; returns the number of files."""
-    results, dest = Path(results), Path(dest)
-    n = 0
-    for f in sorted(results.rglob("*")):
-        if "checkpoints" in f.parts or "report" in f.relative_to(results).parts or not f.is_file():
-            continue
-        if f.name in EXPORTED or (f.suffix == ".json" and f.name.startswith(("eval", "check", "latency", "realtime"))):
-            target = dest / f.relative_to(results)
-            target.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(f, target)
-            n += 1
-    return n

@@ -228,10 +228,14 @@ def cmd_study(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from bcbench.analysis.report import export_results, write_report
+    from bcbench.analysis.export import export_results
+    from bcbench.analysis.report import write_report
 
     if args.export:
-        print(f"exported {export_results(args.results, args.export)} result files to {args.export}")
+        n, left_out = export_results(args.results, args.export)
+        print(f"exported {n} result files to {args.export}"
+              + (f"; left out {len(left_out)} run(s) still training: {', '.join(d.name for d in left_out)}"
+                 if left_out else ""))
     paths = write_report(args.results, extra_dirs=args.include or [])
     print(f"report: {paths['markdown']}  and  {paths['html']}")
     return 0

@@ -35,13 +35,11 @@ from bcbench.modes import mode_name
 from bcbench.policies import make_policy
 from bcbench.policies.checkpoint import configure_runner, load_runner
 from bcbench.policies.outside import outside_policy
-from bcbench.protocol import VALIDATION_SEED_START
+from bcbench.protocol import DONE_TRAINING, VALIDATION_SEED_START
 from bcbench.study.spec import RunSpec, StudySpec, Variant
 from bcbench.training.loop import TrainOptions, new_run, train
 from bcbench.utils.device import pick_device
 from bcbench.utils.io import append_jsonl, read_json, safe_name, write_json
-
-DONE_TRAINING = ("finished", "stopped by time: schedule not finished")  # the latter is marked in the report
 
 
 class StudyRunner:

@@ -1,0 +1,45 @@
+"""A study's export: the result files a repository keeps (no checkpoints, no videos, no run still training), which
+`bcbench report OUT --export results/NAME` copies and `bcbench.study.restore` goes on from on a new machine."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from bcbench.protocol import DONE_TRAINING
+from bcbench.utils.io import read_json
+
+EXPORTED = ("spec.json", "index.jsonl", "run.json", "train_summary.json", "normalizer.json", "metrics.jsonl",
+            "segments.jsonl", "mixing-reason.txt")
+
+
+def unfinished_trainings(results: str | Path) -> list[Path]:
+    """Run folders of a study whose training has not ended (run.json, but no train_summary.json of a finished
+    training): what an export leaves out. Their files describe a training the export cannot carry on (its
+    checkpoints are not exported), and a machine restoring the export would append a new training's curve and
+    sessions to them."""
+    out = []
+    for run_json in sorted(Path(results).glob("runs/*/run.json")):
+        summary = run_json.parent / "train_summary.json"
+        if not summary.is_file() or read_json(summary).get("stopped") not in DONE_TRAINING:
+            out.append(run_json.parent)
+    return out
+
+
+def export_results(results: str | Path, dest: str | Path) -> tuple[int, list[Path]]:
+    """Copy a study's result files (no checkpoints, no videos, no run still training) to `dest`; returns the
+    number of files and the run folders left out as unfinished."""
+    results, dest = Path(results), Path(dest)
+    left_out = unfinished_trainings(results)
+    n = 0
+    for f in sorted(results.rglob("*")):
+        if "checkpoints" in f.parts or "report" in f.relative_to(results).parts or not f.is_file():
+            continue
+        if any(f.is_relative_to(d) for d in left_out):
+            continue
+        if f.name in EXPORTED or (f.suffix == ".json" and f.name.startswith(("eval", "check", "latency", "realtime"))):
+            target = dest / f.relative_to(results)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(f, target)
+            n += 1
+    return n, left_out
