@@ -40,9 +40,6 @@ case "${1:-start}" in
       .venv/bin/python -m bcbench.study.restore "results/$NAME" "$OUT" > "$PIN.tmp" && mv "$PIN.tmp" "$PIN"
       echo "restored $OUT from results/$NAME (its finished stages are skipped), pinned at $(cut -c1-12 "$PIN")"
     fi
-    # A restored run whose inference weights are published (models/NAME, training seed 0) gets them back, so its
-    # timing and real-time stages can run here too (idempotent; runs with checkpoints of their own are left alone).
-    if [ -d "$OUT/runs" ]; then .venv/bin/python -m bcbench.study.restore --attach "$OUT" models; fi
     if [ ! -f "$PIN" ]; then
       if [ -n "$(git status --porcelain --untracked-files=no)" ]; then
         echo "error: the work tree has uncommitted changes; commit them first (the study pins a commit)" >&2; exit 2
@@ -55,6 +52,10 @@ case "${1:-start}" in
       git clone --quiet --no-checkout "$PWD" "$SRC.tmp" && git -C "$SRC.tmp" checkout --quiet "$COMMIT"
       mv "$SRC.tmp" "$SRC"
     fi
+    # A restored run whose inference weights are published (models/NAME, training seed 0) gets them back, so its
+    # timing and real-time stages can run here too; a restored run with stages still to run and no weights (trained
+    # on another machine) is dropped and trained again, never mixed with a new model's scores (idempotent).
+    if [ -d "$OUT/runs" ]; then .venv/bin/python -m bcbench.study.restore --attach "$OUT" models --spec "$SRC/$SPEC"; fi
     # The clone has no ../shared beside it: name the data explicitly. PYTHONPATH puts the pinned code
     # ahead of the work tree's editable install; the work tree's .venv supplies the libraries.
     export BCBENCH_DATA="${BCBENCH_DATA:-$PWD/../shared/data/pusht/pusht_cchi_v7_replay.zarr}"

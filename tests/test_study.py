@@ -516,3 +516,45 @@ def test_a_restored_run_gets_its_published_weights_back_and_nothing_else_does(tm
     with pytest.raises(BCBenchError, match="sha256"):
         attach_published(bad, models)
     assert not (bad / "runs" / "dp-s0" / "checkpoints").exists()
+
+
+def test_a_restored_run_that_cannot_go_on_is_dropped_and_its_first_models_files_leave_the_export(tmp_path):
+    """Trained on another machine, weights neither kept nor published, evaluations still to run: the run cannot go
+    on, and a model retrained on another CPU must not have its scores mixed with the first one's. Restore drops it
+    (folder and index lines; the study trains it again), and the next export removes the first model's files."""
+    from bcbench.analysis.export import export_results
+    from bcbench.study.restore import drop_unrunnable, main
+    from bcbench.study.runner import StudyRunner
+    from bcbench.utils.io import read_jsonl, write_json
+
+    spec_file = tmp_path / "s.toml"
+    spec_file.write_text("[study]\nlatency = false\n[[run]]\npolicy = 'diffusion'\nconfig = 'quick'\n"
+                         "seeds = [0, 1, 2]\neval = [{ sampler = 'ddim', steps = [1, 2] }]\n")
+    out = tmp_path / "study"
+    runner = StudyRunner(load_spec(spec_file), out, progress=False)
+    runs = [runner.run_dir(r) for r in runner.spec.runs]
+    index = []
+    for i, d in enumerate(runs):  # s0 and s1 evaluated at ddim1 only; s2 at both
+        write_json(d / "run.json", {"git_commit": "c1"})
+        write_json(d / "train_summary.json", {"stopped": "finished", "git_commit": "c1"})
+        for v in ("ddim1", "ddim2") if i == 2 else ("ddim1",):
+            write_json(d / f"eval-{v}.json", {"git_commit": "c1"})
+            index.append(json.dumps({"stage": "eval", "run": d.name, "file": f"runs/{d.name}/eval-{v}.json"}))
+    (runs[1] / "checkpoints").mkdir()  # s1 was trained here: it goes on
+    (out / "index.jsonl").write_text("\n".join(index) + "\n")
+    write_json(out / "spec.json", {})
+    dest = tmp_path / "export"
+    export_results(out, dest)  # what the last session committed: s0's first model included
+    assert (dest / "runs" / runs[0].name / "eval-ddim1.json").exists()
+
+    lines = drop_unrunnable(spec_file, out)
+    assert len(lines) == 1 and lines[0].startswith(f"{runs[0].name}: trained on another machine with 1 stage(s)")
+    assert not runs[0].exists() and runs[1].exists() and runs[2].exists()  # s2 is complete: nothing to run
+    assert [json.loads(x)["run"] for x in (out / "index.jsonl").read_text().splitlines()] == \
+        [runs[1].name, runs[2].name, runs[2].name]
+    assert [r["run"] for r in read_jsonl(out / "dropped-runs.jsonl")] == [runs[0].name]
+    main(["--attach", str(out), str(tmp_path / "no-models"), "--spec", str(spec_file)])  # idempotent
+    assert [r["run"] for r in read_jsonl(out / "dropped-runs.jsonl")] == [runs[0].name]
+    export_results(out, dest)  # the first model's files leave the committed export with it
+    assert not (dest / "runs" / runs[0].name).exists() and (dest / "runs" / runs[2].name / "eval-ddim2.json").exists()
+    assert (dest / "dropped-runs.jsonl").exists()

@@ -15,6 +15,8 @@ MIN_CHOICE_EPISODES = 50  # episodes behind any choice (a 20-episode curve point
 PURPOSES = ("explore", "confirm")
 # how a training stage may end and count as done (the latter is marked in the report)
 DONE_TRAINING = ("finished", "stopped by time: schedule not finished")
+# in a study folder: the runs a restore dropped, whose first model's files an export removes (bcbench.study.restore)
+DROPPED_RUNS = "dropped-runs.jsonl"
 
 
 def overlaps_test_seeds(seed_start: int, episodes: int) -> bool:

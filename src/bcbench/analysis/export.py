@@ -6,11 +6,11 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-from bcbench.protocol import DONE_TRAINING
-from bcbench.utils.io import read_json
+from bcbench.protocol import DONE_TRAINING, DROPPED_RUNS
+from bcbench.utils.io import read_json, read_jsonl
 
 EXPORTED = ("spec.json", "index.jsonl", "run.json", "train_summary.json", "normalizer.json", "metrics.jsonl",
-            "segments.jsonl", "mixing-reason.txt")
+            "segments.jsonl", "mixing-reason.txt", DROPPED_RUNS)
 
 
 def unfinished_trainings(results: str | Path) -> list[Path]:
@@ -27,10 +27,14 @@ def unfinished_trainings(results: str | Path) -> list[Path]:
 
 
 def export_results(results: str | Path, dest: str | Path) -> tuple[int, list[Path]]:
-    """Copy a study's result files (no checkpoints, no videos, no run still training) to `dest`; returns the
-    number of files and the run folders left out as unfinished."""
+    """Copy a study's result files (no checkpoints, no videos, no run still training) to `dest`, after removing from
+    `dest` the runs the study dropped (DROPPED_RUNS); returns the number of files and the run folders left out as
+    unfinished."""
     results, dest = Path(results), Path(dest)
     left_out = unfinished_trainings(results)
+    if (results / DROPPED_RUNS).is_file():  # a model that is gone: its files leave the export (its run trains again)
+        for rec in read_jsonl(results / DROPPED_RUNS):
+            shutil.rmtree(dest / "runs" / rec["run"], ignore_errors=True)
     n = 0
     for f in sorted(results.rglob("*")):
         if "checkpoints" in f.parts or "report" in f.relative_to(results).parts or not f.is_file():

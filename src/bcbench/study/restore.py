@@ -17,13 +17,16 @@ reaches them.
 
 from __future__ import annotations
 
+import json
 import shutil
 import sys
+from datetime import UTC, datetime
 from pathlib import Path
 
 from bcbench.errors import BCBenchError
 from bcbench.policies.publish import verify
-from bcbench.utils.io import read_json
+from bcbench.protocol import DROPPED_RUNS
+from bcbench.utils.io import append_jsonl, atomic_path, read_json
 
 
 def export_commit(export: Path) -> str:
@@ -77,17 +80,58 @@ def attach_published(out: str | Path, models: str | Path) -> list[str]:
     return attached
 
 
+def drop_unrunnable(spec_path: str | Path, out: str | Path) -> list[str]:
+    """Drop every run whose training is done but whose weights are gone (trained on another machine, not
+    published) while some of its evaluations or checks are still to run: they cannot run,
+    and a retrained model, different on another CPU, must not have its scores mixed with the first one's. The run's
+    folder and index lines go; the study trains it again from scratch; `dropped-runs.jsonl` says why, and the next
+    export removes the first model's files (bcbench.analysis.export). Returns a line per dropped run."""
+    from bcbench.study.runner import StudyRunner  # the stage list, exactly as the study runs it
+    from bcbench.study.spec import load_spec
+
+    out = Path(out)
+    runner = StudyRunner(load_spec(spec_path), out, progress=False)
+    pending: dict[Path, list[str]] = {}
+    for stage, run, variant in runner.stages():
+        d = runner.run_dir(run)
+        # evaluations and checks only: every version of the runner has run those for a spec's variants (a stage
+        # kind added later must not drop a run its pinned commit finished); timing and sweeps say so when reached
+        if (run.learned and stage in ("eval", "check") and runner.is_done("train", run, None)
+                and not (d / "checkpoints").exists() and not runner.is_done(stage, run, variant)):
+            pending.setdefault(d, []).append(stage + (f"-{variant.key}" if variant else ""))
+    lines = []
+    for d, stages in pending.items():
+        index = out / "index.jsonl"
+        kept = [ln for ln in index.read_text().splitlines() if json.loads(ln).get("run") != d.name]
+        with atomic_path(index) as tmp:
+            tmp.write_text("".join(ln + "\n" for ln in kept))
+        shutil.rmtree(d)
+        why = (f"trained on another machine with {len(stages)} stage(s) still to run ({', '.join(stages[:3])}"
+               f"{', ...' if len(stages) > 3 else ''}) and no published weights: trained again from scratch")
+        append_jsonl(out / DROPPED_RUNS, {"run": d.name, "why": why, "dropped": datetime.now(UTC).isoformat(timespec="seconds")})
+        lines.append(f"{d.name}: {why}")
+    return lines
+
+
 def main(argv: list[str]) -> None:
+    spec = None
+    if "--spec" in argv:  # the study file, to drop restored runs that cannot go on (drop_unrunnable)
+        k = argv.index("--spec")
+        spec, argv = argv[k + 1:k + 2], argv[:k] + argv[k + 2:]
+        if not spec:
+            raise BCBenchError("--spec needs the study file")
     if argv[:1] == ["--attach"] and len(argv) in (2, 3):
         out, models = argv[1], argv[2] if len(argv) == 3 else "models"
     elif len(argv) in (2, 3) and not argv[0].startswith("-"):
         out, models = argv[1], argv[2] if len(argv) == 3 else "models"
         print(restore(argv[0], out))
     else:
-        raise BCBenchError("usage: python -m bcbench.study.restore EXPORT_DIR OUT_DIR [MODELS_DIR] | "
-                           "--attach OUT_DIR [MODELS_DIR]")
+        raise BCBenchError("usage: python -m bcbench.study.restore EXPORT_DIR OUT_DIR [MODELS_DIR] [--spec SPEC] | "
+                           "--attach OUT_DIR [MODELS_DIR] [--spec SPEC]")
     for line in attach_published(out, models):  # stderr: stdout carries the commit only
         print(f"attached published weights to {line}", file=sys.stderr)
+    for line in drop_unrunnable(spec[0], out) if spec else []:
+        print(f"warning: dropped {line}", file=sys.stderr)
 
 
 if __name__ == "__main__":
