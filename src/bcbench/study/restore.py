@@ -108,7 +108,8 @@ def drop_unrunnable(spec_path: str | Path, out: str | Path) -> list[str]:
         shutil.rmtree(d)
         why = (f"trained on another machine with {len(stages)} stage(s) still to run ({', '.join(stages[:3])}"
                f"{', ...' if len(stages) > 3 else ''}) and no published weights: trained again from scratch")
-        append_jsonl(out / DROPPED_RUNS, {"run": d.name, "why": why, "dropped": datetime.now(UTC).isoformat(timespec="seconds")})
+        when = datetime.now(UTC).isoformat(timespec="seconds")
+        append_jsonl(out / DROPPED_RUNS, {"run": d.name, "why": why, "dropped": when})
         lines.append(f"{d.name}: {why}")
     return lines
 
