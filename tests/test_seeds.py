@@ -155,3 +155,23 @@ def test_convergence_lines_name_the_training_seed_only_where_a_label_has_several
     assert sum(line.startswith("- ResNet-50 (training seed ") for line in lines) == 3
     assert sum(line.startswith("- CNN-MLP (training seed ") for line in lines) == 2
     assert any(line.startswith("- BCT: converged") for line in lines)  # its only seed: not named
+
+
+def test_the_lead_names_the_machine_of_every_training_seed():
+    """Seeds of one setting evaluated on different machines: the lead line names each machine with its runs,
+    not the first seed's machine for the merged setting."""
+    from bcbench.analysis.provenance import hardware_line
+    from bcbench.analysis.results import Row
+
+    def row(seed, cpu, variant):
+        return Row(key=f"dp-s{seed}:{variant}", label="DP", policy="diffusion", preset="cpu", variant=variant,
+                   sampler="ddim", steps=10, spacing=None, beta_schedule=None, params=1, summary={},
+                   hardware={"cpu_model": cpu, "cpu_flags": ["avx2"], "torch_threads": 2}, train_seed=seed)
+
+    runs = [row(0, "AMD EPYC", "ddim10"), row(0, "AMD EPYC", "ddim1"), row(1, "Xeon", "ddim10"),
+            row(1, "Xeon", "ddim1")]
+    assert hardware_line(runs) == ("Evaluated on several machines: AMD EPYC (avx2), 2 threads: DP s0; "
+                                   "Xeon (avx2), 2 threads: DP s1.")
+    one_seed = [r for r in runs if r.train_seed == 0]
+    assert hardware_line(one_seed) == "Evaluated on AMD EPYC (avx2), 2 threads."
+    assert hardware_line([one_seed[0], row(1, "AMD EPYC", "ddim10")]) == "Evaluated on AMD EPYC (avx2), 2 threads."

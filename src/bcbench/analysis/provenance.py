@@ -16,10 +16,19 @@ def _hw_cell(r: Row) -> str:
 
 
 def hardware_line(rows: list[Row]) -> str:
-    """Where the rows were evaluated (and timed), said once: one machine, or each machine with its rows."""
+    """Where the rows were evaluated (and timed), said once: one machine, or each machine with its rows. `rows` are
+    one per run (not merged over training seeds: seeds of one setting may have run on different machines); with
+    several training seeds a machine lists the runs it evaluated ("label sN"), else the settings."""
+    seeds_by_label: dict[str, set[int | None]] = {}
+    for r in rows:
+        seeds_by_label.setdefault(r.label, set()).add(r.train_seed)
+    multi = any(len(s) > 1 for s in seeds_by_label.values())
     by_hw: dict[str, list[str]] = {}
     for r in rows:
-        by_hw.setdefault(_hw_cell(r), []).append(r.label + ("" if r.variant == "default" else f" {r.variant}"))
+        text = (f"{r.label} s{r.train_seed}" if multi and r.train_seed is not None
+                else r.label + ("" if r.variant == "default" else f" {r.variant}"))
+        if text not in by_hw.setdefault(_hw_cell(r), []):
+            by_hw[_hw_cell(r)].append(text)
     did = "Evaluated and timed" if any(r.latency for r in rows) else "Evaluated"
     if len(by_hw) <= 1:
         return f"{did} on {next(iter(by_hw), 'no machine')}."
@@ -27,13 +36,14 @@ def hardware_line(rows: list[Row]) -> str:
         f"{hw}: {', '.join(labels)}" for hw, labels in sorted(by_hw.items())) + "."
 
 
-def lead_line(results: Path, rows: list[Row], mixed: bool) -> str:
-    """The report's first line: what it holds, on which episodes, where; details follow at its end."""
+def lead_line(results: Path, rows: list[Row], mixed: bool, runs: list[Row] | None = None) -> str:
+    """The report's first line: what it holds (`rows`: one per setting), on which episodes, where (`runs`: one row
+    per run, which machine evaluated each); details follow at its end."""
     ns, seeds, k = episodes_and_seeds(rows)
     eps = (f"{'/'.join(map(str, ns))} episodes each (seeds {seeds[0]}-{seeds[-1]})" if seeds else "no episodes")
     if k:
         eps += f", {'/'.join(map(str, k))} training seeds per trained setting"
-    return (f"Study `{results.name}`: {len(rows)} evaluated settings, {eps}. {hardware_line(rows)}"
+    return (f"Study `{results.name}`: {len(rows)} evaluated settings, {eps}. {hardware_line(runs or rows)}"
             + (" These results mix several commits: see Provenance at the end." if mixed else ""))
 
 

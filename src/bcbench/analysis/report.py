@@ -321,7 +321,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     notes = provenance_notes(rows, file_commits(results, extra_dirs),
                              " ".join(reason_file.read_text().split()) if reason_file.exists() else "")
     fig5 = figs.pop(FIG5)  # the report opens with it, and with which policy suits which control loop
-    lead = lead_line(results, settings, mixed=any("mix several commits" in n for n in notes))
+    lead = lead_line(results, settings, mixed=any("mix several commits" in n for n in notes), runs=rows)
     md = ["# bcbench report", "", lead, "",
           *([f"![{FIG5}]({fig5.name})", ""] if fig5 else []), *control_loop_lines(settings, realtime, margin),
           "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
