@@ -13,8 +13,13 @@ TEST_EPISODES = 100
 VALIDATION_SEED_START = 200_000
 MIN_CHOICE_EPISODES = 50  # episodes behind any choice (a 20-episode curve point is too noisy: SE ~0.06)
 PURPOSES = ("explore", "confirm")
-# how a training stage may end and count as done (the latter is marked in the report)
-DONE_TRAINING = ("finished", "stopped by time: schedule not finished")
+STOPPED_BY_TIME = "stopped by time: schedule not finished"  # a training that hit its time limit (the report marks it)
+DONE_TRAINING = ("finished", STOPPED_BY_TIME)  # how a training may end and count as done
+
+
+def training_done(summary: dict) -> bool:
+    """Whether a run's train_summary.json records a training that counts as done."""
+    return summary.get("stopped") in DONE_TRAINING
 # in a study folder: the runs a restore dropped, whose first model's files an export removes (bcbench.study.restore)
 DROPPED_RUNS = "dropped-runs.jsonl"
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-from bcbench.protocol import DONE_TRAINING, DROPPED_RUNS
+from bcbench.protocol import DROPPED_RUNS, training_done
 from bcbench.utils.io import read_json, read_jsonl
 
 EXPORTED = ("spec.json", "index.jsonl", "run.json", "train_summary.json", "normalizer.json", "metrics.jsonl",
@@ -21,7 +21,7 @@ def unfinished_trainings(results: str | Path) -> list[Path]:
     out = []
     for run_json in sorted(Path(results).glob("runs/*/run.json")):
         summary = run_json.parent / "train_summary.json"
-        if not summary.is_file() or read_json(summary).get("stopped") not in DONE_TRAINING:
+        if not summary.is_file() or not training_done(read_json(summary)):
             out.append(run_json.parent)
     return out
 

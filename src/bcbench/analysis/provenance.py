@@ -27,8 +27,9 @@ def hardware_line(rows: list[Row]) -> str:
     for r in rows:
         text = (f"{r.label} s{r.train_seed}" if multi and r.train_seed is not None
                 else r.label + ("" if r.variant == "default" else f" {r.variant}"))
-        if text not in by_hw.setdefault(_hw_cell(r), []):
-            by_hw[_hw_cell(r)].append(text)
+        labels = by_hw.setdefault(_hw_cell(r), [])
+        if text not in labels:
+            labels.append(text)
     did = "Evaluated and timed" if any(r.latency for r in rows) else "Evaluated"
     if len(by_hw) <= 1:
         return f"{did} on {next(iter(by_hw), 'no machine')}."

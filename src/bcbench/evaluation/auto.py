@@ -25,7 +25,7 @@ from bcbench.modes import EXACT_MODES
 from bcbench.policies.checkpoint import weights_file
 from bcbench.policies.learned import PolicyRunner
 from bcbench.utils.io import read_json, write_json
-from bcbench.utils.system import cpu_flags, cpu_id, cpu_model, versions
+from bcbench.utils.system import cpu_record, versions
 
 CANDIDATES = tuple(m for m in EXACT_MODES if m != "reference")  # reference is the slow form by design
 ROUNDS, CALLS = 7, 3
@@ -69,7 +69,7 @@ def _cache_key(runner: PolicyRunner, candidates: tuple[str, ...] = CANDIDATES) -
     if ckpt is not None:
         f = weights_file(ckpt, info.weights)
         stat = f"{f}:{f.stat().st_size}:{f.stat().st_mtime_ns}" if f.exists() else str(f)
-    blob = json.dumps([stat, runner.name, info.sampler, info.steps, info.spacing, cpu_model(), cpu_id(), cpu_flags(),
+    blob = json.dumps([stat, runner.name, info.sampler, info.steps, info.spacing, cpu_record(),
                        torch.get_num_threads(), versions(), candidates], sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
@@ -98,8 +98,7 @@ def choose_mode(runner: PolicyRunner, apply: Callable[[PolicyRunner, str], None]
     why = f"lowest median of {ROUNDS} interleaved rounds x {CALLS} calls at batch 1 among the exact modes"
     record = {"chosen": chosen, "median_ms": medians, "rounds": ROUNDS, "calls_per_round": CALLS, "batch": 1,
               "why": why + (f" {', '.join(candidates)} ({restriction})" if restriction else ""),
-              "cpu_model": cpu_model(), "cpu_id": cpu_id(), "cpu_flags": list(cpu_flags()),
-              "threads": torch.get_num_threads()}
+              **cpu_record(), "threads": torch.get_num_threads()}
     if cache is not None:
         write_json(cache, record)
     return {**record, "cached": False}

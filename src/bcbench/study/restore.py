@@ -62,7 +62,8 @@ def attach_published(out: str | Path, models: str | Path) -> list[str]:
     out, models = Path(out), Path(models)
     attached = []
     for meta in sorted(models.glob("*/model.json")):
-        src = read_json(meta).get("source") or {}
+        record = read_json(meta)
+        src = record.get("source") or {}
         run_dir = out / "runs" / str(src.get("run"))
         if not src.get("run") or not (run_dir / "run.json").is_file() or (run_dir / "checkpoints").exists():
             continue  # another study's model, or a run with checkpoints of its own (trained on this machine)
@@ -76,7 +77,7 @@ def attach_published(out: str | Path, models: str | Path) -> list[str]:
         shutil.rmtree(tmp, ignore_errors=True)
         shutil.copytree(meta.parent / "checkpoints", tmp)
         tmp.rename(run_dir / "checkpoints")  # whole or not at all
-        attached.append(f"{src['run']}: {src['checkpoint']} ({read_json(meta)['weights']} weights) from {meta.parent}")
+        attached.append(f"{src['run']}: {src['checkpoint']} ({record['weights']} weights) from {meta.parent}")
     return attached
 
 

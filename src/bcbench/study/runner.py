@@ -35,7 +35,7 @@ from bcbench.modes import mode_name
 from bcbench.policies import make_policy
 from bcbench.policies.checkpoint import configure_runner, load_runner
 from bcbench.policies.outside import outside_policy
-from bcbench.protocol import DONE_TRAINING, VALIDATION_SEED_START
+from bcbench.protocol import VALIDATION_SEED_START, training_done
 from bcbench.study.spec import RunSpec, StudySpec, Variant
 from bcbench.training.loop import TrainOptions, new_run, train
 from bcbench.utils.device import pick_device
@@ -94,7 +94,7 @@ class StudyRunner:
         f = self.result_file(stage, run, variant)
         if not f.exists():
             return False
-        return stage != "train" or read_json(f).get("stopped") in DONE_TRAINING
+        return stage != "train" or training_done(read_json(f))
 
     # ------------------------------------------------------------------ stages
     def _train(self, run: RunSpec) -> None:
@@ -105,7 +105,7 @@ class StudyRunner:
         if not (d / "run.json").exists():
             new_run(run.policy, run.config, {**run.overrides, "seed": run.seed}, d, opts)
         summary = train(d, opts)
-        if summary["stopped"] not in DONE_TRAINING:
+        if not training_done(summary):
             raise KeyboardInterrupt  # Ctrl-C during training: the checkpoint is saved; stop the study here
 
     def _policy(self, run: RunSpec, variant: Variant, torch_only: str = "") -> ChunkPolicy:

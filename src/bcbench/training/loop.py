@@ -39,7 +39,7 @@ from bcbench.policies.checkpoint import (
 )
 from bcbench.policies.config import OptimConfig, config_to_dict, dotted_value, with_overrides
 from bcbench.policies.learned import BCPolicy, PolicyRunner
-from bcbench.protocol import VALIDATION_SEED_START
+from bcbench.protocol import STOPPED_BY_TIME, VALIDATION_SEED_START
 from bcbench.reference import CPU_DEVIATIONS
 from bcbench.stats import estimate
 from bcbench.training.options import TrainOptions
@@ -59,9 +59,7 @@ from bcbench.training.parts import (
 )
 from bcbench.utils.device import pick_device
 from bcbench.utils.io import append_jsonl, read_json, read_jsonl, write_json, write_jsonl
-from bcbench.utils.system import cpu_flags, cpu_has_bf16, cpu_id, cpu_model, git_commit, provenance
-
-STOPPED_BY_TIME = "stopped by time: schedule not finished"
+from bcbench.utils.system import cpu_has_bf16, cpu_record, git_commit, provenance
 
 PRECISE_BN_BATCHES = 50
 
@@ -197,7 +195,7 @@ def _log_segment(r: Run) -> None:
         "start_step": r.state.step, "started": datetime.now(UTC).isoformat(timespec="seconds"),
         "precision": r.precision, "precision_requested": r.o.precision, "precision_native": native,
         **({} if native else {"note": "bf16 autocast is emulated on this CPU (no AVX512-BF16 or AMX): slower"}),
-        "device": str(r.device), "cpu_model": cpu_model(), "cpu_id": cpu_id(), "cpu_flags": list(cpu_flags()),
+        "device": str(r.device), **cpu_record(),
         "threads": torch.get_num_threads(), "git_commit": git_commit()})
 
 

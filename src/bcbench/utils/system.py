@@ -65,14 +65,16 @@ ISA_FLAGS = ("avx2", "fma", "avx_vnni", "avx512f", "avx512_vnni", "avx512_bf16",
 
 @functools.cache
 def cpu_flags() -> tuple[str, ...]:
-    """This CPU's ISA_FLAGS that are present (from /proc/cpuinfo; empty where it cannot be read)."""
-    try:
-        text = Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return ()
-    line = next((ln for ln in text.splitlines() if ln.startswith(("flags", "Features"))), "")
-    have = set(line.split(":", 1)[-1].split())
+    """This CPU's ISA_FLAGS that are present (from /proc/cpuinfo: x86's flags, ARM's Features; empty where it
+    cannot be read)."""
+    info = _cpuinfo()
+    have = set((info.get("flags") or info.get("Features") or "").split())
     return tuple(f for f in ISA_FLAGS if f in have)
+
+
+def cpu_record() -> dict[str, Any]:
+    """The CPU as every timing and training record names it: model name, vendor/family/model/stepping, ISA flags."""
+    return {"cpu_model": cpu_model(), "cpu_id": cpu_id(), "cpu_flags": list(cpu_flags())}
 
 
 def cpu_has_vnni() -> bool:
@@ -140,9 +142,7 @@ def hardware(device: str | None = None) -> dict[str, Any]:
     device = device or "cpu"
     info: dict[str, Any] = {
         "device": device,
-        "cpu_model": cpu_model(),
-        "cpu_id": cpu_id(),
-        "cpu_flags": list(cpu_flags()),
+        **cpu_record(),
         "cpu_count": os.cpu_count(),
         "torch_threads": torch.get_num_threads(),
         "platform": platform.platform(),
