@@ -196,6 +196,33 @@ def test_auto_picks_the_faster_of_two_fake_backends():
     assert best == "fast" and medians["fast"] < medians["slow"] and medians["slow"] >= 6.0
 
 
+def test_auto_trial_rotates_the_order_and_times_after_the_warm_up():
+    """A mode that is slow for its first calls after a switch (cold caches, sleeping threads) but faster after
+    them wins, and each round starts at another mode, so none always follows the same one."""
+    import time
+
+    from bcbench.evaluation.auto import pick_fastest
+
+    state = {"mode": "", "since_switch": 0}
+    firsts: list[str] = []  # the modes in the order the trial switches to them
+
+    def switch(mode: str) -> None:
+        firsts.append(mode)
+        state.update(mode=mode, since_switch=0)
+
+    def call() -> None:
+        cold = state["since_switch"] < 3
+        state["since_switch"] += 1
+        time.sleep({"warms-up": 0.012 if cold else 0.001, "steady": 0.003}[state["mode"]])
+
+    setups = {m: (lambda m=m: switch(m)) for m in ("warms-up", "steady")}
+    best, medians = pick_fastest(setups, call, rounds=2, calls=3, warm=3)
+    assert best == "warms-up" and medians["warms-up"] < 2.5 <= medians["steady"]
+    assert firsts == ["warms-up", "steady", "steady", "warms-up"]  # round 2 starts at the second mode
+    firsts.clear()
+    assert pick_fastest(setups, call, rounds=2, calls=3, warm=1)[0] == "steady"  # the trial as it was
+
+
 def test_backend_auto_chooses_an_exact_mode_records_why_and_caches(synthetic_zarr, tmp_path):
     from bcbench.evaluation.auto import CANDIDATES
     from bcbench.policies.checkpoint import load_runner

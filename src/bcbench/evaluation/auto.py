@@ -28,18 +28,25 @@ from bcbench.utils.io import read_json, write_json
 from bcbench.utils.system import cpu_record, versions
 
 CANDIDATES = tuple(m for m in EXACT_MODES if m != "reference")  # reference is the slow form by design
-ROUNDS, CALLS = 7, 3
+# Three warm-up calls after each switch: with one, the next calls still ran slow (OpenVINO's by up to 25% at paper
+# size on an Intel Xeon, avx512_bf16), and a trial of 7 rounds x 3 calls once chose ONNX Runtime for ResNet-50 where
+# OpenVINO was 15% faster in steady state (benchmarks/auto_order.py, results/latency-floor-xeon/auto-order/).
+ROUNDS, WARM, CALLS = 3, 3, 10
 
 
 def pick_fastest(setups: dict[str, Callable[[], None]], call: Callable[[], Any], rounds: int = ROUNDS,
-                 calls: int = CALLS) -> tuple[str, dict[str, float]]:
+                 calls: int = CALLS, warm: int = WARM) -> tuple[str, dict[str, float]]:
     """The name of the fastest setup and each one's median call in ms. `setups[name]()` puts the policy in that
-    form, `call()` runs it once; every round warms each setup with one call, then times `calls` calls."""
-    samples: dict[str, list[float]] = {name: [] for name in setups}
-    for _ in range(rounds):
-        for name, setup in setups.items():
-            setup()
-            call()  # the first call after switching pays for the switch, not the mode
+    form, `call()` runs it once; every round warms each setup with `warm` calls (what a switch leaves cold: caches,
+    a runtime's sleeping threads), then times `calls` calls. Round r starts at setup r mod n, so each setup follows
+    each other one equally often and whatever one leaves behind does not always fall on the same next one."""
+    names = list(setups)
+    samples: dict[str, list[float]] = {name: [] for name in names}
+    for r in range(rounds):
+        for name in names[r % len(names):] + names[:r % len(names)]:
+            setups[name]()
+            for _ in range(warm):  # the calls after switching pay for the switch, not the mode
+                call()
             for _ in range(calls):
                 t0 = time.perf_counter()
                 call()
@@ -70,7 +77,8 @@ def _cache_key(runner: PolicyRunner, candidates: tuple[str, ...] = CANDIDATES) -
         f = weights_file(ckpt, info.weights)
         stat = f"{f}:{f.stat().st_size}:{f.stat().st_mtime_ns}" if f.exists() else str(f)
     blob = json.dumps([stat, runner.name, info.sampler, info.steps, info.spacing, cpu_record(),
-                       torch.get_num_threads(), versions(), candidates], sort_keys=True, default=str)
+                       torch.get_num_threads(), versions(), candidates, (ROUNDS, WARM, CALLS)], sort_keys=True,
+                      default=str)  # a changed trial chooses anew
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
 
@@ -95,8 +103,10 @@ def choose_mode(runner: PolicyRunner, apply: Callable[[PolicyRunner, str], None]
         prepared[m] = _state(runner)
     chosen, medians = pick_fastest({m: (lambda m=m: _restore(runner, prepared[m])) for m in candidates},
                                    lambda: runner.predict_action_chunk(obs))
-    why = f"lowest median of {ROUNDS} interleaved rounds x {CALLS} calls at batch 1 among the exact modes"
-    record = {"chosen": chosen, "median_ms": medians, "rounds": ROUNDS, "calls_per_round": CALLS, "batch": 1,
+    why = (f"lowest median of {ROUNDS} interleaved rounds x {CALLS} calls (after {WARM} warm-up calls each) at "
+           "batch 1 among the exact modes")
+    record = {"chosen": chosen, "median_ms": medians, "rounds": ROUNDS, "warm_calls": WARM, "calls_per_round": CALLS,
+              "batch": 1,
               "why": why + (f" {', '.join(candidates)} ({restriction})" if restriction else ""),
               **cpu_record(), "threads": torch.get_num_threads()}
     if cache is not None:
