@@ -502,6 +502,11 @@ def test_a_restored_run_gets_its_published_weights_back_and_nothing_else_does(tm
     assert attach_published(out, models) == []  # idempotent: the run now has checkpoints
     main(["--attach", str(out), str(models)])  # the command line says nothing on stdout (it carries the commit)
     assert capsys.readouterr().out == ""
+    for bad in ([], [str(out)], ["--attach", str(out), str(models), "extra"], ["--attach"]):
+        with pytest.raises(SystemExit) as exit_:
+            main(bad)
+        err = capsys.readouterr().err
+        assert exit_.value.code == 2 and err.count("\n") == 1 and "error:" in err, bad
     # the same run name at another commit is another study's run: left alone
     other = tmp_path / "other"
     write_json(other / "runs" / "dp-s0" / "run.json", {**run, "git_commit": "c2"})

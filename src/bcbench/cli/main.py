@@ -13,10 +13,11 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from bcbench.cli.parser import EXIT_USAGE, build_parser
+from bcbench.cli.parser import build_parser
 from bcbench.cli.policies import load_eval_policy, load_weak, strategy_config
 from bcbench.errors import BCBenchError
 from bcbench.stats import fmt_estimate, fmt_share
+from bcbench.utils.args import EXIT_USAGE
 from bcbench.utils.io import write_json
 from bcbench.utils.system import git_commit, provenance
 

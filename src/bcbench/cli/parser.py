@@ -14,16 +14,8 @@ from bcbench import __version__
 from bcbench.evaluation.config import EXECUTIONS, STRATEGIES, EvalConfig, StrategyConfig
 from bcbench.modes import AUTO, BACKENDS, MODES, PRECISIONS
 from bcbench.training.options import TrainOptions
+from bcbench.utils.args import OneLineParser
 from bcbench.utils.fields import field_default, field_docs
-
-EXIT_USAGE = 2
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse that reports a usage error in one line instead of usage + message."""
-
-    def error(self, message: str) -> None:  # type: ignore[override]
-        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
 
 
 def _number(kind: type, minimum: float, strict: bool = False) -> Any:
@@ -63,11 +55,11 @@ def _add_data_flag(p: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="bcbench", description=__doc__.split("\n")[0] if __doc__ else None)
+    parser = OneLineParser(prog="bcbench", description=__doc__.split("\n")[0] if __doc__ else None)
     parser.description = ("Train, evaluate and benchmark visuomotor behavior-cloning policies on Push-T: "
                           "task accuracy against real-time inference latency.")
     parser.add_argument("--version", action="version", version=f"bcbench {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=OneLineParser)
     sub.required = True
 
     _add_data_commands(sub)
@@ -79,7 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _add_data_commands(sub: Any) -> None:
     data = sub.add_parser("data", help="get, inspect and replay the Push-T demonstrations")
-    dsub = data.add_subparsers(dest="data_command", metavar="DATA_COMMAND", parser_class=_Parser)
+    dsub = data.add_subparsers(dest="data_command", metavar="DATA_COMMAND", parser_class=OneLineParser)
     dsub.required = True
     p = dsub.add_parser("fetch", help="download the official pusht.zip (or import a local copy) and verify it")
     p.add_argument("--from", dest="source", metavar="ZIP_OR_DIR",

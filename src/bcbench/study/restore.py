@@ -26,6 +26,7 @@ from pathlib import Path
 from bcbench.errors import BCBenchError
 from bcbench.policies.publish import verify
 from bcbench.protocol import DROPPED_RUNS
+from bcbench.utils.args import OneLineParser
 from bcbench.utils.io import append_jsonl, atomic_path, read_json
 
 
@@ -116,23 +117,22 @@ def drop_unrunnable(spec_path: str | Path, out: str | Path) -> list[str]:
 
 
 def main(argv: list[str]) -> None:
-    spec = None
-    if "--spec" in argv:  # the study file, to drop restored runs that cannot go on (drop_unrunnable)
-        k = argv.index("--spec")
-        spec, argv = argv[k + 1:k + 2], argv[:k] + argv[k + 2:]
-        if not spec:
-            raise BCBenchError("--spec needs the study file")
-    if argv[:1] == ["--attach"] and len(argv) in (2, 3):
-        out, models = argv[1], argv[2] if len(argv) == 3 else "models"
-    elif len(argv) in (2, 3) and not argv[0].startswith("-"):
-        out, models = argv[1], argv[2] if len(argv) == 3 else "models"
-        print(restore(argv[0], out))
+    ap = OneLineParser(prog="python -m bcbench.study.restore", description=__doc__.split("\n")[0])
+    ap.add_argument("dirs", nargs="*", metavar="DIR", help="EXPORT_DIR OUT_DIR [MODELS_DIR], or with --attach: "
+                    "[MODELS_DIR] (default models)")
+    ap.add_argument("--attach", metavar="OUT_DIR", help="attach published weights to this study folder only")
+    ap.add_argument("--spec", help="the study file: drop restored runs that cannot go on (drop_unrunnable)")
+    args = ap.parse_args(argv)
+    if args.attach is not None and len(args.dirs) <= 1:
+        out, models = args.attach, (args.dirs or ["models"])[0]
+    elif args.attach is None and len(args.dirs) in (2, 3):
+        out, models = args.dirs[1], (args.dirs[2:] or ["models"])[0]
+        print(restore(args.dirs[0], out))
     else:
-        raise BCBenchError("usage: python -m bcbench.study.restore EXPORT_DIR OUT_DIR [MODELS_DIR] [--spec SPEC] | "
-                           "--attach OUT_DIR [MODELS_DIR] [--spec SPEC]")
+        ap.error("give EXPORT_DIR OUT_DIR [MODELS_DIR], or --attach OUT_DIR [MODELS_DIR]")
     for line in attach_published(out, models):  # stderr: stdout carries the commit only
         print(f"attached published weights to {line}", file=sys.stderr)
-    for line in drop_unrunnable(spec[0], out) if spec else []:
+    for line in drop_unrunnable(args.spec, out) if args.spec else []:
         print(f"warning: dropped {line}", file=sys.stderr)
 
 
