@@ -107,6 +107,30 @@ def test_the_floor_counts_weights_per_use_and_flops():
     assert f["bound"] == "memory" and f["floor_ms"] == pytest.approx(ten["weight_bytes"] / 1e10 * 1e3)
 
 
+@pytest.mark.parametrize("name", ["cnn_mlp", "bct", "diffusion"])
+def test_the_per_layer_floor_splits_the_call_and_is_never_below_the_whole_call_floor(name):
+    """layer_work's per-module bytes and FLOPs add up to call_work's, and the per-layer roofline (no overlap between
+    layers) lies between the whole-call floor (perfect overlap) and the sum of the memory and compute times."""
+    from bcbench.evaluation.benchmark import _normalizer
+    from bcbench.evaluation.floor import call_work, floor_ms, layer_floor_ms, layer_work
+    from bcbench.policies import make_policy
+    from bcbench.policies.learned import PolicyRunner
+    from tests.tiny import TINY
+
+    model = make_policy(name, "quick", **TINY[name]).eval()
+    runner = PolicyRunner(model, _normalizer())
+    if model.samplers:
+        model.set_sampler(model.samplers[0], 3)
+    whole = call_work(runner)  # the first call fills caches (DP's step embeddings); both count the steady state
+    layers, whole = layer_work(runner), call_work(runner)
+    assert len(layers) > 3 and len({x["module"] for x in layers}) == len(layers)
+    assert sum(x["weight_bytes"] for x in layers) == whole["weight_bytes"]
+    assert sum(x["flops"] for x in layers) == pytest.approx(whole["flops"])
+    limits = {"read_gb_per_s": 10.0, "gemm_gflop_per_s": 50.0}
+    f = floor_ms(whole, limits)
+    assert f["floor_ms"] <= layer_floor_ms(layers, limits) <= f["memory_ms"] + f["compute_ms"] + 1e-9
+
+
 def test_a_timing_records_and_warns_when_another_process_used_the_cpus(capsys):
     """The brief's rule (never report a timing taken while something else ran) becomes checkable: every timing
     records the CPUs other processes used meanwhile, and says so on stderr when they did."""

@@ -76,6 +76,53 @@ def call_work(runner: PolicyRunner) -> dict[str, float]:
     return {"weight_bytes": float(read[0]), "flops": float(flops.get_total_flops())}
 
 
+def layer_work(runner: PolicyRunner) -> list[dict[str, Any]]:
+    """Per module call of one batch-1 call (the torch form `call_work` counts): the bytes of the module's own
+    parameters and the FLOPs of its own forward outside its child modules' calls, summed per module over the call
+    (a denoising loop's ten uses add up); FLOPs outside every module go to "(outside modules)". Their sums are
+    `call_work`'s totals. For the per-layer roofline (`layer_floor_ms`)."""
+    model = runner.model
+    names = {id(m): n or type(m).__name__ for n, m in model.named_modules()}
+    per: dict[str, dict[str, float]] = {}
+    stack: list[list[float]] = []  # per open module call: [FLOPs counted when it started, FLOPs of its children]
+    counter = FlopCounterMode(display=False)
+
+    def pre(module: torch.nn.Module, _args: Any) -> None:
+        stack.append([counter.get_total_flops(), 0.0])
+
+    def post(module: torch.nn.Module, _args: Any, _out: Any) -> None:
+        start, children = stack.pop()
+        inclusive = counter.get_total_flops() - start
+        if stack:
+            stack[-1][1] += inclusive
+        row = per.setdefault(names[id(module)], {"weight_bytes": 0.0, "flops": 0.0})
+        row["weight_bytes"] += sum(p.numel() * p.element_size() for p in module.parameters(recurse=False))
+        row["flops"] += inclusive - children
+
+    hooks = [h for m in model.modules() for h in (m.register_forward_pre_hook(pre), m.register_forward_hook(post))]
+    obs = example_observation(1, runner.obs_horizon)
+    deployed, model.deployed = model.deployed, None
+    try:
+        with counter:
+            model.reset_noise(0)
+            runner.predict_action_chunk(obs)
+    finally:
+        model.deployed = deployed
+        for h in hooks:
+            h.remove()
+    outside = counter.get_total_flops() - sum(r["flops"] for r in per.values())
+    rows = [{"module": n, **r} for n, r in per.items() if r["weight_bytes"] or r["flops"]]
+    return rows + ([{"module": "(outside modules)", "weight_bytes": 0.0, "flops": float(outside)}] if outside else [])
+
+
+def layer_floor_ms(layers: list[dict[str, Any]], limits: dict[str, float]) -> float:
+    """The per-layer roofline: the sum over modules of max(bytes / bandwidth, FLOPs / throughput). A runtime that
+    runs the layers one after another cannot overlap one layer's arithmetic with another's weight reads, so this is
+    the floor for layer-by-layer execution; `floor_ms`'s max over the whole call assumes perfect overlap."""
+    return sum(max(r["weight_bytes"] / (limits["read_gb_per_s"] * 1e9), r["flops"] / (limits["gemm_gflop_per_s"]
+                                                                                   * 1e9)) for r in layers) * 1e3
+
+
 def floor_ms(work: dict[str, float], limits: dict[str, float]) -> dict[str, float]:
     """The floor of one call in ms, and which limit sets it."""
     mem = work["weight_bytes"] / (limits["read_gb_per_s"] * 1e9) * 1e3
