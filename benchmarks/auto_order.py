@@ -49,15 +49,8 @@ def old_trial(switch: Callable[[str], None], call: Callable[[], object], rounds:
 
 
 def alone(switch: Callable[[str], None], call: Callable[[], object], mode: str, n: int) -> float:
-    switch(mode)
-    for _ in range(3):
-        call()
-    t = []
-    for _ in range(n):
-        t0 = time.perf_counter()
-        call()
-        t.append((time.perf_counter() - t0) * 1e3)
-    return float(np.median(t))
+    """The mode's median call timed alone: `n` calls after 3 warm-up calls (a one-setup trial of one round)."""
+    return pick_fastest({mode: lambda: switch(mode)}, call, rounds=1, calls=n, warm=3)[1][mode]
 
 
 def measure(name: str, repeats: int, n_alone: int) -> list[dict[str, object]]:

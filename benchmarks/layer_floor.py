@@ -21,7 +21,7 @@ import torch
 
 from bcbench.evaluation.backends import apply_mode
 from bcbench.evaluation.benchmark import _normalizer
-from bcbench.evaluation.floor import floor_ms, layer_floor_ms, layer_work
+from bcbench.evaluation.floor import floor_ms, layer_floor_ms, layer_work, work_totals
 from bcbench.interface import example_observation
 from bcbench.policies import make_policy
 from bcbench.policies.learned import PolicyRunner
@@ -51,8 +51,7 @@ def main() -> None:
             model.set_sampler(variant.rstrip("0123456789"), int(variant[len(variant.rstrip("0123456789")):]))
         runner.predict_action_chunk(example_observation(1, runner.obs_horizon))  # steady state, as the table counted
         layers = layer_work(runner)
-        whole = floor_ms({"weight_bytes": sum(x["weight_bytes"] for x in layers),
-                          "flops": sum(x["flops"] for x in layers)}, limits)
+        whole = floor_ms(work_totals(layers), limits)
         per_layer = layer_floor_ms(layers, limits)
         costliest = sorted(layers, key=lambda x: -layer_floor_ms([x], limits))[:10]
         entry = {"policy": policy, "variant": variant, "floor_ms": whole["floor_ms"], "bound": whole["bound"],

@@ -126,6 +126,21 @@ def test_the_per_layer_floor_splits_the_call_and_is_never_below_the_whole_call_f
     assert len(layers) > 3 and len({x["module"] for x in layers}) == len(layers)
     assert sum(x["weight_bytes"] for x in layers) == whole["weight_bytes"]
     assert sum(x["flops"] for x in layers) == pytest.approx(whole["flops"])
+    from torch.utils.flop_counter import FlopCounterMode  # an independent count: the split loses no FLOP
+
+    from bcbench.interface import example_observation
+
+    # with a hook on every module, as layer_work has: hooks turn off torch's fused transformer fast path, whose
+    # attention products the FLOP counter would not see
+    hooks = [m.register_forward_pre_hook(lambda *_: None) for m in model.modules()]
+    deployed, model.deployed = model.deployed, None
+    with FlopCounterMode(display=False) as independent:
+        model.reset_noise(0)
+        runner.predict_action_chunk(example_observation(1, runner.obs_horizon))
+    model.deployed = deployed
+    for h in hooks:
+        h.remove()
+    assert whole["flops"] == pytest.approx(independent.get_total_flops()) and whole["flops"] > 0
     limits = {"read_gb_per_s": 10.0, "gemm_gflop_per_s": 50.0}
     f = floor_ms(whole, limits)
     assert f["floor_ms"] <= layer_floor_ms(layers, limits) <= f["memory_ms"] + f["compute_ms"] + 1e-9

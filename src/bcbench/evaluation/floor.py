@@ -54,33 +54,12 @@ def machine_limits() -> dict[str, float]:
             "threads": torch.get_num_threads()}
 
 
-def call_work(runner: PolicyRunner) -> dict[str, float]:
-    """Weight bytes read and FLOPs of one batch-1 call of the runner's torch model in its current torch form."""
-    model = runner.model
-    read = [0]
-
-    def count(module: torch.nn.Module, _args: Any) -> None:
-        read[0] += sum(p.numel() * p.element_size() for p in module.parameters(recurse=False))
-
-    hooks = [m.register_forward_pre_hook(count) for m in model.modules()]
-    obs = example_observation(1, runner.obs_horizon)
-    deployed, model.deployed = model.deployed, None  # count the torch graphs (the exported ones are the same)
-    try:
-        with FlopCounterMode(display=False) as flops:
-            model.reset_noise(0)
-            runner.predict_action_chunk(obs)
-    finally:
-        model.deployed = deployed
-        for h in hooks:
-            h.remove()
-    return {"weight_bytes": float(read[0]), "flops": float(flops.get_total_flops())}
-
-
 def layer_work(runner: PolicyRunner) -> list[dict[str, Any]]:
-    """Per module call of one batch-1 call (the torch form `call_work` counts): the bytes of the module's own
-    parameters and the FLOPs of its own forward outside its child modules' calls, summed per module over the call
-    (a denoising loop's ten uses add up); FLOPs outside every module go to "(outside modules)". Their sums are
-    `call_work`'s totals. For the per-layer roofline (`layer_floor_ms`)."""
+    """Per module, over one batch-1 call of the runner's torch model in its current torch form (the exported graphs
+    are the same): the bytes of the module's own parameters, read once per use (a denoising loop reads the U-Net
+    once per step), and the FLOPs of its own forward outside its child modules' calls (torch's FLOP counter: matrix
+    products and convolutions); FLOPs outside every module go to "(outside modules)". `call_work` sums them; the
+    per-layer roofline (`layer_floor_ms`) takes each module's own max."""
     model = runner.model
     names = {id(m): n or type(m).__name__ for n, m in model.named_modules()}
     per: dict[str, dict[str, float]] = {}
@@ -113,6 +92,17 @@ def layer_work(runner: PolicyRunner) -> list[dict[str, Any]]:
     outside = counter.get_total_flops() - sum(r["flops"] for r in per.values())
     rows = [{"module": n, **r} for n, r in per.items() if r["weight_bytes"] or r["flops"]]
     return rows + ([{"module": "(outside modules)", "weight_bytes": 0.0, "flops": float(outside)}] if outside else [])
+
+
+def work_totals(layers: list[dict[str, Any]]) -> dict[str, float]:
+    """The whole call's weight bytes and FLOPs from `layer_work`'s modules."""
+    return {"weight_bytes": float(sum(x["weight_bytes"] for x in layers)), "flops": float(sum(x["flops"] for x in
+                                                                                              layers))}
+
+
+def call_work(runner: PolicyRunner) -> dict[str, float]:
+    """Weight bytes read and FLOPs of one batch-1 call of the runner's torch model in its current torch form."""
+    return work_totals(layer_work(runner))
 
 
 def layer_floor_ms(layers: list[dict[str, Any]], limits: dict[str, float]) -> float:
