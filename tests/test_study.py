@@ -326,14 +326,15 @@ def test_report_lists_what_a_run_changed_in_its_preset():
     from bcbench.analysis.report import preset_change_lines
     from bcbench.analysis.results import Row
 
-    def row(label, variant, **overrides):
-        return Row(key=f"{label}:{variant}", label=label, policy="diffusion", preset="cpu", variant=variant,
+    def row(label, variant, run="", **overrides):
+        return Row(key=f"{label}{run}:{variant}", label=label, policy="diffusion", preset="cpu", variant=variant,
                    sampler="ddpm", steps=100, spacing="trailing", beta_schedule=None, params=1, summary={},
                    overrides=overrides, preset_values={"optim.batch_size": 256, "optim.lr": 1e-3})
 
     rows = [row("DP as preset", "ddpm100", **{"optim.checkpoint_every": 7, "optim.max_steps": 99, "seed": 0}),
             row("DP batch 64", "ddpm100", **{"optim.batch_size": 64, "optim.lr": 5e-4}),
-            row("DP batch 64", "ddim10", **{"optim.batch_size": 64, "optim.lr": 5e-4})]
+            row("DP batch 64", "ddim10", **{"optim.batch_size": 64, "optim.lr": 5e-4}),
+            row("DP batch 64", "ddim10", run=" s1", **{"optim.batch_size": 64, "optim.lr": 5e-4})]  # another seed
     assert preset_change_lines(rows) == [
         "- DP batch 64 changes its cpu preset: optim.batch_size 64 (preset 256), optim.lr 0.0005 (preset 0.001)"]
 

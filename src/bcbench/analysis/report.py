@@ -227,17 +227,15 @@ _NOT_RECIPE = {"optim.checkpoint_every", "seed", "optim.max_steps", "optim.epoch
 
 
 def preset_change_lines(rows: list[Row]) -> list[str]:
-    """A line per trained run that overrode its preset (a study's `set`): the overrides and the preset's own
-    values, both as its run.json records them."""
-    lines, seen = [], set()
+    """A line per trained setting that overrode its preset (a study's `set`): the overrides and the preset's own
+    values, both as its run.json records them; said once however many variants and training seeds share it."""
+    lines = []
     for r in rows:
         changed = sorted(k for k in r.overrides if k not in _NOT_RECIPE)
-        if not changed or not r.preset or r.key.split(":")[0] in seen:  # one line per run, not per variant
-            continue
-        seen.add(r.key.split(":")[0])
-        lines.append(f"- {r.label} changes its {r.preset} preset: " + ", ".join(
-            f"{k} {r.overrides[k]} (preset {r.preset_values.get(k, 'not recorded')})" for k in changed))
-    return lines
+        if changed and r.preset:
+            lines.append(f"- {r.label} changes its {r.preset} preset: " + ", ".join(
+                f"{k} {r.overrides[k]} (preset {r.preset_values.get(k, 'not recorded')})" for k in changed))
+    return list(dict.fromkeys(lines))
 
 
 def check_lines(checks: list[Check], strict: bool, margin: float, validation: bool = False) -> list[str]:
