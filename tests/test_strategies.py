@@ -530,3 +530,22 @@ def test_a_sweep_keeps_each_finished_setting_and_resumes_from_them(tmp_path, mon
     assert main(args) == 0 and len(calls) == 1  # d = 2 only
     assert main(args) == 0 and len(calls) == 1  # everything kept
     assert main([*args[:4], "2", *args[5:]]) == 0 and len(calls) == 4  # 2 episodes: sync, d = 1, d = 2 again
+
+
+def test_strategy_cells_regenerate_the_committed_readme_table():
+    """scripts/strategy_cells.py rebuilds results/strategies-confirm/README.md's cells from the committed records
+    (section 6: naive at d = 4 against sync; RTC at d = 4 against sync and against naive); a bad folder is one line
+    on stderr and exit 2."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    run = [sys.executable, str(repo / "scripts" / "strategy_cells.py")]
+    out = subprocess.run([*run, str(repo / "results/strategies-confirm/flow-euler2-default")], capture_output=True,
+                         text=True, check=True).stdout
+    readme = (repo / "results/strategies-confirm/README.md").read_text()
+    for cell in ("0.661, -0.216 [-0.286, -0.150]", "0.723, -0.154 [-0.211, -0.094] / +0.062 [-0.011, +0.139]"):
+        assert cell in out and cell in readme
+    bad = subprocess.run([*run, str(repo / "no-such-folder")], capture_output=True, text=True)
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1

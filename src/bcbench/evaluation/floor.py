@@ -96,8 +96,7 @@ def layer_work(runner: PolicyRunner) -> list[dict[str, Any]]:
 
 def work_totals(layers: list[dict[str, Any]]) -> dict[str, float]:
     """The whole call's weight bytes and FLOPs from `layer_work`'s modules."""
-    return {"weight_bytes": float(sum(x["weight_bytes"] for x in layers)), "flops": float(sum(x["flops"] for x in
-                                                                                              layers))}
+    return {key: float(sum(x[key] for x in layers)) for key in ("weight_bytes", "flops")}
 
 
 def call_work(runner: PolicyRunner) -> dict[str, float]:
