@@ -320,3 +320,25 @@ def test_a_deployed_policy_runs_its_torch_glue_on_one_thread_and_gives_the_threa
         assert set(seen) == {2}  # torch modes run their networks with every thread
     finally:
         torch.set_num_threads(before)
+
+
+def test_fc_kernel_benchmark_moves_fully_connected_layers_off_mlas_with_the_same_outputs():
+    """benchmarks/fc_kernel.py's no-op clamp changes OpenVINO's kernel for every fully connected layer (its
+    comparison means nothing otherwise) and not the arithmetic."""
+    pytest.importorskip("openvino")
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(__file__)), "benchmarks"))
+    try:
+        from fc_kernel import chain_model, clamp_fully_connected, compile_request, fc_profile
+    finally:
+        sys.path.pop(0)
+
+    model, weights = chain_model(4, 64, 32, 3, np.random.default_rng(0))
+    x = np.random.default_rng(1).standard_normal((4, 64), dtype=np.float32)
+    plain = compile_request(model, 1)
+    assert clamp_fully_connected(model) == 3
+    moved = compile_request(model, 1)
+    want = np.concatenate([x @ w.T for w in weights], 1)
+    for request in (plain, moved):
+        np.testing.assert_allclose(request.infer([x])[0], want, atol=1e-5)
+    assert fc_profile(moved)["layers"] == 3
+    assert not any("mlas" in e for e in fc_profile(moved)["exec_types"])
