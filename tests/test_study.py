@@ -392,6 +392,8 @@ def test_provenance_names_the_timings_taken_beside_other_work():
 
 def test_twice_the_steps_decides_convergence():
     """The 2x check: paired over shared episodes, two-sided; strict studies need it, older ones keep the curve rule."""
+    import dataclasses
+
     import numpy as np
 
     from bcbench.analysis.convergence import apply_checks, doubling_checks
@@ -413,6 +415,16 @@ def test_twice_the_steps_decides_convergence():
     assert doubling_checks(better, 0.05)[0].verdict == "not converged"
     apply_checks(better, doubling_checks(better, 0.05), strict=True)
     assert better[0].converged is False and "twice the steps" in better[0].convergence
+    assert "1 not converged" in better[0].convergence
+    # settings in sampler order, steps as numbers; each row gives both runs' means and the paired difference
+    many = [row("DP", base_scores), row("DP 2x", base_scores + 0.2, doubles="DP")]
+    for steps in (100, 2, 5):
+        many += [dataclasses.replace(r, variant=f"ddim{steps}") for r in many[:2]]
+    checks = doubling_checks(many, 0.05)
+    assert [c.variant for c in checks] == ["ddim2", "ddim5", "ddim10", "ddim100"]
+    assert f"| {np.mean(base_scores):.3f} | {np.mean(base_scores) + 0.2:.3f} | +0.200" in checks[0].table_row()
+    apply_checks(many, checks, strict=True)
+    assert "4 not converged of 4 settings" in many[0].convergence
     lone = [row("BCT", base_scores)]
     apply_checks(lone, [], strict=False)
     assert lone[0].converged is True  # an older study: the curve rule stands (the report says what it is worth)

@@ -10,6 +10,8 @@ lies above, inconclusive otherwise.
 
 from __future__ import annotations
 
+import collections
+import re
 from dataclasses import dataclass
 
 from bcbench.analysis.results import Row
@@ -27,11 +29,18 @@ class Check:
     hi: float
     n: int
     verdict: str
+    train_seed: int = 0  # of the run checked (and of its twice-the-steps run)
+    means: tuple[float, float] = (float("nan"), float("nan"))  # the run's and twice the steps' mean scores
 
-    def line(self) -> str:
-        v = "" if self.variant == "default" else f" {self.variant.upper()}"
-        return (f"- {self.run}{v}: twice the steps minus the run {self.est:+.3f} [{self.lo:+.3f}, {self.hi:+.3f}] "
-                f"over {self.n} episodes: **{self.verdict}**")
+    def table_row(self) -> str:
+        v = "-" if self.variant == "default" else self.variant.upper()
+        return (f"| {self.run} | {v} | {self.means[0]:.3f} | {self.means[1]:.3f} | {self.est:+.3f} "
+                f"[{self.lo:+.3f}, {self.hi:+.3f}] | {self.n} | **{self.verdict}** |")
+
+    def order(self) -> tuple[str, str, int]:
+        """Run, then sampler, then steps as a number (DDIM-2 before DDIM-10)."""
+        m = re.fullmatch(r"(\D*)(\d+)", self.variant)
+        return (self.run, m[1], int(m[2])) if m else (self.run, self.variant, 0)
 
 
 def doubling_checks(rows: list[Row], margin: float) -> list[Check]:
@@ -45,8 +54,10 @@ def doubling_checks(rows: list[Row], margin: float) -> list[Check]:
             continue
         est, lo, hi, n = paired_bootstrap(r.scores, [b.scores])
         verdict = CONVERGED if hi < margin else NOT_CONVERGED if lo > margin else INCONCLUSIVE
-        out.append(Check(b.run_label, r.variant, est, lo, hi, n, verdict))
-    return out
+        shared = b.scores.keys() & r.scores.keys()
+        means = (sum(b.scores[k] for k in shared) / len(shared), sum(r.scores[k] for k in shared) / len(shared))
+        out.append(Check(b.run_label, r.variant, est, lo, hi, n, verdict, r.train_seed, means))
+    return sorted(out, key=Check.order)
 
 
 def apply_checks(rows: list[Row], checks: list[Check], strict: bool) -> None:
@@ -62,7 +73,9 @@ def apply_checks(rows: list[Row], checks: list[Check], strict: bool) -> None:
         mine = by_run.get(r.run_label)
         if mine:
             r.converged = all(c.verdict == CONVERGED for c in mine)
-            r.convergence = "twice the steps: " + "; ".join(
-                f"{c.variant} {c.est:+.3f} [{c.lo:+.3f}, {c.hi:+.3f}] {c.verdict}" for c in mine)
+            counts = collections.Counter(c.verdict for c in mine)
+            r.convergence = f"twice the steps (training seed {mine[0].train_seed}'s check): " + ", ".join(
+                f"{counts[v]} {v}" for v in (NOT_CONVERGED, INCONCLUSIVE, CONVERGED) if counts[v]) + (
+                f" of {len(mine)} settings (table below)" if len(mine) > 1 else "")
         elif strict:
             r.converged, r.convergence = False, "no twice-the-steps check yet (" + r.convergence + ")"

@@ -250,7 +250,9 @@ def check_lines(checks: list[Check], strict: bool, margin: float, validation: bo
             f"the same episodes (paired, two-sided 95%): converged if the interval lies below +{margin}."
             + (" Compared on validation episodes (seeds 200000+), not on the test seeds of the table; the verdict "
                "holds for every training seed of the preset." if validation else ""), "",
-            *[c.line() for c in checks], ""]
+            "| run | setting | the run | twice the steps | difference [95%] | episodes | verdict |",
+            "|---|---|---|---|---|---|---|",
+            *[c.table_row() for c in checks], ""]
 
 
 def convergence_lines(rows: list[Row]) -> list[str]:
