@@ -54,8 +54,8 @@ def doubling_checks(rows: list[Row], margin: float) -> list[Check]:
             continue
         est, lo, hi, n = paired_bootstrap(r.scores, [b.scores])
         verdict = CONVERGED if hi < margin else NOT_CONVERGED if lo > margin else INCONCLUSIVE
-        shared = b.scores.keys() & r.scores.keys()
-        means = (sum(b.scores[k] for k in shared) / len(shared), sum(r.scores[k] for k in shared) / len(shared))
+        shared = b.scores.keys() & r.scores.keys()  # the episodes the difference is over (none: nan, n = 0)
+        means = tuple(sum(x.scores[k] for k in shared) / len(shared) if shared else float("nan") for x in (b, r))
         out.append(Check(b.run_label, r.variant, est, lo, hi, n, verdict, r.train_seed, means))
     return sorted(out, key=Check.order)
 
