@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from unet_graph_form import Denoise, convolutions_only
+from unet_graph_form import compile_openvino, layer_weight_bytes, openvino_model
 
 from bcbench.evaluation.floor import machine_limits
 from bcbench.policies import make_policy
@@ -55,14 +55,6 @@ def clamp_fully_connected(model: Any) -> int:
         count += 1
     model.validate_nodes_and_infer_types()
     return count
-
-
-def compile_request(model: Any, threads: int) -> Any:
-    import openvino as ov
-
-    config = {"PERFORMANCE_HINT": "LATENCY", "NUM_STREAMS": 1, "INFERENCE_PRECISION_HINT": "f32",
-              "INFERENCE_NUM_THREADS": threads, "PERF_COUNT": True}
-    return ov.Core().compile_model(model, "CPU", config).create_infer_request()
 
 
 def fc_profile(request: Any) -> dict[str, Any]:
@@ -105,9 +97,9 @@ def layer_shapes(threads: int, rounds: int) -> list[dict[str, Any]]:
         mb = layers * fan_in * fan_out * 4 / 1e6
         model, weights = chain_model(rows, fan_in, fan_out, layers, rng)
         x = rng.standard_normal((rows, fan_in), dtype=np.float32)
-        mlas = compile_request(model, threads)
+        mlas = compile_openvino(model, threads)
         clamp_fully_connected(model)
-        onednn = compile_request(model, threads)
+        onednn = compile_openvino(model, threads)
         wt, xt = [torch.from_numpy(w) for w in weights], torch.from_numpy(x)
 
         def torch_chain(xt: torch.Tensor = xt, wt: list = wt) -> None:
@@ -128,22 +120,17 @@ def layer_shapes(threads: int, rounds: int) -> list[dict[str, Any]]:
 
 
 def unet_step(config: str, threads: int, rounds: int) -> dict[str, Any]:
-    import openvino as ov
-
     torch.manual_seed(0)
     policy = make_policy("diffusion", config).eval()
     inputs = policy.graph_inputs(1)["denoise"]
     arrays = [a.numpy() for a in inputs]
-    weight_mb = sum(m.weight.numel() * 4 for m in policy.unet.modules()
-                    if isinstance(m, (torch.nn.Conv1d, torch.nn.ConvTranspose1d))) / 1e6
+    weight_mb = sum(layer_weight_bytes(policy).values()) / 1e6
     requests = {}
     for form in ("mlas", "onednn"):
-        with torch.no_grad(), convolutions_only():
-            model = ov.convert_model(Denoise(policy, True).eval(), example_input=inputs)
-        model.reshape({i.get_any_name(): list(a.shape) for i, a in zip(model.inputs, inputs, strict=True)})
+        model = openvino_model(policy, True, inputs)  # the time_last form bcbench exports
         if form == "onednn":
             clamp_fully_connected(model)
-        requests[form] = compile_request(model, threads)
+        requests[form] = compile_openvino(model, threads)
     with torch.no_grad():
         ref = policy.unet.forward_film(*inputs, time_last=True).numpy()
     diff = {k: float(np.abs(r.infer(arrays)[0] - ref).max()) for k, r in requests.items()}

@@ -58,15 +58,33 @@ def convolutions_only() -> Iterator[None]:
         Conv1d.MATMUL_MIN_FAN_IN.update(keep)
 
 
-def openvino_request(policy: Any, time_last: bool, inputs: tuple, threads: int) -> Any:
+def layer_weight_bytes(policy: Any) -> dict[str, int]:
+    """fp32 bytes of every weight layer of the U-Net (what one step reads at batch 1; FiLM hoisted)."""
+    return {n: m.weight.numel() * 4 for n, m in policy.unet.named_modules()
+            if isinstance(m, (torch.nn.Conv1d, torch.nn.ConvTranspose1d))}
+
+
+def openvino_model(policy: Any, time_last: bool, inputs: tuple) -> Any:
+    """The `denoise` graph in one form, converted by OpenVINO with static shapes (as deployed at one batch)."""
     import openvino as ov
 
     with torch.no_grad(), convolutions_only():
         model = ov.convert_model(Denoise(policy, time_last).eval(), example_input=inputs)
     model.reshape({i.get_any_name(): list(a.shape) for i, a in zip(model.inputs, inputs, strict=True)})
+    return model
+
+
+def compile_openvino(model: Any, threads: int) -> Any:
+    """An infer request of `model` compiled as bcbench deploys fp32 (latency hint, one stream), profiling on."""
+    import openvino as ov
+
     config = {"PERFORMANCE_HINT": "LATENCY", "NUM_STREAMS": 1, "INFERENCE_PRECISION_HINT": "f32",
               "INFERENCE_NUM_THREADS": threads, "PERF_COUNT": True}
     return ov.Core().compile_model(model, "CPU", config).create_infer_request()
+
+
+def openvino_request(policy: Any, time_last: bool, inputs: tuple, threads: int) -> Any:
+    return compile_openvino(openvino_model(policy, time_last, inputs), threads)
 
 
 def onnxruntime_session(policy: Any, time_last: bool, inputs: tuple, threads: int, folder: Path) -> Any:
@@ -118,8 +136,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     policy = make_policy("diffusion", args.config).eval()
-    layers = {n: m.weight.numel() * 4 for n, m in policy.unet.named_modules()
-              if isinstance(m, (torch.nn.Conv1d, torch.nn.ConvTranspose1d))}
+    layers = layer_weight_bytes(policy)
     weight_bytes = sum(layers.values())
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

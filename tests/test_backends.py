@@ -328,15 +328,15 @@ def test_fc_kernel_benchmark_moves_fully_connected_layers_off_mlas_with_the_same
     pytest.importorskip("openvino")
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(__file__)), "benchmarks"))
     try:
-        from fc_kernel import chain_model, clamp_fully_connected, compile_request, fc_profile
+        from fc_kernel import chain_model, clamp_fully_connected, compile_openvino, fc_profile
     finally:
         sys.path.pop(0)
 
     model, weights = chain_model(4, 64, 32, 3, np.random.default_rng(0))
     x = np.random.default_rng(1).standard_normal((4, 64), dtype=np.float32)
-    plain = compile_request(model, 1)
+    plain = compile_openvino(model, 1)
     assert clamp_fully_connected(model) == 3
-    moved = compile_request(model, 1)
+    moved = compile_openvino(model, 1)
     want = np.concatenate([x @ w.T for w in weights], 1)
     for request in (plain, moved):
         np.testing.assert_allclose(request.infer([x])[0], want, atol=1e-5)
