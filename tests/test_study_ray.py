@@ -140,3 +140,27 @@ def test_a_ray_training_task_runs_the_threads_of_its_cpus(synthetic_zarr, tmp_pa
     run_study(spec, tmp_path / "ray", str(synthetic_zarr), progress=False, ray="local", ray_cpus=2)
     seg = json.loads(next((tmp_path / "ray" / "runs").glob("cnn_mlp-*/segments.jsonl")).read_text().splitlines()[0])
     assert seg["threads"] == 1
+
+
+def test_the_driver_hands_ray_what_fits_evaluations_of_trained_runs_first_and_timing_last():
+    """Ray starts queued tasks roughly in submission order, so the driver queues them itself: a finished training's
+    evaluations must not wait behind every training submitted before them, nothing is queued beyond the free
+    CPUs, and timing stages wait until nothing else is left."""
+    from bcbench.study.on_ray import pick
+
+    spec = parse_spec({"study": {"threads": 2, "resources": {"train": {"cpus": 1}, "eval": {"cpus": 1}}},
+                       "run": [{"policy": "random", "seeds": [0, 1, 2]}]})
+    a, b, c = spec.runs
+    trains = [("train", r, None) for r in (a, b, c)]
+    evals = [("eval", a, None), ("check", a, None), ("eval", a, "x")]
+    timing = [("latency", a, None), ("realtime", a, None)]
+    assert pick(spec, trains + evals + timing, 0, 2, True) == evals[:2]  # not the trainings listed before them
+    assert pick(spec, trains + evals + timing, 1, 2, True) == evals[:1]  # one CPU free: one stage
+    assert pick(spec, trains, 0, 2, True) == trains[:2]  # the study's order within a rank
+    assert pick(spec, trains + timing, 2, 2, True) == []  # nothing free: nothing queued
+    assert pick(spec, timing, 0, 2, True) == []  # a non-timing stage is left (running or waiting)
+    assert pick(spec, timing, 0, 2, False) == timing  # the last stretch: Ray's node resource serialises them
+    wide = parse_spec({"study": {"threads": 4}, "run": [{"policy": "random"}]})
+    only = [("train", wide.runs[0], None)]
+    assert pick(wide, only, 0, 2, True) == only  # wider than the cluster: it goes alone, not never
+    assert pick(wide, only, 1, 2, True) == []

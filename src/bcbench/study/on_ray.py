@@ -2,7 +2,8 @@
 
 The driver (this process) keeps the in-process runner's layout and rules: it lists the stages whose result
 files do not exist yet, submits each as a Ray task once what it needs is done (a run's evaluations and
-timing wait for its training), and writes every result file and `index.jsonl` line itself, atomically, as
+timing wait for its training) and CPUs are free for it (evaluations of trained runs before further trainings:
+`pick`), and writes every result file and `index.jsonl` line itself, atomically, as
 tasks finish. So a study killed under Ray resumes under Ray or without it, and the other way round.
 
 - Resources: each stage asks for the `cpus` / `gpus` of its kind in the spec's `resources` table
@@ -34,6 +35,7 @@ from bcbench.utils.system import git_commit
 
 NODE_RESOURCE, NODE_UNITS = "bcbench_node", 1000
 EXCLUSIVE = ("latency", "realtime")  # stages that must have their node to themselves
+Stage = tuple[str, RunSpec, Variant | None]  # (stage, run, setting), as StudyRunner.stages lists them
 
 
 def _ray() -> Any:
@@ -65,6 +67,29 @@ def stage_kind(stage: str) -> str:
 
 def stage_cpus(spec: StudySpec, stage: str) -> float:
     return spec.resources.get(stage_kind(stage), {}).get("cpus", spec.threads or 1)
+
+
+_RANK = {"eval": 0, "check": 0, "train": 1}  # then the timing stages (EXCLUSIVE), last
+
+
+def pick(spec: StudySpec, ready: list[Stage], busy_cpus: float, capacity: float, others_left: bool) -> list[Stage]:
+    """The ready stages to hand Ray now, as many as the free CPUs hold, most important first.
+
+    Ray starts queued tasks of one shape roughly in the order they were submitted, so submitting every ready
+    stage at once would queue a finished training's evaluations behind all the trainings submitted before
+    them: its scores would land hours (a long study: sessions) later. So the driver keeps the queue itself:
+    evaluations and checks of trained runs first, then trainings, each in the study's order; a stage wider
+    than the whole cluster goes alone. Timing stages (EXCLUSIVE) go last, in one stretch, once nothing else is
+    left, as in the in-process runner; Ray's node resource runs them one per node."""
+    if not others_left:
+        return [item for item in ready if item[0] in EXCLUSIVE]
+    free, chosen = capacity - busy_cpus, []
+    for item in sorted((i for i in ready if i[0] not in EXCLUSIVE), key=lambda i: _RANK[i[0]]):  # stable
+        need = stage_cpus(spec, item[0])
+        if need <= free or (busy_cpus == 0 and not chosen):
+            chosen.append(item)
+            free -= need
+    return chosen
 
 
 def _options(spec: StudySpec, stage: str) -> dict[str, Any]:
@@ -103,7 +128,7 @@ def run_on_ray(runner: StudyRunner, address: str | None = None, cpus: int | None
     untrained = {id(run) for stage, run, _ in pending if stage == "train"}
     remote = ray.remote(_execute)
     index = {id(r): i for i, r in enumerate(spec.runs)}
-    in_flight: dict[Any, tuple[str, RunSpec, Variant | None]] = {}
+    in_flight: dict[Any, Stage] = {}
     failed: list[str] = []
     bar = tqdm(total=len(stages), initial=len(stages) - len(pending), desc=f"study {spec.name} (ray)",
                unit="stage", disable=not runner.progress)
@@ -111,11 +136,14 @@ def run_on_ray(runner: StudyRunner, address: str | None = None, cpus: int | None
     def label(stage: str, run: RunSpec, variant: Variant | None) -> str:
         return f"{stage} {run.label} s{run.seed}" + (f" {variant.key}" if variant and variant.sampler else "")
 
+    capacity = float(ray.cluster_resources().get("CPU", 1))
+
     def submit_ready() -> None:
-        for item in list(pending):
+        ready = [p for p in pending if p[0] == "train" or id(p[1]) not in untrained]  # the rest wait for training
+        busy = sum(stage_cpus(spec, s) for s, _, _ in in_flight.values())
+        others_left = any(s not in EXCLUSIVE for s, _, _ in [*pending, *in_flight.values()])
+        for item in pick(spec, ready, busy, capacity, others_left):
             stage, run, variant = item
-            if stage != "train" and id(run) in untrained:
-                continue  # waits for its training
             pending.remove(item)
             ref = remote.options(**_options(spec, stage)).remote(spec, str(runner.out), runner.data, stage,
                                                                  index[id(run)], variant)
@@ -124,7 +152,7 @@ def run_on_ray(runner: StudyRunner, address: str | None = None, cpus: int | None
     try:
         submit_ready()
         while in_flight:
-            bar.set_postfix_str(f"finished {bar.n}, running/queued on ray {len(in_flight)}, waiting {len(pending)}")
+            bar.set_postfix_str(f"finished {bar.n}, running on ray {len(in_flight)}, waiting {len(pending)}")
             (ref,), _ = ray.wait(list(in_flight), num_returns=1)
             stage, run, variant = in_flight.pop(ref)
             try:
@@ -135,6 +163,7 @@ def run_on_ray(runner: StudyRunner, address: str | None = None, cpus: int | None
                 print(f"bcbench: stage failed: {failed[-1]}", flush=True)
                 if stage == "train":  # its evaluations and timing cannot run
                     pending[:] = [p for p in pending if p[1] is not run]
+                submit_ready()  # its CPUs are free again
                 continue
             runner.finish(stage, run, variant, res["record"], res["seconds"], res["node"])
             if stage == "train":
