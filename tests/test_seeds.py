@@ -177,3 +177,28 @@ def test_the_lead_names_the_machine_of_every_training_seed():
     one_seed = [r for r in runs if r.train_seed == 0]
     assert hardware_line(one_seed) == "Evaluated on AMD EPYC (avx2), 2 threads."
     assert hardware_line([one_seed[0], row(1, "AMD EPYC", "ddim10")]) == "Evaluated on AMD EPYC (avx2), 2 threads."
+
+
+def test_a_carried_run_plays_the_part_the_studys_spec_gives_it(tmp_path):
+    """A run carried from another study (same run key, so the same model) keeps that study's label in its files:
+    the first round's 2x run is the second round's seed 0. Its role here comes from this study's spec.json (matched
+    on policy, preset, seed and overrides), so it is the base its own 2x check is paired with."""
+    from bcbench.analysis.convergence import doubling_checks
+    from bcbench.analysis.results import load_check_rows
+
+    rng = np.random.default_rng(2)
+    val = np.clip(0.5 + rng.uniform(-0.2, 0.2, 60), 0, 1)
+    runs = {"flow-s0-aaa": ("flow 2x (first round)", "flow", 40), "flow-s0-bbb": ("flow 2x", None, 80)}
+    for run, (file_label, doubles, steps) in runs.items():
+        rec = _eval("flow", file_label, val, 0, run, start=200_000)
+        rec["study"].update({"check": True, **({"doubles": doubles} if doubles else {})})
+        write_json(tmp_path / "runs" / run / "check-default.json", rec)
+        write_json(tmp_path / "runs" / run / "run.json", {"policy": "flow", "preset": "cpu", "overrides": {
+            "optim.max_steps": steps, "seed": 0}})
+    assert doubling_checks(load_check_rows(tmp_path), 0.05) == []  # the files' own labels pair nothing
+    write_json(tmp_path / "spec.json", {"runs": [
+        {"policy": "flow", "config": "cpu", "seed": 0, "overrides": {"optim.max_steps": 40}, "label": "flow"},
+        {"policy": "flow", "config": "cpu", "seed": 0, "overrides": {"optim.max_steps": 80}, "label": "flow 2x",
+         "doubles": "flow"}]})
+    (check,) = doubling_checks(load_check_rows(tmp_path), 0.05)
+    assert check.run == "flow" and check.n == 60 and check.est == pytest.approx(0.0)

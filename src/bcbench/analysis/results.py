@@ -95,12 +95,33 @@ class Row:
         return f"{self.policy}:{self.variant}" if self.sampler else self.policy
 
 
-def _row_from_eval(path: Path, margin: float = 0.05) -> Row:
+def study_roles(results: Path) -> dict[str, dict[str, Any]]:
+    """Run folder -> {label, doubles} as the study's own spec.json names the run.
+
+    A run carried over from another study (the same run key: policy, preset, seed and overrides, so the same model)
+    keeps that study's label in its evaluation files; here it plays the part this study's spec gives it, e.g. the
+    first round's twice-the-steps run as the second round's seed 0, the base of the next check. A folder that
+    matches no spec run, or several, keeps its files' own label."""
+    spec_file = results / "spec.json"
+    if not spec_file.exists():
+        return {}
+    runs = read_json(spec_file).get("runs", [])
+    roles = {}
+    for run_json in results.glob("runs/*/run.json"):
+        meta = read_json(run_json)
+        same = [r for r in runs if r.get("policy") == meta.get("policy") and r.get("config") == meta.get("preset")
+                and {**(r.get("overrides") or {}), "seed": r.get("seed")} == (meta.get("overrides") or {})]
+        if len(same) == 1:
+            roles[run_json.parent.name] = {"label": same[0]["label"], "doubles": same[0].get("doubles")}
+    return roles
+
+
+def _row_from_eval(path: Path, margin: float = 0.05, role: dict[str, Any] | None = None) -> Row:
     ev = read_json(path)
     if ev.get("type") != "evaluation":
         raise BCBenchError(f"{path} is not an evaluation result")
     pol = ev["policy"]
-    study = ev.get("study", {})
+    study = {**ev.get("study", {}), **(role or {})}
     variant = (study.get("variant") or {})
     sampler = pol.get("sampler") or variant.get("sampler")
     steps = pol.get("steps") or variant.get("steps")
@@ -159,9 +180,10 @@ def load_rows(results: str | Path, extra_dirs: list[str] | None = None, margin: 
     for d in extra_dirs or []:
         files += sorted(Path(d).rglob("eval*.json"))
     rows: dict[str, Row] = {}
+    roles = study_roles(results)
     for f in files:
         try:
-            row = _row_from_eval(f, margin)
+            row = _row_from_eval(f, margin, roles.get(f.parent.name) if f.is_relative_to(results) else None)
         except (KeyError, ValueError, BCBenchError):
             continue  # not an evaluation file of ours
         rows[row.key] = row
@@ -172,7 +194,8 @@ def load_rows(results: str | Path, extra_dirs: list[str] | None = None, margin: 
 
 def load_check_rows(results: str | Path) -> list[Row]:
     """A confirm study's twice-the-steps checks (runs/*/check-*.json, on validation episodes), one row each."""
-    return [_row_from_eval(f) for f in sorted(Path(results).rglob("check-*.json"))
+    roles = study_roles(Path(results))
+    return [_row_from_eval(f, role=roles.get(f.parent.name)) for f in sorted(Path(results).rglob("check-*.json"))
             if "report" not in f.relative_to(results).parts]
 
 
