@@ -419,7 +419,7 @@ def test_twice_the_steps_decides_convergence():
     # settings in sampler order, steps as numbers; each row gives both runs' means and the paired difference
     many = [row("DP", base_scores), row("DP 2x", base_scores + 0.2, doubles="DP")]
     for steps in (100, 2, 5):
-        many += [dataclasses.replace(r, variant=f"ddim{steps}") for r in many[:2]]
+        many += [dataclasses.replace(r, variant=f"ddim{steps}", steps=steps) for r in many[:2]]
     checks = doubling_checks(many, 0.05)
     assert [c.variant for c in checks] == ["ddim2", "ddim5", "ddim10", "ddim100"]
     assert f"| {np.mean(base_scores):.3f} | {np.mean(base_scores) + 0.2:.3f} | +0.200" in checks[0].table_row()

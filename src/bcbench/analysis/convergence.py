@@ -11,7 +11,6 @@ lies above, inconclusive otherwise.
 from __future__ import annotations
 
 import collections
-import re
 from dataclasses import dataclass
 
 from bcbench.analysis.results import Row
@@ -37,18 +36,14 @@ class Check:
         return (f"| {self.run} | {v} | {self.means[0]:.3f} | {self.means[1]:.3f} | {self.est:+.3f} "
                 f"[{self.lo:+.3f}, {self.hi:+.3f}] | {self.n} | **{self.verdict}** |")
 
-    def order(self) -> tuple[str, str, int]:
-        """Run, then sampler, then steps as a number (DDIM-2 before DDIM-10)."""
-        m = re.fullmatch(r"(\D*)(\d+)", self.variant)
-        return (self.run, m[1], int(m[2])) if m else (self.run, self.variant, 0)
-
 
 def doubling_checks(rows: list[Row], margin: float) -> list[Check]:
     """Every (checked run, variant) that has its twice-the-steps run evaluated on shared episodes."""
     # the checked run of the same training seed (a confirm study trains the preset with several)
     base = {(r.run_label, r.variant, r.train_seed): r for r in rows if r.run_label}
     out = []
-    for r in rows:
+    # run, then sampler, then steps as a number (DDIM-2 before DDIM-10): the table's order
+    for r in sorted(rows, key=lambda r: (r.doubles or "", r.sampler or r.variant, r.steps or 0, r.variant)):
         b = base.get((r.doubles, r.variant, r.train_seed)) if r.doubles else None
         if b is None:
             continue
@@ -57,7 +52,7 @@ def doubling_checks(rows: list[Row], margin: float) -> list[Check]:
         shared = b.scores.keys() & r.scores.keys()  # the episodes the difference is over (none: nan, n = 0)
         means = tuple(sum(x.scores[k] for k in shared) / len(shared) if shared else float("nan") for x in (b, r))
         out.append(Check(b.run_label, r.variant, est, lo, hi, n, verdict, r.train_seed, means))
-    return sorted(out, key=Check.order)
+    return out
 
 
 def apply_checks(rows: list[Row], checks: list[Check], strict: bool) -> None:
