@@ -3,7 +3,8 @@
 # priority, with its run folder outside the work tree so that a later session on this machine resumes it
 # where it stopped. SPEC names another study file; its folder, log and pin are named after it.
 #   scripts/cpu_study.sh [start] [SPEC]   start / resume     scripts/cpu_study.sh stop [SPEC]   stop it (it saves)
-#   scripts/cpu_study.sh status [SPEC]    progress           then: bcbench report ~/.cache/bcbench/cpu --export results/cpu
+#   scripts/cpu_study.sh status [SPEC]    progress (stages done; each training's step, rate, time left)
+#   then: bcbench report ~/.cache/bcbench/cpu --export results/cpu
 # The study runs at ONE commit from start to end: the first start pins the current (clean) HEAD and runs
 # from its own clone of it ($BCBENCH_HOME/src-<commit>), so the work tree can move on while it runs for
 # hours and every result it writes carries the same commit. Starting afresh at a newer commit means
@@ -76,6 +77,8 @@ case "${1:-start}" in
     pgrep -f "$PATTERN" >/dev/null && echo "running" || echo "not running"
     [ -f "$PIN" ] && echo "pinned commit: $(cut -c1-12 "$PIN")"
     [ -f "$OUT/index.jsonl" ] && echo "finished stages: $(wc -l < "$OUT/index.jsonl")"
-    tail -c 400 "$LOG" 2>/dev/null | tr '\r' '\n' | grep -v '^$' | tail -1 ;;
+    tail -c 400 "$LOG" 2>/dev/null | tr '\r' '\n' | grep -v '^$' | tail -1
+    # each training's step, rate and time left (Ray workers show no progress bar), read from the study's files
+    if [ -f "$OUT/spec.json" ]; then .venv/bin/python -m bcbench.cli study "$SPEC" --out "$OUT" --status || true; fi ;;
   *) echo "usage: $0 [start|stop|status|pause|resume] [SPEC]" >&2; exit 2 ;;
 esac

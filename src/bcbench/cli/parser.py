@@ -141,6 +141,8 @@ def _add_study_commands(sub: Any) -> None:
     p.add_argument("spec", metavar="SPEC.toml", help="study specification (see studies/)")
     p.add_argument("--out", metavar="DIR", help="results directory (default runs/studies/NAME)")
     p.add_argument("--check", action="store_true", help="validate the spec and exit")
+    p.add_argument("--status", action="store_true", help="where the study in --out stands (stages done, each "
+                   "training's step, rate and time left), read from its files; starts nothing")
     p.add_argument("--no-report", action="store_true", help="do not write the report at the end")
     p.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
                    help="run the stages as Ray tasks: alone = a local Ray instance; 'auto' or HOST:PORT = a "
