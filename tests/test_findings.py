@@ -198,3 +198,20 @@ def test_wilson_interval_of_a_share():
     assert lo == 0.0 and 0.03 < hi < 0.04  # 0%: not [0, 0]
     assert wilson(50, 100) == pytest.approx((0.4038, 0.5962), abs=1e-4)
     assert fmt_share({"value": 0.22}, 100) == "22.0% [15.0, 31.1]"
+
+
+def test_recovered_share_of_naives_loss_pairs_by_seed():
+    """(other - naive) / (sync - naive) over shared seeds: 0 for naive itself, 1 for sync, 0.5 half-way; its
+    interval covers the truth and narrows with more seeds; no loss, no share."""
+    from bcbench.stats import recovered_share
+
+    rng = np.random.default_rng(1)
+    sync = {s: float(v) for s, v in enumerate(rng.uniform(0.6, 1.0, 400))}
+    naive = {s: v - 0.4 for s, v in sync.items()}
+    half = {s: v - 0.2 + float(rng.normal(0, 0.1)) for s, v in sync.items()}
+    assert recovered_share(sync, naive, naive)[0] == 0.0 and recovered_share(sync, naive, sync)[0] == 1.0
+    est, lo, hi, n = recovered_share(sync, naive, {**half, 9999: 5.0})  # an unshared seed is left out
+    assert n == 400 and lo < 0.5 < hi and abs(est - 0.5) < 0.03 and hi - lo < 0.1
+    few = recovered_share({k: sync[k] for k in range(40)}, naive, half)
+    assert few[3] == 40 and few[2] - few[1] > hi - lo
+    assert np.isnan(recovered_share(sync, sync, half)[0])

@@ -45,6 +45,29 @@ def paired_bootstrap(a: dict[int, float], others: list[dict[int, float]], seed: 
     return est, float(lo), float(hi), n
 
 
+def recovered_share(sync: dict[int, float], naive: dict[int, float], other: dict[int, float], seed: int = 0,
+                    level: float = 0.95, n_boot: int = N_BOOT) -> tuple[float, float, float, int]:
+    """The share of naive's loss to delay that another strategy gets back: (other - naive) / (sync - naive), the
+    three paired over the episode seeds they share, with a percentile-bootstrap interval (seeds resampled together,
+    so numerator and denominator move as one), and the number of shared seeds. Issue 31's "half of naive async's
+    loss recovered" is this share >= 0.5. Resamples where naive lost nothing (no share defined) are left out."""
+    seeds = sorted(set(sync) & set(naive) & set(other))
+    n = len(seeds)
+    if n == 0:
+        return float("nan"), float("nan"), float("nan"), 0
+    s, a, o = (np.array([d[k] for k in seeds]) for d in (sync, naive, other))  # (n,) each
+    loss = s.mean() - a.mean()
+    est = float((o.mean() - a.mean()) / loss) if loss > 0 else float("nan")
+    idx = np.random.default_rng(seed).integers(0, n, size=(n_boot, n))
+    num, den = o[idx].mean(axis=1) - a[idx].mean(axis=1), s[idx].mean(axis=1) - a[idx].mean(axis=1)  # (n_boot,)
+    boot = num[den > 0] / den[den > 0]
+    if boot.size == 0:
+        return est, float("nan"), float("nan"), n
+    alpha = (1.0 - level) / 2.0
+    lo, hi = np.quantile(boot, [alpha, 1.0 - alpha])
+    return est, float(lo), float(hi), n
+
+
 def two_level_bootstrap(seeds: list[dict[int, float]], others: list[list[dict[int, float]]] | None = None,
                         seed: int = 0, level: float = 0.95, n_boot: int = N_BOOT) -> dict[str, Any]:
     """Mean over training seeds of each seed's mean episode score, with an interval that resamples training seeds
