@@ -86,6 +86,19 @@ def test_async_delay_must_leave_something_of_the_chunk():
         _run("async", 16)
 
 
+def test_rtc_horizon_note_says_which_horizon_keeps_s_at_least_d_or_that_none_can():
+    from bcbench.evaluation.realtime import rtc_horizon_note
+
+    policy = PlannedStep()
+    policy.chunk_start = 1  # as the learned policies: the current step's action is index 1 of 16
+    assert rtc_horizon_note(policy, [1, 2, 4], None) is None  # default s = 8 - d >= d up to d = 4
+    note = rtc_horizon_note(policy, [4, 6, 8], None)
+    assert "d = 6, 8 executes fewer" in note and "6 <= s <= 9 keeps it at d = 6" in note
+    assert "at d = 8 no horizon does (d + s <= 15" in note and "d = 4" not in note.split(":")[1]
+    assert rtc_horizon_note(policy, [8], 7).endswith("at d = 8 no horizon does (d + s <= 15 with this chunk)")
+    assert rtc_horizon_note(policy, [6], 7) is None
+
+
 def test_realtime_evaluation_is_deterministic_and_records_its_delays():
     cfg = EvalConfig(episodes=3, max_steps=40, workers=1, execution="async", latency_ms=250)
     a = evaluate(make_policy("scripted"), cfg, None, progress=False)

@@ -69,10 +69,9 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
                 raise
     settings = sweep_settings(delays, executions, usable, measured)
     if strategy is not None and strategy.strategy == "rtc" and "async" in executions:
-        short = [d for d in delays if (execution_horizon or max(1, policy.action_horizon - d)) < d]
-        if short:  # allowed (the queue runs dry, the last target is held), but not RTC as its paper defines it
-            print(f"note: rtc at d = {', '.join(map(str, short))} executes fewer actions per chunk than the delay "
-                  f"(s < d; Real-Time Chunking needs s >= d): pass --execution-horizon for that", file=sys.stderr)
+        note = rtc_horizon_note(policy, delays, execution_horizon)
+        if note:  # allowed (the queue runs dry, the last target is held), but not RTC as its paper defines it
+            print(note, file=sys.stderr)
     out = {name: r for name, r in (done or {}).items() if name in {s[0] for s in settings}}
     for name, execution, latency in settings:
         if name in out:
@@ -116,6 +115,22 @@ def finished_settings(folder: Path, policy: ChunkPolicy, episodes: int, seed_sta
         if {k: cfg.get(k) for k in want} == want and cfg.get("execution_horizon") == horizon:
             out[name] = r
     return out
+
+
+def rtc_horizon_note(policy: ChunkPolicy, delays: list[int], execution_horizon: int | None) -> str | None:
+    """A note when RTC runs with fewer actions per chunk than the delay (s < d; its paper's rule is s >= d), with
+    the horizons that would keep the rule, or why none can: the chunk holds d + s <= H - chunk_start actions."""
+    short = [d for d in delays if (execution_horizon or max(1, policy.action_horizon - d)) < d]
+    if not short:
+        return None
+    room = {d: policy.pred_horizon - policy.chunk_start - d for d in short}  # the longest s the chunk holds
+    fits, never = [d for d in short if room[d] >= d], [d for d in short if room[d] < d]
+    hints = [f"--execution-horizon s with {d} <= s <= {room[d]} keeps it at d = {d}" for d in fits]
+    if never:
+        hints.append(f"at d = {', '.join(map(str, never))} no horizon does (d + s <= "
+                     f"{policy.pred_horizon - policy.chunk_start} with this chunk)")
+    return (f"note: rtc at d = {', '.join(map(str, short))} executes fewer actions per chunk than the delay (s < d; "
+            f"Real-Time Chunking needs s >= d): {'; '.join(hints)}")
 
 
 def check_async_delays(policy: ChunkPolicy, delays: list[int], execution_horizon: int | None) -> None:
