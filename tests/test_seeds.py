@@ -172,8 +172,19 @@ def test_the_lead_names_the_machine_of_every_training_seed():
 
     runs = [row(0, "AMD EPYC", "ddim10"), row(0, "AMD EPYC", "ddim1"), row(1, "Xeon", "ddim10"),
             row(1, "Xeon", "ddim1")]
-    assert hardware_line(runs) == ("Evaluated on several machines: AMD EPYC (avx2), 2 threads: DP s0; "
-                                   "Xeon (avx2), 2 threads: DP s1.")
+    assert hardware_line(runs) == ("Evaluated on several machines: AMD EPYC (avx2): seed 0 of DP with 2 threads; "
+                                   "Xeon (avx2): seed 1 of DP with 2 threads.")
+    assert hardware_line([*runs, row(2, "Xeon", "ddim10")]).endswith("Xeon (avx2): seeds 1 and 2 of DP with 2 threads.")
+    # one CPU, two thread counts, one training seed: each label once with its count of settings, "1 thread"
+    flow = [Row(key=f"f:{v}", label="Flow", policy="flow", preset="cpu", variant=v, sampler="euler", steps=1,
+                spacing=None, beta_schedule=None, params=1, summary={}, train_seed=0,
+                hardware={"cpu_model": "Xeon", "cpu_flags": ["avx2"], "torch_threads": 1})
+            for v in ("euler1", "euler2")]
+    dp = [row(0, "Xeon", "ddim10"), row(0, "Xeon", "ddim1")]
+    assert hardware_line([*flow, *dp]) == ("Evaluated on Xeon (avx2): all 2 settings of Flow with 1 thread; "
+                                           "all 2 settings of DP with 2 threads.")
+    assert hardware_line([flow[0], *dp]) == ("Evaluated on Xeon (avx2): Flow euler1 with 1 thread; "
+                                             "all 2 settings of DP with 2 threads.")
     one_seed = [r for r in runs if r.train_seed == 0]
     assert hardware_line(one_seed) == "Evaluated on AMD EPYC (avx2), 2 threads."
     assert hardware_line([one_seed[0], row(1, "AMD EPYC", "ddim10")]) == "Evaluated on AMD EPYC (avx2), 2 threads."

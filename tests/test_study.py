@@ -480,6 +480,11 @@ def test_a_resumed_runs_training_cell_states_its_overall_rate_beside_its_last_se
     assert "50.0 min, 200 samples/s overall (400 in its last session)" in resumed
     one_session = cell(samples=600_000, train_time_s=1500.0, samples_per_s=400.0)
     assert "25.0 min, 400 samples/s;" in one_session + ";" and "overall" not in one_session
+    # a session recorded before cpu_id existed is the same CPU as one with it (model, flags, precision): named once
+    xeon = {"cpu_model": "Xeon", "cpu_flags": ["avx2"], "precision": "fp32"}
+    segs = [xeon, {**xeon, "cpu_id": "family 6 model 207"}, {**xeon, "cpu_model": "EPYC"}]
+    assert cell(samples=1, train_time_s=1.0, segments=segs).endswith(
+        "trained on EPYC (avx2), fp32 and Xeon [family 6 model 207] (avx2), fp32")
 
 
 def test_a_restored_run_gets_its_published_weights_back_and_nothing_else_does(tmp_path, capsys):

@@ -10,31 +10,48 @@ from bcbench.analysis.seeds import episodes_and_seeds
 from bcbench.utils.system import CONTENDED_CPUS
 
 
-def _hw_cell(r: Row) -> str:
-    h = r.hardware
-    return f"{h.get('gpu') or cpu_text(h)}, {h.get('torch_threads', '?')} threads"
+def _threads(n: object) -> str:
+    return f"{n} thread" + ("" if n == 1 else "s")
+
+
+def _and(items: list[str]) -> str:
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
 
 
 def hardware_line(rows: list[Row]) -> str:
-    """Where the rows were evaluated (and timed), said once: one machine, or each machine with its rows. `rows` are
-    one per run (not merged over training seeds: seeds of one setting may have run on different machines); with
-    several training seeds a machine lists the runs it evaluated ("label sN"), else the settings."""
-    seeds_by_label: dict[str, set[int | None]] = {}
+    """Where the rows were evaluated (and timed), said once: one machine, or each machine (CPU and torch threads)
+    with what ran there. `rows` are one per run (not merged over training seeds: seeds of one setting may have run
+    on different machines); with several training seeds a machine names the training seeds of each label it
+    evaluated ("seeds 1 and 2 of label"), else the settings, a label whose settings all ran there once ("all N
+    settings of label")."""
+    multi = len({(r.label, r.train_seed) for r in rows}) > len({r.label for r in rows})
+    by_hw: dict[tuple[str, str], dict[str, list[str]]] = {}  # (cpu, threads) -> label -> seeds or settings there
     for r in rows:
-        seeds_by_label.setdefault(r.label, set()).add(r.train_seed)
-    multi = any(len(s) > 1 for s in seeds_by_label.values())
-    by_hw: dict[str, list[str]] = {}
-    for r in rows:
-        text = (f"{r.label} s{r.train_seed}" if multi and r.train_seed is not None
-                else r.label + ("" if r.variant == "default" else f" {r.variant}"))
-        labels = by_hw.setdefault(_hw_cell(r), [])
-        if text not in labels:
-            labels.append(text)
+        hw = (r.hardware.get("gpu") or cpu_text(r.hardware), _threads(r.hardware.get("torch_threads", "?")))
+        item = (str(r.train_seed) if r.train_seed is not None else "") if multi else (
+            "" if r.variant == "default" else r.variant)
+        items = by_hw.setdefault(hw, {}).setdefault(r.label, [])
+        if item not in items:
+            items.append(item)
     did = "Evaluated and timed" if any(r.latency for r in rows) else "Evaluated"
     if len(by_hw) <= 1:
-        return f"{did} on {next(iter(by_hw), 'no machine')}."
-    return f"{did} on several machines: " + "; ".join(
-        f"{hw}: {', '.join(labels)}" for hw, labels in sorted(by_hw.items())) + "."
+        return f"{did} on {', '.join(next(iter(by_hw), ('no machine',)))}."
+    n_settings = {label: len({r.variant for r in rows if r.label == label}) for label in {r.label for r in rows}}
+
+    def said(label: str, items: list[str]) -> list[str]:
+        if multi:
+            seeds = [i for i in items if i]
+            return ([f"seed{'s' if len(seeds) > 1 else ''} {_and(seeds)} of {label}"] if seeds else []) + (
+                [label] if "" in items else [])
+        if len(items) > 1 and len(items) == n_settings[label]:
+            return [f"all {len(items)} settings of {label}"]
+        return [f"{label} {i}".rstrip() for i in items]
+
+    cpus = sorted({cpu for cpu, _ in by_hw})
+    parts = [f"{cpu}: " + "; ".join(", ".join(x for label, items in ran.items() for x in said(label, items))
+                                    + f" with {t}" for (c, t), ran in sorted(by_hw.items()) if c == cpu)
+             for cpu in cpus]
+    return f"{did} on {'several machines: ' if len(cpus) > 1 else ''}" + "; ".join(parts) + "."
 
 
 def lead_line(results: Path, rows: list[Row], mixed: bool, runs: list[Row] | None = None) -> str:

@@ -62,6 +62,14 @@ def _study_cell(r: Row) -> str:
     return " / ".join(parts)
 
 
+def _same_cpu_once(segs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Training sessions' CPUs with a session recorded before cpu_id existed folded into one of the same model,
+    flags and precision that has it (the same machine), so one CPU is not named twice."""
+    key = lambda g: (g.get("cpu_model"), tuple(g.get("cpu_flags") or ()), g.get("precision"))  # noqa: E731
+    with_id = {key(g) for g in segs if g.get("cpu_id")}
+    return [g for g in segs if g.get("cpu_id") or key(g) not in with_id]
+
+
 def _train_cell(r: Row) -> str:
     t = r.train
     if not t:
@@ -79,7 +87,8 @@ def _train_cell(r: Row) -> str:
         cell += f" ({t['stopped']})"  # e.g. "stopped by time: schedule not finished"
     # where it trained: every session's CPU (segments), else the summary's machine; samples/s depend on it
     segs = t.get("segments") or ([{**t["hardware"], "precision": t.get("precision")}] if t.get("hardware") else [])
-    machines = sorted({cpu_text(g) + (f", {g['precision']}" if g.get("precision") else "") for g in segs})
+    machines = sorted({cpu_text(g) + (f", {g['precision']}" if g.get("precision") else "")
+                       for g in _same_cpu_once(segs)})
     return cell + (f"; trained on {' and '.join(machines)}" if machines else "")
 
 
