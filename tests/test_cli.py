@@ -127,3 +127,12 @@ def test_untested_library_versions_fail_clearly(monkeypatch):
         system.require_known_version("diffusers")
     monkeypatch.setenv("BCBENCH_ALLOW_UNTESTED_VERSIONS", "1")
     system.require_known_version("diffusers")  # the escape hatch
+
+
+def test_output_into_a_closed_pipe_is_no_error():
+    """`bcbench ... | head` stops reading early: exit 0 and nothing on stderr, not a BrokenPipeError traceback."""
+    p = subprocess.Popen([sys.executable, "-m", "bcbench.cli", "policies"], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE)
+    p.stdout.close()  # the reader is gone before the command writes
+    err = p.stderr.read()
+    assert p.wait() == 0 and err == b""
