@@ -23,6 +23,12 @@ def bootstrap_ci(values: np.ndarray, level: float = 0.95, n_boot: int = N_BOOT, 
     return (float(lo), float(hi))
 
 
+def _aligned(*scores: dict[int, float]) -> list[np.ndarray]:
+    """Each episode seed -> score map as an array over the seeds they all share, in seed order: the pairing."""
+    seeds = sorted(set(scores[0]).intersection(*scores[1:]))
+    return [np.array([d[k] for k in seeds], dtype=float) for d in scores]
+
+
 def paired_bootstrap(a: dict[int, float], others: list[dict[int, float]], seed: int = 0, level: float = 0.95,
                      n_boot: int = N_BOOT) -> tuple[float, float, float, int]:
     """Mean of a - max(others) over the episode seeds all of them share, its paired percentile-bootstrap interval
@@ -31,12 +37,11 @@ def paired_bootstrap(a: dict[int, float], others: list[dict[int, float]], seed: 
     a and each of `others` map episode seed -> score. With several `others` the maximum is taken inside every
     resample, so choosing the best of them is part of what the interval accounts for.
     """
-    seeds = sorted(set(a).intersection(*others))
-    n = len(seeds)
+    x, *rest = _aligned(a, *others)
+    n = len(x)
     if n == 0:
         return float("nan"), float("nan"), float("nan"), 0
-    x = np.array([a[s] for s in seeds])  # (n,)
-    ys = np.array([[o[s] for s in seeds] for o in others])  # (k, n)
+    ys = np.stack(rest)  # (k, n)
     est = float(x.mean() - ys.mean(axis=1).max())
     idx = np.random.default_rng(seed).integers(0, n, size=(n_boot, n))
     boot = x[idx].mean(axis=1) - ys[:, idx].mean(axis=2).max(axis=0)  # (n_boot,)
@@ -51,11 +56,10 @@ def recovered_share(sync: dict[int, float], naive: dict[int, float], other: dict
     three paired over the episode seeds they share, with a percentile-bootstrap interval (seeds resampled together,
     so numerator and denominator move as one), and the number of shared seeds. Issue 31's "half of naive async's
     loss recovered" is this share >= 0.5. Resamples where naive lost nothing (no share defined) are left out."""
-    seeds = sorted(set(sync) & set(naive) & set(other))
-    n = len(seeds)
+    s, a, o = _aligned(sync, naive, other)  # (n,) each
+    n = len(s)
     if n == 0:
         return float("nan"), float("nan"), float("nan"), 0
-    s, a, o = (np.array([d[k] for k in seeds]) for d in (sync, naive, other))  # (n,) each
     loss = s.mean() - a.mean()
     est = float((o.mean() - a.mean()) / loss) if loss > 0 else float("nan")
     idx = np.random.default_rng(seed).integers(0, n, size=(n_boot, n))

@@ -26,7 +26,9 @@ def hardware_line(rows: list[Row]) -> str:
     settings of label")."""
     multi = len({(r.label, r.train_seed) for r in rows}) > len({r.label for r in rows})
     by_hw: dict[tuple[str, str], dict[str, list[str]]] = {}  # (cpu, threads) -> label -> seeds or settings there
+    settings: dict[str, set[str]] = {}  # label -> its settings, wherever they ran
     for r in rows:
+        settings.setdefault(r.label, set()).add(r.variant)
         hw = (r.hardware.get("gpu") or cpu_text(r.hardware), _threads(r.hardware.get("torch_threads", "?")))
         item = (str(r.train_seed) if r.train_seed is not None else "") if multi else (
             "" if r.variant == "default" else r.variant)
@@ -36,14 +38,13 @@ def hardware_line(rows: list[Row]) -> str:
     did = "Evaluated and timed" if any(r.latency for r in rows) else "Evaluated"
     if len(by_hw) <= 1:
         return f"{did} on {', '.join(next(iter(by_hw), ('no machine',)))}."
-    n_settings = {label: len({r.variant for r in rows if r.label == label}) for label in {r.label for r in rows}}
 
     def said(label: str, items: list[str]) -> list[str]:
         if multi:
             seeds = [i for i in items if i]
             return ([f"seed{'s' if len(seeds) > 1 else ''} {_and(seeds)} of {label}"] if seeds else []) + (
                 [label] if "" in items else [])
-        if len(items) > 1 and len(items) == n_settings[label]:
+        if len(items) > 1 and len(items) == len(settings[label]):
             return [f"all {len(items)} settings of {label}"]
         return [f"{label} {i}".rstrip() for i in items]
 

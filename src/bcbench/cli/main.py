@@ -315,7 +315,7 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(argv)
-    handler = getattr(data, args.func) if args.func.startswith("cmd_data_") else globals()[args.func]
+    handler = getattr(data, args.func, None) or globals()[args.func]  # the data commands live in cli/data.py
     git_commit()  # the code this process runs: read now, before anyone edits the tree (results carry it)
     try:
         return int(handler(args) or 0)

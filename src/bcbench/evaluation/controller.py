@@ -73,6 +73,12 @@ def async_actions_needed(chunk_start: int, d: int, s: int | None) -> int:
     return chunk_start + d + (s or 1)
 
 
+def actions_executed(action_horizon: int, d: int, s: int | None) -> int:
+    """Actions of each async chunk executed before the next one is asked for: the execution horizon s where one is
+    given, else what the action horizon leaves after the delay, at least one."""
+    return s if s is not None else max(action_horizon - d, 1)
+
+
 class ChunkedController:
     """Observation history and action queues for a set of environments keyed by id."""
 
@@ -247,8 +253,7 @@ class ChunkedController:
         start, end = self.chunk_start, self.chunk_start + self.action_horizon
         if self.execution == "async":  # the first d actions are in the past when the chunk arrives
             self._next_delay[i] = self._checked_delay(i)
-            s = self.execution_horizon
-            start, end = start + d, (max(end, start + d + 1) if s is None else start + d + s)
+            start, end = start + d, start + d + actions_executed(self.action_horizon, d, self.execution_horizon)
         self.delays.append(d)
         planned = _Chunk(self._origin(i, d), self._step[i] + d, chunk, list(chunk[start:end]))
         if d == 0:

@@ -14,7 +14,7 @@ from typing import Any
 
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.config import StrategyConfig
-from bcbench.evaluation.controller import async_actions_needed
+from bcbench.evaluation.controller import actions_executed, async_actions_needed
 from bcbench.evaluation.evaluate import EvalConfig, evaluate
 from bcbench.evaluation.latency_sources import LatencySource, profile_ms, sampler_steps, steps_for
 from bcbench.evaluation.strategies import Strategy
@@ -117,13 +117,18 @@ def finished_settings(folder: Path, policy: ChunkPolicy, episodes: int, seed_sta
     return out
 
 
+def longest_horizon(policy: ChunkPolicy, d: int) -> int:
+    """The most actions s a chunk holds after a delay of d (`async_actions_needed` <= pred_horizon)."""
+    return policy.pred_horizon - policy.chunk_start - d
+
+
 def rtc_horizon_note(policy: ChunkPolicy, delays: list[int], execution_horizon: int | None) -> str | None:
     """A note when RTC runs with fewer actions per chunk than the delay (s < d; its paper's rule is s >= d), with
     the horizons that would keep the rule, or why none can: the chunk holds d + s <= H - chunk_start actions."""
-    short = [d for d in delays if (execution_horizon or max(1, policy.action_horizon - d)) < d]
+    short = [d for d in delays if actions_executed(policy.action_horizon, d, execution_horizon) < d]
     if not short:
         return None
-    room = {d: policy.pred_horizon - policy.chunk_start - d for d in short}  # the longest s the chunk holds
+    room = {d: longest_horizon(policy, d) for d in short}
     fits, never = [d for d in short if room[d] >= d], [d for d in short if room[d] < d]
     hints = [f"--execution-horizon s with {d} <= s <= {room[d]} keeps it at d = {d}" for d in fits]
     if never:
@@ -144,7 +149,7 @@ def check_async_delays(policy: ChunkPolicy, delays: list[int], execution_horizon
         raise BCBenchError(f"async d = {bad[0]} with execution horizon {s} needs {need[bad[0]]} actions of "
                            f"{policy.name}'s chunk of {policy.pred_horizon} (the current step's at index "
                            f"{policy.chunk_start}; s <= H - d): at s = {s} the delays can be {fits or 'none'}, at "
-                           f"d = {bad[0]} s can be at most {max(policy.pred_horizon - policy.chunk_start - bad[0], 0)}")
+                           f"d = {bad[0]} s can be at most {max(longest_horizon(policy, bad[0]), 0)}")
 
 
 def fixed_twin(source: LatencySource, execution: str, done: dict[str, dict[str, Any]]) -> str | None:

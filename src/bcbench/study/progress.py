@@ -79,14 +79,14 @@ def _hours(seconds: float) -> str:
 
 def status(runner: StudyRunner) -> dict[str, Any]:
     """Counts of stages done per kind, the trainings going and those waiting, and the estimates."""
-    stages = runner.stages()
-    total, done = Counter(s for s, _, _ in stages), Counter(s for s, r, v in stages if runner.is_done(s, r, v))
-    trainings = [read_training(runner, run) for s, run, v in stages if s == "train" and not runner.is_done(s, run, v)]
+    stages = [(s, r, runner.is_done(s, r, v)) for s, r, v in runner.stages()]  # each result file looked at once
+    total, done = Counter(s for s, _, _ in stages), Counter(s for s, _, ok in stages if ok)
+    trainings = [read_training(runner, run) for s, run, ok in stages if s == "train" and not ok]
     going = [t for t in trainings if t.step > 0]
     waiting = [t for t in trainings if t.step == 0]
     # The rate of a waiting run: the newest measured rate of a run of the same policy and batch in this study,
     # one still training before one finished (the machine and its load now, not a past session's).
-    finished = [read_training(runner, run) for s, run, v in stages if s == "train" and runner.is_done(s, run, v)]
+    finished = [read_training(runner, run) for s, run, ok in stages if s == "train" and ok]
     rates = {(t.run.policy, t.batch): t.rate for t in [*finished, *going] if t.rate}
     per_epoch = next((t.samples_per_epoch for t in [*going, *finished] if t.samples_per_epoch), None)
     for t in waiting:
