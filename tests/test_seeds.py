@@ -79,6 +79,22 @@ def test_paired_findings_resample_training_seeds(tmp_path):
     assert vs_baseline.k == 3 and vs_baseline.est == pytest.approx(0.25, abs=0.01)
 
 
+def test_a_single_trained_run_against_several_seeds_is_said_to_be_held_fixed(tmp_path):
+    """Mid-study, one seed of a policy meets three of another: its one seed is paired with each of theirs, and the
+    evidence says its seed-to-seed variance is not in the interval (a baseline, which has no training, is not)."""
+    from bcbench.analysis.findings import _fmt_diff, points_from_rows
+
+    _study(tmp_path, {"ResNet-50": [0.55, 0.60, 0.65], "BCT": [0.45], "CNN-MLP": [0.2, 0.2, 0.2]})
+    pts = {p.run: p for p in points_from_rows(merge_training_seeds(load_rows(tmp_path)))}
+    assert pts["BCT"].train_seed == 0 and pts["ResNet-50"].train_seed is None and pts["random"].train_seed is None
+    d = paired_interval(pts["ResNet-50"], [pts["BCT"]])
+    assert d.k == 3 and d.fixed == ("BCT (s0)",)
+    assert "BCT (s0) has one training seed, held fixed: its seed-to-seed variance is not in the interval" in (
+        _fmt_diff(d))
+    assert paired_interval(pts["ResNet-50"], [pts["random"]]).fixed == ()
+    md = Path(write_report(tmp_path)["markdown"]).read_text()
+    assert "BCT (s0) has one training seed, held fixed" in md  # finding 4's evidence
+
 def test_report_shows_each_seed_and_says_how_it_was_computed(tmp_path):
     _study(tmp_path, {"ResNet-50": [0.55, 0.60, 0.65], "BCT": [0.40, 0.45, 0.50], "CNN-MLP": [0.2, 0.2, 0.2]})
     md = Path(write_report(tmp_path)["markdown"]).read_text()

@@ -85,6 +85,8 @@ def fewstep_lines(points: list[Point], margin: float, mode: str = "fast",
         verdict = _verdict(lo, hi, margin)
         share = p.latency_ms / base_ms if p.latency_ms is not None and base_ms else None
         seeds = f"{n} seeds" + ("" if d.k == 1 else f" x {d.k} training seeds")
+        seeds += "".join(f"; {who}'s one training seed held fixed" for who, q in (("flow", p), ("DP", ref))
+                         if any(name.startswith(q.name + " (s") for name in d.fixed))
         out.append(f"| {k} | {_score(p)} | {_score(dp_point(points, 'ddim', k))} | "
                    f"{est:+.3f} [{lo:+.3f}, {hi:+.3f}] ({seeds}) | {verdict} | {_ms(p)} | "
                    f"{'-' if share is None else f'{share:.2f}'} |")

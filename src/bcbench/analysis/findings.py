@@ -37,6 +37,7 @@ class Point:
     run: str = ""  # the trained run's label (its variants share one learning curve)
     seeds: list[dict[int, float]] = field(default_factory=list)  # several training seeds: each one's `scores`
     seed_ids: list[int] = field(default_factory=list)
+    train_seed: int | None = None  # a single trained run's seed (None: a baseline, or several seeds in `seeds`)
 
 
 class Diff(NamedTuple):
@@ -49,6 +50,7 @@ class Diff(NamedTuple):
     n: int
     k: int = 1
     share: float | None = None
+    fixed: tuple[str, ...] = ()  # single trained runs paired with every training seed of the others (held fixed)
 
 
 @dataclass
@@ -82,7 +84,20 @@ def paired_interval(a: Point, others: list[Point], seed: int = 0) -> Diff:
     mine, rest = _by_training_seed(a, ids), [_by_training_seed(o, ids) for o in others]
     est = two_level_bootstrap(mine, rest, seed)
     n = len(set(mine[0]).intersection(*(r[0] for r in rest)))
-    return Diff(est["value"], *est["ci95"], n, len(ids), est["training_seed_share"])
+    fixed = tuple(f"{p.name} (s{p.train_seed})" for p in (a, *others) if not p.seeds and p.train_seed is not None)
+    return Diff(est["value"], *est["ci95"], n, len(ids), est["training_seed_share"], fixed)
+
+
+def fixed_note(d: Diff) -> str:
+    """'; X (s0) has one training seed, held fixed: its seed-to-seed variance is not in the interval', or ''.
+
+    Until every seed of a study is trained, a single trained run meets settings with several; it is paired with each
+    of their seeds, so the interval says nothing about how much another training seed of it would differ."""
+    if not d.fixed:
+        return ""
+    verb = "has" if len(d.fixed) == 1 else "have"
+    return (f"; {' and '.join(d.fixed)} {verb} one training seed, held fixed: its seed-to-seed variance is not in "
+            f"the interval")
 
 
 def _fmt(p: Point) -> str:
@@ -95,7 +110,7 @@ def _fmt_diff(d: Diff) -> str:
     if d.k == 1:
         return f"paired difference {d.est:+.3f} [{d.lo:+.3f}, {d.hi:+.3f}] over {d.n} seeds"
     return (f"paired difference {d.est:+.3f} [{d.lo:+.3f}, {d.hi:+.3f}] over {d.k} training seeds x {d.n} episodes "
-            f"(two-level bootstrap; training seeds carry {100 * (d.share or 0):.0f}% of its variance)")
+            f"(two-level bootstrap; training seeds carry {100 * (d.share or 0):.0f}% of its variance{fixed_note(d)})")
 
 
 def _undertrained(points: list[Point]) -> list[str]:
@@ -236,5 +251,6 @@ def judge(points: list[Point], margin: float = DEFAULT_MARGIN, ratios: dict[str,
 def points_from_rows(rows: list, mode: str = "reference") -> list[Point]:
     return [Point(r.label + ("" if r.variant == "default" else f" {r.variant.upper()}"), r.policy, r.variant, r.score,
                   tuple(r.est("mean_score")["ci95"]), r.latency_ms(mode), r.beta_schedule, dict(r.scores),
-                  getattr(r, "converged", None), r.label, [dict(sc) for sc in r.seed_scores], list(r.seed_ids))
+                  getattr(r, "converged", None), r.label, [dict(sc) for sc in r.seed_scores], list(r.seed_ids),
+                  None if r.seed_scores else r.train_seed)
             for r in rows]
