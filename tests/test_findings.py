@@ -104,7 +104,7 @@ def test_missing_evidence_is_inconclusive_and_undertrained_is_not_judged():
     assert [f.verdict for f in judge([])] == [INCONCLUSIVE] * 5
     pts = [pt("random", "random", BASE * 0.2), pt("bet", "bet", BASE * 0.2, converged=False)]
     f5 = judge(pts)[4]
-    assert f5.verdict == UNDERTRAINED and "plateau" in f5.evidence
+    assert f5.verdict == UNDERTRAINED and "not shown converged; see 'Training: converged?'" in f5.evidence
     assert all(f.rule for f in judge(pts))  # every finding states its rule
 
 

@@ -5,7 +5,8 @@ differences of two settings evaluated on the same episode seeds, with a 95% pair
 their mean, set against an equivalence margin m (default 0.05 mean score, `margin` in the study spec).
 A claim is supported when the interval lies inside the margin or beyond it in the claimed direction,
 contradicted when it lies wholly on the other side, and inconclusive otherwise. A finding that rests on
-a policy whose learning curve had not reached its plateau reads "undertrained" instead of a verdict.
+a policy not shown converged (its twice-the-steps check, or in older studies its learning curve: the report's
+"Training: converged?") reads "undertrained" instead of a verdict.
 Each finding's `rule` states its test in one sentence (printed in the report).
 """
 
@@ -33,7 +34,7 @@ class Point:
     latency_ms: float | None
     beta_schedule: str | None = None
     scores: dict[int, float] = field(default_factory=dict)  # episode seed -> score
-    converged: bool | None = None  # False: the learning curve had not reached its plateau
+    converged: bool | None = None  # False: not shown converged (a failed or missing check)
     run: str = ""  # the trained run's label (its variants share one learning curve)
     seeds: list[dict[int, float]] = field(default_factory=list)  # several training seeds: each one's `scores`
     seed_ids: list[int] = field(default_factory=list)
@@ -120,8 +121,8 @@ def _undertrained(points: list[Point]) -> list[str]:
 def _finish(number: int, claim: str, rule: str, verdict: str, evidence: str, used: list[Point]) -> Finding:
     late = _undertrained(used)
     if late:
-        return Finding(number, claim, UNDERTRAINED, f"{evidence} (not judged: {', '.join(late)} had not reached "
-                       "its plateau)", rule)
+        return Finding(number, claim, UNDERTRAINED, f"{evidence} (not judged: {', '.join(late)} not shown converged; "
+                       "see 'Training: converged?')", rule)
     return Finding(number, claim, verdict, evidence, rule)
 
 
@@ -156,7 +157,7 @@ def finding_1(points: list[Point], m: float) -> Finding:
     rule = (f"DP cosine DDPM-100 (fixed in advance: the study's own slow setting) minus the best of the learned "
             f"settings at least {SLOWER:g}x faster (best chosen inside each bootstrap resample): supported if the "
             f"interval lies below +{m}, contradicted if above; undertrained if the slow setting, or (unless "
-            "supported) any faster one, had not reached its plateau.")
+            "supported) any faster one, was not shown converged.")
     timed = [p for p in points if p.latency_ms and p.policy not in ("random", "scripted") and (p.scores or p.seeds)]
     slow = dp_point(points, "ddpm", 100)
     if slow is None or not slow.latency_ms or not (slow.scores or slow.seeds):
