@@ -33,3 +33,21 @@ def test_the_check_sees_a_table_below_the_fold_and_a_page_too_wide(tmp_path):
                     "<table><tr><td>policy</td></tr></table></body></html>")
     found = check.problems(check.layout(EXE, page))
     assert any("below the first screen" in p for p in found) and any("sideways" in p for p in found), found
+
+
+@pytest.mark.parametrize("study, untimed", [("cpu-confirm-dpflow-long", True), ("cpu", False)])
+def test_figure3_says_when_nothing_is_timed_rather_than_draw_empty_axes(study, untimed, tmp_path, monkeypatch):
+    """A study exported before its latency stages ran (the second round, mid-study) gets a note in the latency
+    panel; a timed one (results/cpu) gets its lines and no note."""
+    from bcbench.analysis import figures
+    from bcbench.analysis.results import load_rows
+    from bcbench.analysis.seeds import merge_training_seeds
+
+    drawn = []
+    monkeypatch.setattr(figures, "_save", lambda fig, path: drawn.append(fig) or path)
+    root = Path(__file__).resolve().parents[1] / "results" / study
+    assert figures.figure3(merge_training_seeds(load_rows(root)), tmp_path / "f.png") is not None
+    latency_panel = drawn[0].axes[1]
+    notes = [t.get_text() for t in latency_panel.texts]
+    assert (notes == ["not timed yet\n(no reference-mode latency record)"]) == untimed
+    assert bool(latency_panel.lines) != untimed
