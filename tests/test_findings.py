@@ -215,3 +215,16 @@ def test_recovered_share_of_naives_loss_pairs_by_seed():
     few = recovered_share({k: sync[k] for k in range(40)}, naive, half)
     assert few[3] == 40 and few[2] - few[1] > hi - lo
     assert np.isnan(recovered_share(sync, sync, half)[0])
+
+
+def test_study_machines_name_one_cpu_once_across_records_with_and_without_cpu_id(tmp_path):
+    """An early training session recorded its CPU without cpu_id; later records of the same machine have it. The
+    study's machine list names that CPU once, and a different CPU still appears."""
+    from bcbench.analysis.results import study_machines
+    from bcbench.utils.io import write_json
+
+    xeon = {"cpu_model": "Xeon", "cpu_flags": ["avx2", "avx512f"]}
+    write_json(tmp_path / "runs" / "a" / "train_summary.json", {"segments": [xeon, {**xeon, "cpu_id": "fam 6"}]})
+    write_json(tmp_path / "runs" / "a" / "eval-x.json", {"hardware": {**xeon, "cpu_id": "fam 6"}})
+    write_json(tmp_path / "runs" / "b" / "eval-y.json", {"hardware": {"cpu_model": "EPYC", "cpu_flags": ["avx2"]}})
+    assert study_machines(tmp_path) == ["EPYC (avx2)", "Xeon [fam 6] (avx2, avx512f)"]

@@ -29,6 +29,7 @@ from bcbench.analysis.results import (
     load_check_rows,
     load_realtime,
     load_rows,
+    same_cpu_once,
     study_machines,
     study_time,
 )
@@ -65,9 +66,7 @@ def _study_cell(r: Row) -> str:
 def _same_cpu_once(segs: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Training sessions' CPUs with a session recorded before cpu_id existed folded into one of the same model,
     flags and precision that has it (the same machine), so one CPU is not named twice."""
-    key = lambda g: (g.get("cpu_model"), tuple(g.get("cpu_flags") or ()), g.get("precision"))  # noqa: E731
-    with_id = {key(g) for g in segs if g.get("cpu_id")}
-    return [g for g in segs if g.get("cpu_id") or key(g) not in with_id]
+    return same_cpu_once(segs, lambda g: (g.get("cpu_model"), tuple(g.get("cpu_flags") or ()), g.get("precision")))
 
 
 def _train_cell(r: Row) -> str:

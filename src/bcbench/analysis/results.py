@@ -6,6 +6,7 @@ result JSON (e.g. `results/` brought back from a GPU machine).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -269,14 +270,21 @@ def cpu_text(h: dict[str, Any]) -> str:
     return text + (f" ({', '.join(h['cpu_flags'])})" if h.get("cpu_flags") else "")
 
 
+def same_cpu_once(records: list[dict[str, Any]], key: Callable[[dict[str, Any]], Any] | None = None
+                  ) -> list[dict[str, Any]]:
+    """Hardware records with those written before cpu_id existed dropped where a record of the same key (model and
+    flags unless given) has it: the same machine, so one CPU is not named twice."""
+    key = key or (lambda h: (h.get("cpu_model"), tuple(h.get("cpu_flags") or ())))
+    with_id = {key(h) for h in records if h.get("cpu_id")}
+    return [h for h in records if h.get("cpu_id") or key(h) not in with_id]
+
+
 def study_machines(results: str | Path) -> list[str]:
     """The CPUs (model and ISA flags) a study's training sessions and evaluations ran on, from its records."""
-    seen: set[str] = set()
+    found: list[dict[str, Any]] = []
     for f in Path(results).rglob("*.json"):
         if f.name != "train_summary.json" and not f.name.startswith(("eval", "check")):
             continue
         rec = read_json(f)
-        for h in [*(rec.get("segments") or []), rec.get("hardware") or {}]:
-            if h.get("cpu_model"):
-                seen.add(cpu_text(h))
-    return sorted(seen)
+        found += [h for h in [*(rec.get("segments") or []), rec.get("hardware") or {}] if h.get("cpu_model")]
+    return sorted({cpu_text(h) for h in same_cpu_once(found)})
