@@ -18,7 +18,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from bcbench.analysis.findings import Point, dp_point, paired_interval
+from bcbench.analysis.findings import Point, dp_point, held_fixed, paired_interval
 from bcbench.utils.io import read_json
 
 PAIRED_FILE = "latency-paired.json"
@@ -86,7 +86,7 @@ def fewstep_lines(points: list[Point], margin: float, mode: str = "fast",
         share = p.latency_ms / base_ms if p.latency_ms is not None and base_ms else None
         seeds = f"{n} seeds" + ("" if d.k == 1 else f" x {d.k} training seeds")
         seeds += "".join(f"; {who}'s one training seed held fixed" for who, q in (("flow", p), ("DP", ref))
-                         if any(name.startswith(q.name + " (s") for name in d.fixed))
+                         if d.k > 1 and held_fixed(q))
         out.append(f"| {k} | {_score(p)} | {_score(dp_point(points, 'ddim', k))} | "
                    f"{est:+.3f} [{lo:+.3f}, {hi:+.3f}] ({seeds}) | {verdict} | {_ms(p)} | "
                    f"{'-' if share is None else f'{share:.2f}'} |")

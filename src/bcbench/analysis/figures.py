@@ -174,7 +174,6 @@ def figure3(rows: list[Any], path: Path, mode: str = "reference") -> Path | None
     if not series:
         return None
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, 4.5))
-    timed = False
     for label, s, style in series:
         steps = [r.steps for r in s]
         lo = [r.est("mean_score")["ci95"][0] for r in s]
@@ -184,8 +183,7 @@ def figure3(rows: list[Any], path: Path, mode: str = "reference") -> Path | None
         lat = [(r.steps, r.latency_ms(mode)) for r in s if r.latency_ms(mode) is not None]
         if lat:
             ax2.plot(*zip(*lat, strict=True), style, marker="o", color=line.get_color(), label=label)
-            timed = True
-    if not timed:  # a study exported before its latency stages ran: say so rather than draw empty axes
+    if not ax2.lines:  # a study exported before its latency stages ran: say so rather than draw empty axes
         ax2.text(0.5, 0.5, f"not timed yet\n(no {mode}-mode latency record)", ha="center", va="center",
                  transform=ax2.transAxes, fontsize=10, alpha=0.7)
     for a in (ax, ax2):

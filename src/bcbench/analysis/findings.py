@@ -85,11 +85,16 @@ def paired_interval(a: Point, others: list[Point], seed: int = 0) -> Diff:
     mine, rest = _by_training_seed(a, ids), [_by_training_seed(o, ids) for o in others]
     est = two_level_bootstrap(mine, rest, seed)
     n = len(set(mine[0]).intersection(*(r[0] for r in rest)))
-    fixed = tuple(f"{p.name} (s{p.train_seed})" for p in (a, *others) if not p.seeds and p.train_seed is not None)
+    fixed = tuple(f"{p.name} (s{p.train_seed})" for p in (a, *others) if held_fixed(p))
     return Diff(est["value"], *est["ci95"], n, len(ids), est["training_seed_share"], fixed)
 
 
-def fixed_note(d: Diff) -> str:
+def held_fixed(p: Point) -> bool:
+    """A single trained run: against settings with several training seeds it is paired with each of them."""
+    return not p.seeds and p.train_seed is not None
+
+
+def _fixed_note(d: Diff) -> str:
     """'; X (s0) has one training seed, held fixed: its seed-to-seed variance is not in the interval', or ''.
 
     Until every seed of a study is trained, a single trained run meets settings with several; it is paired with each
@@ -111,7 +116,7 @@ def _fmt_diff(d: Diff) -> str:
     if d.k == 1:
         return f"paired difference {d.est:+.3f} [{d.lo:+.3f}, {d.hi:+.3f}] over {d.n} seeds"
     return (f"paired difference {d.est:+.3f} [{d.lo:+.3f}, {d.hi:+.3f}] over {d.k} training seeds x {d.n} episodes "
-            f"(two-level bootstrap; training seeds carry {100 * (d.share or 0):.0f}% of its variance{fixed_note(d)})")
+            f"(two-level bootstrap; training seeds carry {100 * (d.share or 0):.0f}% of its variance{_fixed_note(d)})")
 
 
 def _undertrained(points: list[Point]) -> list[str]:
