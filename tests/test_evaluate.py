@@ -134,3 +134,15 @@ def test_two_level_bootstrap_widens_with_training_seed_variance():
     assert b["per_seed"] == pytest.approx([eps.mean() - 0.2, eps.mean(), eps.mean() + 0.2])
     paired = two_level_bootstrap(apart, [alike], n_boot=2000)  # apart minus alike, per episode within each seed
     assert paired["value"] == pytest.approx(0.0, abs=1e-12) and paired["ci95"][0] < 0 < paired["ci95"][1]
+
+
+def test_a_tree_copied_without_git_is_stamped_with_the_commit_it_names(tmp_path, monkeypatch):
+    """A remote machine gets the files, not .git: $BCBENCH_COMMIT names the commit there; git wins where present."""
+    from bcbench.utils.system import git_commit
+
+    monkeypatch.setenv("BCBENCH_COMMIT", "85bef54")
+    assert git_commit.__wrapped__(tmp_path) == "85bef54"  # no repository here
+    monkeypatch.delenv("BCBENCH_COMMIT")
+    assert git_commit.__wrapped__(tmp_path) is None
+    monkeypatch.setenv("BCBENCH_COMMIT", "not-this")
+    assert git_commit.__wrapped__() != "not-this"  # the repository's own HEAD

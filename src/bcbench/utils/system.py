@@ -92,7 +92,8 @@ def git_commit(repo: Path | None = None) -> str | None:
     """The commit of the working tree bcbench runs from, with '-dirty' if it has changes.
 
     Read once per process (at its first result) and kept: a study that runs for hours stamps every result
-    with the code it started with, not with whatever the tree holds when each file is written.
+    with the code it started with, not with whatever the tree holds when each file is written. A copy of the
+    tree without its git folder (a remote GPU machine) names its commit in $BCBENCH_COMMIT; git wins where present.
     """
     repo = repo or Path(__file__).resolve().parents[3]
     try:
@@ -105,7 +106,7 @@ def git_commit(repo: Path | None = None) -> str | None:
         ).stdout.strip()
         return sha + ("-dirty" if dirty else "")
     except (OSError, subprocess.SubprocessError):
-        return None
+        return os.environ.get("BCBENCH_COMMIT") or None
 
 
 # Versions the code was checked against: the exact reset relies on gym-pusht's PushTEnv internals
