@@ -4,21 +4,25 @@
 #   1. train: every learned policy, `quick` preset, STEPS optimiser steps on the GPU at the default precision
 #      (auto: bf16 autocast on a bf16-capable GPU), then `bcbench eval --device cuda` on a few short episodes;
 #   2. resume: a diffusion run "crashed" after its half-way checkpoint and resumed on the GPU against an
-#      uninterrupted run, and against a second uninterrupted run (a GPU's own run-to-run spread: cuDNN and
-#      atomics sum in varying order, so the GPU cannot be bit-exact the way the CPU test is);
+#      uninterrupted run, and a second uninterrupted run against the first (the GPU's own run-to-run spread,
+#      where its kernels sum in varying order; on the H200 of results/gpu-h200 all three were bit-identical);
 #   3. latency: `bcbench latency --device cuda`, reference mode, at the study's sizes (`paper`) beside its A100
 #      per-step times, and the CPU study's published presets (`cpu`) in reference and fast mode.
 # Everything small comes back as $OUT/gpu-check.tar.gz, the log as $OUT/log.txt.
 #
-# On the device machine (wheels of the packages its image lacks in .whl/, a 40-episode subset of the Push-T
-# data in .gpu/; both ignored by git, carried by the device tool):
-#   BCBENCH_COMMIT=$(git rev-parse HEAD) DATA=.gpu/pusht40.zarr scripts/gpu_check.sh
-# A dry run here, on the CPU: DEVICE=cpu STEPS=4 PAPER_STEPS=1 QUICK_TIMING=--quick PYTHON=.venv/bin/python OUT=/tmp/g ...
+# On the device machine: wheels of the packages its image lacks in .whl/ and a 40-episode subset of the Push-T data
+# in .gpu/ (both ignored by git, carried by the device tool); results/ and models/ taken out of the index for the
+# call (the tree that travels must stay under 64 MiB; `git reset -- results models` after). The commit is read HERE
+# and written into the command, since the copy's .git there can be a stale snapshot:
+#   BCBENCH_COMMIT=<git rev-parse HEAD, here> DATA=.gpu/pusht40.zarr scripts/gpu_check.sh
+# A dry run here, on the CPU: DEVICE=cpu STEPS=4 PAPER_STEPS=1 QUICK_TIMING=--quick PYTHON=.venv/bin/python OUT=/tmp/g
+#   BCBENCH_COMMIT=test DATA=.gpu/pusht40.zarr scripts/gpu_check.sh
 set -u
 DEV=${DEVICE:-cuda}
 STEPS=${STEPS:-120}
 OUT=${OUT:?set OUT, the folder that comes back}
 DATA=${DATA:?set DATA, a Push-T zarr}
+: "${BCBENCH_COMMIT:?set BCBENCH_COMMIT to the commit copied there (git rev-parse HEAD where you launch it), since a copied .git can be stale}"
 PY=${PYTHON:-python3}
 WORK=${WORK:-/tmp/gpu-check}
 QUICK=${QUICK_TIMING:-}           # --quick: fewer timed calls (dry runs)

@@ -136,13 +136,34 @@ def test_two_level_bootstrap_widens_with_training_seed_variance():
     assert paired["value"] == pytest.approx(0.0, abs=1e-12) and paired["ci95"][0] < 0 < paired["ci95"][1]
 
 
-def test_a_tree_copied_without_git_is_stamped_with_the_commit_it_names(tmp_path, monkeypatch):
-    """A remote machine gets the files, not .git: $BCBENCH_COMMIT names the commit there; git wins where present."""
+def test_a_tree_copied_to_another_machine_is_stamped_with_the_commit_its_launcher_declares(tmp_path, monkeypatch):
+    """A lent GPU machine gets the files and, at best, a stale snapshot of .git: $BCBENCH_COMMIT names the commit
+    that was copied there and wins; without it, git's HEAD (or None outside a repository)."""
     from bcbench.utils.system import git_commit
 
-    monkeypatch.setenv("BCBENCH_COMMIT", "85bef54")
-    assert git_commit.__wrapped__(tmp_path) == "85bef54"  # no repository here
+    monkeypatch.setenv("BCBENCH_COMMIT", "dc693ca")
+    assert git_commit.__wrapped__(tmp_path) == git_commit.__wrapped__() == "dc693ca"
     monkeypatch.delenv("BCBENCH_COMMIT")
-    assert git_commit.__wrapped__(tmp_path) is None
-    monkeypatch.setenv("BCBENCH_COMMIT", "not-this")
-    assert git_commit.__wrapped__() != "not-this"  # the repository's own HEAD
+    assert git_commit.__wrapped__(tmp_path) is None  # no repository here
+    assert len(git_commit.__wrapped__().removesuffix("-dirty")) == 40  # this repository's HEAD
+
+
+def test_paired_evals_gives_b_minus_a_over_the_shared_seeds(tmp_path, capsys):
+    """scripts/paired_evals.py: the difference of two evaluations of one model (e.g. CPU and GPU), paired by seed."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("paired_evals", Path(__file__).parents[1] / "scripts/paired_evals.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    a.write_text(json.dumps({"episodes": [{"seed": s, "score": 0.5} for s in range(10)]}))
+    b.write_text(json.dumps({"episodes": [{"seed": s, "score": 0.5 + 0.1 * (s < 5)} for s in range(3, 12)]}))
+    assert mod.main([str(a), str(b), "--out", str(tmp_path / "p.json")]) == 0
+    out = json.loads((tmp_path / "p.json").read_text())
+    assert out["episodes"] == 7 and out["same_score_episodes"] == 5  # seeds 3-9; 3 and 4 differ
+    assert out["b_minus_a"] == pytest.approx(0.2 / 7) and out["ci95"][0] <= out["b_minus_a"] <= out["ci95"][1]
+    assert "over 7 shared episodes" in capsys.readouterr().out
+    (tmp_path / "bad.json").write_text("{}")
+    with pytest.raises(SystemExit, match="not an evaluation result"):
+        mod.main([str(a), str(tmp_path / "bad.json")])

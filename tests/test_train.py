@@ -217,6 +217,7 @@ def test_precision_is_fixed_at_the_first_segment_and_every_segment_names_its_cpu
     assert [x["start_step"] for x in seg] == [0, 2] and s["precision"] == "bf16"
     assert [x["precision"] for x in seg] == ["bf16", "bf16"] and seg[1]["precision_native"] is False
     assert "emulated" in seg[1]["note"] and seg[1]["cpu_flags"] == list(cpu_flags()) and s["segments"] == seg
+    assert "this CPU" in seg[1]["note"] and [x["gpu"] for x in seg] == [None, None]  # a GPU is named where used
 
 
 def test_a_run_records_its_presets_values_and_deviations(synthetic_zarr, tmp_path):

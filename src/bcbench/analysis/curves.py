@@ -1,8 +1,10 @@
 """Learning curves from a run's metrics.jsonl, and whether a curve has reached its plateau.
 
 A run trained with `--eval-every` (or `eval_every` in a study spec) logs closed-loop scores on validation
-seeds 200000+ as it trains; every epoch it logs the validation loss. A policy counts as converged when
-its curve is flat over the last quarter of training: with at least 4 rollout points, a least-squares line
+seeds 200000+ as it trains; every epoch it logs the validation loss. The plateau rule below decides
+convergence only in studies from before the seed protocol (under a cosine schedule the last quarter is flat
+by construction); a study with a `purpose` uses the twice-the-steps check (bcbench.analysis.convergence).
+The rule: a curve is flat over the last quarter of training when, with at least 4 rollout points, a line
 through the points that span the last quarter (the last point at or before 75% of training, and every
 point after it) rises by less than the margin (default 0.05) over that quarter. Training longer would not
 have bought a meaningful gain. A line through all the quarter's points rather than its two ends, because a

@@ -113,7 +113,8 @@ def _add_train_eval_commands(sub: Any) -> None:
     p = sub.add_parser("train", help="train a policy (resumable; checkpoints, metrics.jsonl)")
     p.add_argument("--policy", metavar="NAME", help="learned policy to train (`bcbench policies` lists them)")
     p.add_argument("--preset", "--config", dest="preset", default="quick",
-                   help="quick (minutes on a 2-core CPU), cpu (trained to its plateau on 2 cores) or paper (the "
+                   help="quick (minutes on a 2-core CPU), cpu (the CPU study's recipes, chosen on validation seeds; "
+                        "each one's 2x convergence check: docs/results.md) or paper (the "
                         "study's sizes); diffusion also has quick_linear, cpu_linear, paper_linear (linear betas). "
                         "--config is the old name of this option")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",

@@ -68,7 +68,7 @@ class BeTConfig(PolicyConfig):
                 optim=OptimConfig(optimizer="adamw", lr=1e-3, weight_decay=0.1, betas=(0.9, 0.95),
                                   schedule="cosine", warmup_steps=100, epochs=4, batch_size=64, grad_clip=1.0,
                                   checkpoint_every=200)),
-            "cpu": lambda: cpu_profile(cls.preset("quick"), epochs=30),  # trained to its plateau on 2 cores
+            "cpu": lambda: cpu_profile(cls.preset("quick"), epochs=30),  # its batch: cpu-explore-small's BeT arms
             "paper": cls,
         })
 

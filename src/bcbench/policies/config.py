@@ -116,7 +116,7 @@ CPU_BATCH = 256  # the cpu profile's batch: 2-3x the samples/s of batch 64 on 2 
 
 
 def cpu_profile(quick: Any, epochs: int, batch_size: int = CPU_BATCH, **optim: Any) -> Any:
-    """The `cpu` preset: the quick network trained to its plateau on a 2-core CPU.
+    """The `cpu` preset: the quick network with the CPU study's recipe (whether it converged is the 2x check's call).
 
     Batch 256 unless given (bf16 autocast where the CPU has it), the given epochs, and the quick recipe otherwise,
     with optimiser changes passed in `optim` (e.g. a learning rate for the larger batch). First chosen from learning

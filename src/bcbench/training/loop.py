@@ -190,12 +190,14 @@ def _run_precision(run_dir: Path, requested: str, device: torch.device) -> str:
 
 def _log_segment(r: Run) -> None:
     """One line per training session of the run: where it ran (CPU model and flags) and at which precision."""
-    native = r.precision == "fp32" or r.device.type == "cuda" or cpu_has_bf16()
+    cuda = r.device.type == "cuda"
+    native = r.precision == "fp32" or (torch.cuda.is_bf16_supported() if cuda else cpu_has_bf16())
+    where = "GPU (before Ampere)" if cuda else "CPU (no AVX512-BF16 or AMX)"
     append_jsonl(r.run_dir / "segments.jsonl", {
         "start_step": r.state.step, "started": datetime.now(UTC).isoformat(timespec="seconds"),
         "precision": r.precision, "precision_requested": r.o.precision, "precision_native": native,
-        **({} if native else {"note": "bf16 autocast is emulated on this CPU (no AVX512-BF16 or AMX): slower"}),
-        "device": str(r.device), **cpu_record(),
+        **({} if native else {"note": f"bf16 autocast is emulated on this {where}: slower"}),
+        "device": str(r.device), "gpu": torch.cuda.get_device_name(r.device) if cuda else None, **cpu_record(),
         "threads": torch.get_num_threads(), "git_commit": git_commit()})
 
 

@@ -92,9 +92,12 @@ def git_commit(repo: Path | None = None) -> str | None:
     """The commit of the working tree bcbench runs from, with '-dirty' if it has changes.
 
     Read once per process (at its first result) and kept: a study that runs for hours stamps every result
-    with the code it started with, not with whatever the tree holds when each file is written. A copy of the
-    tree without its git folder (a remote GPU machine) names its commit in $BCBENCH_COMMIT; git wins where present.
+    with the code it started with, not with whatever the tree holds when each file is written. Where the files were
+    copied to another machine (a lent GPU), the copy's git folder may be a stale snapshot or absent: the launcher
+    then declares the commit it copied in $BCBENCH_COMMIT, which wins (scripts/gpu_check.sh sets it).
     """
+    if os.environ.get("BCBENCH_COMMIT"):
+        return os.environ["BCBENCH_COMMIT"]
     repo = repo or Path(__file__).resolve().parents[3]
     try:
         sha = subprocess.run(
@@ -106,7 +109,7 @@ def git_commit(repo: Path | None = None) -> str | None:
         ).stdout.strip()
         return sha + ("-dirty" if dirty else "")
     except (OSError, subprocess.SubprocessError):
-        return os.environ.get("BCBENCH_COMMIT") or None
+        return None
 
 
 # Versions the code was checked against: the exact reset relies on gym-pusht's PushTEnv internals
