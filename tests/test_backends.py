@@ -243,6 +243,24 @@ def test_backend_auto_chooses_an_exact_mode_records_why_and_caches(synthetic_zar
         mode_name("auto", "int8")
 
 
+def test_on_a_gpu_auto_is_torch_and_an_exported_cpu_runtime_is_refused(synthetic_zarr, tmp_path):
+    """Seen on a lent H200: `eval --device cuda --latency measured` defaulted to auto, which tried OpenVINO."""
+    from bcbench.policies.checkpoint import load_runner
+    from bcbench.training.loop import TrainOptions, new_run, train
+
+    opts = TrainOptions(data=str(synthetic_zarr), threads=1, progress=False)
+    run = new_run("cnn_mlp", "quick", tiny_overrides("cnn_mlp", max_steps=1), tmp_path / "r", opts)
+    train(run, opts)
+    runner = load_runner(run)
+    runner.device = torch.device("cuda")  # what apply_mode reads; nothing here runs on it
+    apply_mode(runner, "auto")
+    assert runner.info.mode == "fast" and "only torch" in runner.info.deployment["auto"]["why"]
+    assert not (run / "export").exists()  # nothing exported, nothing timed
+    for mode in ("openvino-fp32", "onnxruntime-fp32"):
+        with pytest.raises(BCBenchError, match=r"runs on the CPU.*--backend torch or auto"):
+            apply_mode(runner, mode)
+
+
 @pytest.mark.parametrize("argv,want", [
     (["realtime", "--checkpoint", "r", "--measured"], "auto"),  # the measured latency sets the delays
     (["realtime", "--checkpoint", "r"], "torch"),

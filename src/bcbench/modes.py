@@ -19,6 +19,7 @@ from bcbench.errors import BCBenchError
 MODES = ("reference", "fast", "openvino-fp32", "openvino-bf16", "openvino-int8", "openvino-int8w",
          "onnxruntime-fp32", "onnxruntime-int8")
 EXACT_MODES = ("reference", "fast", "openvino-fp32", "onnxruntime-fp32")
+TORCH_MODES = ("reference", "fast", "auto")  # what runs on a GPU too (auto resolves to torch there)
 PRECISIONS = ("fp32", "bf16", "int8", "int8w")  # OpenVINO's; ONNX Runtime: fp32, int8
 BACKENDS = ("torch", "openvino", "onnxruntime", "auto")
 AUTO = "auto"  # the fastest exact mode on this machine for this checkpoint, measured (bcbench.evaluation.auto)

@@ -46,7 +46,7 @@ from bcbench.errors import BCBenchError
 from bcbench.evaluation.auto import choose_mode
 from bcbench.evaluation.onnx_runtime import deploy_onnxruntime, ort_version, reduce_range
 from bcbench.interface import FilmSplittable
-from bcbench.modes import AUTO, MODES
+from bcbench.modes import AUTO, MODES, TORCH_MODES
 from bcbench.policies.checkpoint import read_run, weights_file
 from bcbench.policies.learned import BCPolicy, GraphModule, PolicyRunner
 
@@ -237,7 +237,18 @@ def _export_dir(runner: PolicyRunner, mode: str) -> Path | None:
 def apply_mode(runner: PolicyRunner, mode: str, torch_only: str = "") -> None:
     """Put a PolicyRunner's policy in `mode`; a trained run's exports are cached under RUN_DIR/export/. `auto`:
     the fastest exact mode for this checkpoint on this machine (bcbench.evaluation.auto), recorded as chosen;
-    `torch_only` (why, e.g. a strategy that needs autograd) restricts it to torch's fast form."""
+    `torch_only` (why, e.g. a strategy that needs autograd) restricts it to torch's fast form, as does a GPU: the
+    exported runtimes run on the CPU here, so on a GPU `auto` is torch and naming one of them is an error."""
+    on_gpu = runner.device.type != "cpu"
+    if on_gpu and mode not in TORCH_MODES:
+        raise BCBenchError(f"mode {mode} runs on the CPU (bcbench exports for OpenVINO's and ONNX Runtime's CPU "
+                           f"plugins); with --device {runner.device.type} use --backend torch or auto")
+    if mode == AUTO and on_gpu:  # nothing to choose between, so nothing to time
+        apply_mode(runner, "fast")
+        runner.info.deployment = {**(runner.info.deployment or {}), "auto": {
+            "chosen": "fast", "cached": False,
+            "why": f"the policy runs on {runner.device.type}: only torch runs it there (the exports are CPU ones)"}}
+        return
     if mode == AUTO:
         torch_only = torch_only if runner.model.guidance_autograd else ""  # only flow's VJP
         trial = (choose_mode(runner, apply_mode, ("fast",), torch_only) if torch_only
