@@ -243,16 +243,14 @@ def apply_mode(runner: PolicyRunner, mode: str, torch_only: str = "") -> None:
     if on_gpu and mode not in TORCH_MODES:
         raise BCBenchError(f"mode {mode} runs on the CPU (bcbench exports for OpenVINO's and ONNX Runtime's CPU "
                            f"plugins); with --device {runner.device.type} use --backend torch or auto")
-    if mode == AUTO and on_gpu:  # nothing to choose between, so nothing to time
-        apply_mode(runner, "fast")
-        runner.info.deployment = {**(runner.info.deployment or {}), "auto": {
-            "chosen": "fast", "cached": False,
-            "why": f"the policy runs on {runner.device.type}: only torch runs it there (the exports are CPU ones)"}}
-        return
     if mode == AUTO:
-        torch_only = torch_only if runner.model.guidance_autograd else ""  # only flow's VJP
-        trial = (choose_mode(runner, apply_mode, ("fast",), torch_only) if torch_only
-                 else choose_mode(runner, apply_mode))
+        if on_gpu:  # nothing to choose between, so nothing to time
+            trial = {"chosen": "fast", "cached": False, "why": f"the policy runs on {runner.device.type}: only torch "
+                     "runs it there (the exports are CPU ones)"}
+        else:
+            torch_only = torch_only if runner.model.guidance_autograd else ""  # only flow's VJP
+            trial = (choose_mode(runner, apply_mode, ("fast",), torch_only) if torch_only
+                     else choose_mode(runner, apply_mode))
         apply_mode(runner, trial["chosen"])
         runner.info.deployment = {**(runner.info.deployment or {}), "auto": trial}
         return
