@@ -79,13 +79,14 @@ $PY - "$WORK/runs" "$HALF" <<'EOF' | tee "$WORK/resume.json"
 import json, sys
 from pathlib import Path
 from safetensors.torch import load_file
+from bcbench.policies.checkpoint import latest_checkpoint
+from bcbench.utils.io import read_jsonl
 runs, half = Path(sys.argv[1]), int(sys.argv[2])
 def losses(name):
-    rows = [json.loads(line) for line in (runs / name / "metrics.jsonl").read_text().splitlines() if line.strip()]
+    rows = read_jsonl(runs / name / "metrics.jsonl")
     return {r["step"]: r["train_loss"] for r in rows if "train_loss" in r and r["step"] > half}
 def weights(name):
-    d = json.loads((runs / name / "checkpoints" / "latest.json").read_text())["dir"]
-    return load_file(str(runs / name / "checkpoints" / d / "model.safetensors"))
+    return load_file(str(latest_checkpoint(runs / name) / "model.safetensors"))
 def gap(x, y):  # largest relative difference of the logged losses after the resume point, and of the weights
     la, lb = losses(x), losses(y)
     common = sorted(set(la) & set(lb))

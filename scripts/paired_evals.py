@@ -15,13 +15,14 @@ import json
 import sys
 from pathlib import Path
 
+from bcbench.analysis.realtime import seed_scores
 from bcbench.stats import paired_bootstrap
 from bcbench.utils.io import write_json
 
 
 def scores(path: Path) -> dict[int, float]:
     try:
-        return {int(e["seed"]): float(e["score"]) for e in json.loads(path.read_text())["episodes"]}
+        return seed_scores(json.loads(path.read_text()))
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise SystemExit(f"paired_evals: {path}: not an evaluation result with per-episode scores ({exc})") from None
 
