@@ -1,0 +1,107 @@
+"""bcbench on a GPU: tests that run where CUDA is, and are skipped elsewhere (CI has no GPU).
+
+A GPU is lent to this project rarely and for minutes, so these are the checks worth those minutes, in pytest form
+(`scripts/gpu_check.sh` is the longer check on real data): every learned policy trains on the device and its
+checkpoint runs on the CPU, where most users evaluate it; a crashed run resumed on the device lands as close to an
+uninterrupted one as two uninterrupted runs land to each other; the device's own facts reach the records.
+`BCBENCH_TEST_DEVICE=cpu` runs the same tests on the CPU, to rehearse them before a GPU minute is spent.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+import torch
+
+from bcbench.errors import BCBenchError
+from bcbench.evaluation.backends import apply_mode
+from bcbench.evaluation.timing import TimingConfig, latency_record
+from bcbench.interface import example_observation
+from bcbench.policies import learned_policies
+from bcbench.policies.checkpoint import latest_checkpoint, load_runner
+from bcbench.training.loop import TrainOptions, new_run, train
+from bcbench.utils.io import read_jsonl
+from tests.tiny import tiny_overrides
+
+DEVICE = os.environ.get("BCBENCH_TEST_DEVICE", "cuda")
+pytestmark = pytest.mark.skipif(DEVICE == "cuda" and not torch.cuda.is_available(), reason="no CUDA device here")
+
+
+class Crash(Exception):
+    """Raised from a training callback: the process dies after a checkpoint, as a killed job would."""
+
+
+def _opts(data, *callbacks) -> TrainOptions:
+    return TrainOptions(data=str(data), device=DEVICE, threads=1, progress=False, callbacks=callbacks)
+
+
+def _train(policy: str, data, out, epochs: int = 2, **optim) -> object:
+    run = new_run(policy, "quick", tiny_overrides(policy, epochs=epochs, precision="fp32", **optim), out, _opts(data))
+    train(run, _opts(data))
+    return run
+
+
+def _weights(run_dir) -> dict[str, torch.Tensor]:
+    from safetensors.torch import load_file
+
+    return load_file(str(latest_checkpoint(run_dir) / "model.safetensors"))
+
+
+def _chunk(runner, seed: int) -> np.ndarray:
+    runner.model.reset_noise(seed)
+    return runner.predict_action_chunk(example_observation(batch=2, seed=1))  # (B, Ta, 2) pixels
+
+
+@pytest.mark.parametrize("policy", learned_policies())
+def test_trained_on_the_device_runs_on_the_cpu(policy, synthetic_zarr, tmp_path):
+    """Weights saved on the device load on the CPU; a deterministic policy predicts the same chunk on both."""
+    run = _train(policy, synthetic_zarr, tmp_path / policy)
+    segment = read_jsonl(run / "segments.jsonl")[-1]
+    assert segment["device"].startswith(DEVICE)
+    if DEVICE == "cuda":
+        assert segment["gpu"] == torch.cuda.get_device_name()
+    on_cpu, on_device = load_runner(run, device="cpu"), load_runner(run, device=DEVICE)
+    a, b = _chunk(on_cpu, 0), _chunk(on_device, 0)
+    assert a.shape == b.shape == (2, on_cpu.model.config.pred_horizon, 2), a.shape
+    assert np.isfinite(a).all() and np.isfinite(b).all()
+    if np.array_equal(a, _chunk(on_cpu, 1)):  # the noise seed changes nothing: the two devices must agree
+        # TF32 convolutions (cuDNN's default) round to 10 mantissa bits: about 1e-3 relative, on a 512-px field
+        assert np.abs(a - b).max() < 1.0, np.abs(a - b).max()
+
+
+def test_resume_on_the_device_is_as_close_as_a_rerun(synthetic_zarr, tmp_path):
+    """A diffusion run crashed after its step-6 checkpoint and resumed ends no farther from an uninterrupted run
+    than a second uninterrupted run does (0 where the device's kernels are deterministic, as on the H200)."""
+    full, again = (_train("diffusion", synthetic_zarr, tmp_path / n, epochs=6, checkpoint_every=3)
+                   for n in ("full", "again"))
+
+    def crash(r) -> None:
+        if r.state.step == 7:
+            raise Crash
+
+    overrides = tiny_overrides("diffusion", epochs=6, checkpoint_every=3, precision="fp32")
+    crashed = new_run("diffusion", "quick", overrides, tmp_path / "crashed", _opts(synthetic_zarr))
+    with pytest.raises(Crash):
+        train(crashed, _opts(synthetic_zarr, crash))
+    train(crashed, _opts(synthetic_zarr))
+    a, b, c = _weights(full), _weights(again), _weights(crashed)
+    rerun = max((a[k] - b[k]).abs().max().item() for k in a)
+    resumed = max((a[k] - c[k]).abs().max().item() for k in a)
+    assert resumed <= rerun, (resumed, rerun)
+
+
+def test_auto_is_torch_and_latency_names_the_device(synthetic_zarr, tmp_path):
+    """On a GPU `auto` is torch's fast form and an exported CPU runtime is refused; a latency record says where."""
+    runner = load_runner(_train("cnn_mlp", synthetic_zarr, tmp_path / "cnn"), device=DEVICE)
+    if DEVICE == "cuda":
+        apply_mode(runner, "auto")
+        assert runner.info.mode == "fast" and runner.info.deployment["auto"]["chosen"] == "fast"
+        with pytest.raises(BCBenchError, match="runs on the CPU"):
+            apply_mode(runner, "openvino-fp32")
+    record = latency_record(runner, TimingConfig(warmup=1, min_calls=5, max_calls=5, min_seconds=0.0))
+    for mode in ("reference", "fast"):
+        assert record["modes"][mode]["median_ms"] > 0
+    gpu = record["hardware"]["gpu"]
+    assert gpu == torch.cuda.get_device_name() if DEVICE == "cuda" else gpu is None
