@@ -29,7 +29,8 @@ from bcbench.utils.io import read_jsonl
 from tests.tiny import tiny_overrides
 
 DEVICE = os.environ.get("BCBENCH_TEST_DEVICE", "cuda")
-pytestmark = pytest.mark.skipif(DEVICE == "cuda" and not torch.cuda.is_available(), reason="no CUDA device here")
+pytestmark = [pytest.mark.gpu,
+              pytest.mark.skipif(DEVICE == "cuda" and not torch.cuda.is_available(), reason="no CUDA device here")]
 
 
 class Crash(Exception):
