@@ -66,6 +66,10 @@ def real_zarr() -> Path:
 def cpu_unless_a_gpu_test(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> None:
     """The suite describes the CPU, CI's machine. On a machine with CUDA, `--device auto` would move the tests'
     models there and break their comparisons with CPU tensors and CPU runtimes (seen on a lent H200: 10 tests), so
-    CUDA is hidden from every test not marked `gpu` (tests/test_gpu.py asks for the device itself)."""
+    CUDA is hidden from every test not marked `gpu` (tests/test_gpu.py asks for the device itself): from bcbench's
+    code in this process, and from the processes a test starts (a subprocess that trained on the GPU while its test
+    resumed on the CPU broke the SIGKILL test there). The variable does not reach this process's own CUDA, which
+    counted its devices when test_gpu.py was collected."""
     if request.node.get_closest_marker("gpu") is None:
         monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+        monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "")
