@@ -136,3 +136,19 @@ def test_output_into_a_closed_pipe_is_no_error():
     p.stdout.close()  # the reader is gone before the command writes
     err = p.stderr.read()
     assert p.wait() == 0 and err == b""
+
+
+def test_no_pkg_resources_warning_where_setuptools_is_installed(tmp_path):
+    """pygame (through gym-pusht) imports setuptools' pkg_resources where it exists, which warns that it is
+    deprecated on every command (seen on a GPU image with setuptools installed): bcbench keeps that off stderr.
+    A stand-in pkg_resources that warns as setuptools >= 67 does takes setuptools' place here."""
+    (tmp_path / "pkg_resources.py").write_text(
+        "import warnings\n"
+        "warnings.warn('pkg_resources is deprecated as an API. See https://setuptools.pypa.io', UserWarning,"
+        " stacklevel=2)\n"
+        "def resource_stream(*a): raise NotImplementedError\n"
+        "def resource_exists(*a): return False\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), *sys.path])}
+    p = subprocess.run([sys.executable, "-m", "bcbench.cli", "policies"], capture_output=True, text=True, env=env,
+                       timeout=120)
+    assert p.returncode == 0 and p.stderr == "", p.stderr

@@ -10,6 +10,7 @@ one place that knows it.
 from __future__ import annotations
 
 import os
+import warnings
 
 import numpy as np
 
@@ -19,7 +20,11 @@ from bcbench.utils.system import require_known_version
 
 require_known_version("gym-pusht")  # the exact reset below overrides one of its internals
 
-from gym_pusht.envs.pusht import PushTEnv as _GymPushTEnv  # noqa: E402
+with warnings.catch_warnings():
+    # pygame (imported by gym-pusht) reaches for setuptools' pkg_resources where it is installed, which then warns
+    # on every command that it is deprecated; pygame falls back without it, and bcbench uses none of it
+    warnings.filterwarnings("ignore", message="pkg_resources is deprecated", category=UserWarning)
+    from gym_pusht.envs.pusht import PushTEnv as _GymPushTEnv
 
 WORLD_SIZE = 512.0
 MAX_STEPS = 300  # Diffusion Policy's episode limit
