@@ -65,7 +65,7 @@ def real_zarr() -> Path:
 @pytest.fixture(autouse=True)
 def cpu_unless_a_gpu_test(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> None:
     """The suite describes the CPU, CI's machine. On a machine with CUDA, `--device auto` would move the tests'
-    models there and break their comparisons with CPU tensors and CPU runtimes (seen on a lent H200: 10 tests), so
+    models there and break their comparisons with CPU tensors and CPU runtimes (seen on a lent H200: 9 tests), so
     CUDA is hidden from every test not marked `gpu` (tests/test_gpu.py asks for the device itself): from bcbench's
     code in this process, and from the processes a test starts (a subprocess that trained on the GPU while its test
     resumed on the CPU broke the SIGKILL test there). The variable does not reach this process's own CUDA, which
