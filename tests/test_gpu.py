@@ -10,6 +10,7 @@ an uninterrupted one (with deterministic kernels); the device's own facts reach 
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 # cuBLAS sums deterministically only with a fixed workspace, read when its first handle is made: set before any CUDA
 os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
@@ -41,7 +42,7 @@ def _opts(data, *callbacks) -> TrainOptions:
     return TrainOptions(data=str(data), device=DEVICE, threads=1, progress=False, callbacks=callbacks)
 
 
-def _train(policy: str, data, out, epochs: int = 2, **optim) -> object:
+def _train(policy: str, data, out: Path, epochs: int = 2, **optim) -> Path:
     run = new_run(policy, "quick", tiny_overrides(policy, epochs=epochs, precision="fp32", **optim), out, _opts(data))
     train(run, _opts(data))
     return run
@@ -55,7 +56,7 @@ def _weights(run_dir) -> dict[str, torch.Tensor]:
 
 def _chunk(runner, seed: int) -> np.ndarray:
     runner.model.reset_noise(seed)
-    return runner.predict_action_chunk(example_observation(batch=2, seed=1))  # (B, Ta, 2) pixels
+    return runner.predict_action_chunk(example_observation(batch=2, seed=1))  # (B, pred_horizon, 2) pixels
 
 
 @pytest.mark.parametrize("policy", learned_policies())
