@@ -160,6 +160,18 @@ def _add_study_commands(sub: Any) -> None:
     p.add_argument("--export", metavar="DIR", help="also copy the result files (no checkpoints) to DIR")
     p.set_defaults(func="cmd_report")
 
+    _add_latency_command(sub)
+    _add_realtime_command(sub)
+
+    p = sub.add_parser("params", help="parameter counts of every learned policy (paper and quick sizes)")
+    p.set_defaults(func="cmd_params")
+
+    p = sub.add_parser("policies", help="the policies bcbench can run: built in, installed plug-ins, module:factory")
+    p.set_defaults(func="cmd_policies")
+
+
+
+def _add_latency_command(sub: Any) -> None:
     p = sub.add_parser("latency", help="time one policy call at batch 1 for every policy, in every inference mode")
     p.add_argument("--policy", action="append", metavar="NAME", help="only these policies (repeatable; default all "
                    "built-in): registered names, plug-ins or module:factory (`bcbench policies`)")
@@ -181,6 +193,8 @@ def _add_study_commands(sub: Any) -> None:
     p.add_argument("--out", metavar="DIR", help="output folder (default runs/latency-TIME)")
     p.set_defaults(func="cmd_latency")
 
+
+def _add_realtime_command(sub: Any) -> None:
     p = sub.add_parser("realtime", help="score under real-time execution: against delay, at measured latency, "
                        "under a hardware profile")
     p.add_argument("--policy", metavar="NAME", help="a baseline, a plug-in or module:factory (or --checkpoint)")
@@ -213,13 +227,6 @@ def _add_study_commands(sub: Any) -> None:
                         "exactly (policy, checkpoint, episodes, seeds, strategy, horizon); measured ones are re-run")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func="cmd_realtime")
-
-    p = sub.add_parser("params", help="parameter counts of every learned policy (paper and quick sizes)")
-    p.set_defaults(func="cmd_params")
-
-    p = sub.add_parser("policies", help="the policies bcbench can run: built in, installed plug-ins, module:factory")
-    p.set_defaults(func="cmd_policies")
-
 
 
 def _add_deploy_commands(sub: Any) -> None:
