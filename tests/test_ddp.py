@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from bcbench.policies.checkpoint import latest_checkpoint
-from tests.tiny import tiny_overrides
+from tests.tiny import checkpoint_weights, tiny_overrides
 
 BIN = os.path.dirname(sys.executable)
 # the tiny Diffusion Policy without random crop (crop offsets are drawn per shard; noise and t per row)
@@ -37,20 +37,14 @@ def _losses(run):
             if "train_loss" in m]
 
 
-def _weights(run):
-    from safetensors.torch import load_file
-
-    return load_file(str(latest_checkpoint(run) / "model.safetensors"))
-
-
 def test_two_processes_train_like_one(synthetic_zarr, tmp_path):
     _train(tmp_path / "one", synthetic_zarr)
     _train(tmp_path / "two", synthetic_zarr, procs=2)
     one, two = _losses(tmp_path / "one"), _losses(tmp_path / "two")
     assert len(one) == len(two) == 4
     assert one == pytest.approx(two, rel=1e-5, abs=1e-7)  # float tolerance: the gradient sums in another order
-    for k, v in _weights(tmp_path / "one").items():
-        torch.testing.assert_close(_weights(tmp_path / "two")[k], v, rtol=1e-3, atol=2e-5)
+    for k, v in checkpoint_weights(tmp_path / "one").items():
+        torch.testing.assert_close(checkpoint_weights(tmp_path / "two")[k], v, rtol=1e-3, atol=2e-5)
 
     # a crash after the step-2 checkpoint: drop the final one, resume on two processes, end at the same weights
     # (to float tolerance: Adam divides by sqrt(v), which magnifies the last bits of tiny gradients)
@@ -61,5 +55,5 @@ def test_two_processes_train_like_one(synthetic_zarr, tmp_path):
     assert latest_checkpoint(tmp_path / "two").name == "step_0000002"
     _train(tmp_path / "two", synthetic_zarr, procs=2, resume=True)
     assert latest_checkpoint(tmp_path / "two").name == "step_0000004"
-    for k, v in _weights(tmp_path / "one").items():
-        torch.testing.assert_close(_weights(tmp_path / "two")[k], v, rtol=1e-3, atol=2e-5)
+    for k, v in checkpoint_weights(tmp_path / "one").items():
+        torch.testing.assert_close(checkpoint_weights(tmp_path / "two")[k], v, rtol=1e-3, atol=2e-5)

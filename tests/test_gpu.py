@@ -24,10 +24,10 @@ from bcbench.evaluation.backends import apply_mode
 from bcbench.evaluation.timing import TimingConfig, latency_record
 from bcbench.interface import example_observation
 from bcbench.policies import learned_policies
-from bcbench.policies.checkpoint import latest_checkpoint, load_runner
+from bcbench.policies.checkpoint import load_runner
 from bcbench.training.loop import TrainOptions, new_run, train
 from bcbench.utils.io import read_jsonl
-from tests.tiny import tiny_overrides
+from tests.tiny import checkpoint_weights, tiny_overrides
 
 DEVICE = os.environ.get("BCBENCH_TEST_DEVICE", "cuda")
 pytestmark = [pytest.mark.gpu,
@@ -42,16 +42,14 @@ def _opts(data, *callbacks) -> TrainOptions:
     return TrainOptions(data=str(data), device=DEVICE, threads=1, progress=False, callbacks=callbacks)
 
 
+def _new_run(policy: str, data, out: Path, epochs: int = 2, **optim) -> Path:
+    return new_run(policy, "quick", tiny_overrides(policy, epochs=epochs, precision="fp32", **optim), out, _opts(data))
+
+
 def _train(policy: str, data, out: Path, epochs: int = 2, **optim) -> Path:
-    run = new_run(policy, "quick", tiny_overrides(policy, epochs=epochs, precision="fp32", **optim), out, _opts(data))
+    run = _new_run(policy, data, out, epochs, **optim)
     train(run, _opts(data))
     return run
-
-
-def _weights(run_dir) -> dict[str, torch.Tensor]:
-    from safetensors.torch import load_file
-
-    return load_file(str(latest_checkpoint(run_dir) / "model.safetensors"))
 
 
 def _chunk(runner, seed: int) -> np.ndarray:
@@ -95,12 +93,11 @@ def test_resume_on_the_device_is_exact(synthetic_zarr, tmp_path, deterministic):
         if r.state.step == 7:
             raise Crash
 
-    overrides = tiny_overrides("diffusion", epochs=6, checkpoint_every=3, precision="fp32")
-    crashed = new_run("diffusion", "quick", overrides, tmp_path / "crashed", _opts(synthetic_zarr))
+    crashed = _new_run("diffusion", synthetic_zarr, tmp_path / "crashed", epochs=6, checkpoint_every=3)
     with pytest.raises(Crash):
         train(crashed, _opts(synthetic_zarr, crash))
     train(crashed, _opts(synthetic_zarr))
-    a, b, c = _weights(full), _weights(again), _weights(crashed)
+    a, b, c = checkpoint_weights(full), checkpoint_weights(again), checkpoint_weights(crashed)
     for k in a:
         assert torch.equal(a[k], b[k]), f"{k}: two uninterrupted runs differ, so the kernels are not deterministic"
         assert torch.equal(a[k], c[k]), f"{k}: the resumed run left the uninterrupted one"

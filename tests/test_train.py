@@ -16,7 +16,7 @@ from bcbench.policies import learned_policies
 from bcbench.policies.checkpoint import latest_checkpoint, load_runner
 from bcbench.training.loop import TrainOptions, new_run, prepare, train
 from bcbench.utils.io import read_jsonl
-from tests.tiny import tiny_overrides
+from tests.tiny import checkpoint_weights, tiny_overrides
 
 EXE = os.path.join(os.path.dirname(sys.executable), "bcbench")
 
@@ -31,12 +31,6 @@ def one_thread():
 
 def _opts(data) -> TrainOptions:
     return TrainOptions(data=str(data), threads=1, progress=False)
-
-
-def _weights(run_dir):
-    from safetensors.torch import load_file
-
-    return load_file(str(latest_checkpoint(run_dir) / "model.safetensors"))
 
 
 KILL_AT_STEP = """
@@ -61,7 +55,7 @@ def test_sigkill_then_resume_gives_identical_weights(synthetic_zarr, tmp_path, o
     assert json.loads((killed / "checkpoints" / "latest.json").read_text())["step"] == 6
     resumed = train(killed, _opts(synthetic_zarr))
     assert resumed["step"] == summary["step"] and resumed["samples"] == summary["samples"]
-    a, b = _weights(full), _weights(killed)
+    a, b = checkpoint_weights(full), checkpoint_weights(killed)
     assert a.keys() == b.keys()
     for k in a:
         assert torch.equal(a[k], b[k]), k

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 TINY: dict[str, dict[str, Any]] = {
@@ -24,3 +25,12 @@ TINY["bet"] = {"encoder_width": 16, "encoder_layers": [1, 1, 1, 1], "n_bins": 8,
 TINY["bct"] = {"encoder_width": 16, "encoder_layers": [1, 1, 1, 1], "d_model": 16, "n_heads": 2, "n_layers": 2,
                "ffn_dim": 32, "dropout": 0.0}
 TINY["flow"] = {k: v for k, v in TINY["diffusion"].items() if k != "sampling_steps"} | {"sampling_steps": 3}
+
+
+def checkpoint_weights(run_dir: Path) -> dict[str, Any]:
+    """The raw (not EMA) weights of a run's newest checkpoint, name -> tensor."""
+    from safetensors.torch import load_file
+
+    from bcbench.policies.checkpoint import latest_checkpoint
+
+    return load_file(str(latest_checkpoint(run_dir) / "model.safetensors"))

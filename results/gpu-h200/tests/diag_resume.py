@@ -6,7 +6,6 @@ Each line: step, the uninterrupted run's loss, then the rerun's and the crashed-
 """
 
 import contextlib
-import json
 import pathlib
 import sys
 import tempfile
@@ -17,6 +16,7 @@ from tests.tiny import tiny_overrides
 
 from bcbench.data.replay_buffer import write_replay_buffer
 from bcbench.training.loop import TrainOptions, new_run, train
+from bcbench.utils.io import read_jsonl
 
 
 class Crash(Exception):
@@ -45,8 +45,8 @@ def main(mode: str, device: str) -> None:
             with contextlib.suppress(Crash):
                 train(run, opts(crash))
         train(run, opts())
-    loss = {name: {m["step"]: m["train_loss"] for m in map(json.loads, (run / "metrics.jsonl").read_text().splitlines())
-                   if "train_loss" in m} for name, run in runs.items()}
+    loss = {name: {m["step"]: m["train_loss"] for m in read_jsonl(run / "metrics.jsonl") if "train_loss" in m}
+            for name, run in runs.items()}
     print("mode", "deterministic" if mode == "det" else "default")
     for s, ref in sorted(loss["full"].items()):
         print(s, f"{ref:.9f}", f"again {loss['again'][s] - ref:+.2e}", f"crashed {loss['crashed'][s] - ref:+.2e}")

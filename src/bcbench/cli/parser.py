@@ -170,7 +170,6 @@ def _add_study_commands(sub: Any) -> None:
     p.set_defaults(func="cmd_policies")
 
 
-
 def _add_latency_command(sub: Any) -> None:
     p = sub.add_parser("latency", help="time one policy call at batch 1 for every policy, in every inference mode")
     p.add_argument("--policy", action="append", metavar="NAME", help="only these policies (repeatable; default all "
