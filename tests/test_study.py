@@ -205,6 +205,25 @@ def test_restore_refuses_an_existing_folder_and_mixed_commits(tmp_path):
     assert restore(export, tmp_path / "out") == "c1" and (tmp_path / "out" / "runs" / "b").exists()
 
 
+@pytest.mark.parametrize("last", ["a", "b"])
+def test_restore_goes_on_at_the_newest_pin_of_a_study_that_says_why_it_mixes_commits(tmp_path, last):
+    from bcbench.study.restore import restore
+    from bcbench.utils.io import write_json
+
+    export = tmp_path / "export"
+    write_json(export / "spec.json", {})
+    write_json(export / "runs" / "a" / "eval-default.json", {"git_commit": "c1"})
+    write_json(export / "runs" / "b" / "eval-default.json", {"git_commit": "c2"})
+    order = ["b", "a"] if last == "a" else ["a", "b"]  # index.jsonl lists stages in the order they finished
+    (export / "index.jsonl").write_text("".join(json.dumps({"file": f"runs/{r}/eval-default.json"}) + "\n"
+                                                for r in order))
+    with pytest.raises(BCBenchError, match=r"no mixing-reason\.txt says why"):
+        restore(export, tmp_path / "out")
+    (export / "mixing-reason.txt").write_text("the pin moved when the spec gained resources; same code\n")
+    assert restore(export, tmp_path / "out") == {"a": "c1", "b": "c2"}[last]
+    assert (tmp_path / "out" / "mixing-reason.txt").exists()  # the account travels with the study
+
+
 def test_report_from_fixture_files(tmp_path):
     """A hand-made results directory: the report reads files only and draws every figure."""
     from bcbench.utils.io import write_json

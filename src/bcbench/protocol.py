@@ -22,6 +22,9 @@ def training_done(summary: dict) -> bool:
     return summary.get("stopped") in DONE_TRAINING
 # in a study folder: the runs a restore dropped, whose first model's files an export removes (bcbench.study.restore)
 DROPPED_RUNS = "dropped-runs.jsonl"
+# in a study folder: its own account of why its files come from several commits (the report prints it; a restore
+# of a mixed export needs it)
+MIXING_REASON = "mixing-reason.txt"
 
 
 def overlaps_test_seeds(seed_start: int, episodes: int) -> bool:

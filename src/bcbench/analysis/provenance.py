@@ -66,7 +66,6 @@ def lead_line(results: Path, rows: list[Row], mixed: bool, runs: list[Row] | Non
             + (" These results mix several commits: see Provenance at the end." if mixed else ""))
 
 
-MIXING_REASON = "mixing-reason.txt"  # a study folder's own account of why its files come from several commits
 
 
 def _short(commit: str) -> str:

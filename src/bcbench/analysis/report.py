@@ -20,7 +20,7 @@ from bcbench.analysis.convergence import Check, apply_checks, doubling_checks
 from bcbench.analysis.fewstep import fewstep_lines, load_paired
 from bcbench.analysis.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
 from bcbench.analysis.findings import DEFAULT_MARGIN, judge, points_from_rows
-from bcbench.analysis.provenance import MIXING_REASON, lead_line, provenance_notes
+from bcbench.analysis.provenance import lead_line, provenance_notes
 from bcbench.analysis.realtime import pooled_sentence, safe_delay_sentence
 from bcbench.analysis.results import (
     Row,
@@ -35,6 +35,7 @@ from bcbench.analysis.results import (
 )
 from bcbench.analysis.seeds import merge_training_seeds, per_seed_cell
 from bcbench.analysis.strategies import load_strategy_sweeps, strategy_figure, strategy_lines
+from bcbench.protocol import MIXING_REASON
 from bcbench.reference import CPU_DEVIATIONS, STUDY_REFERENCE
 from bcbench.stats import fmt_estimate, fmt_share
 from bcbench.utils.io import atomic_path, read_json

@@ -25,19 +25,28 @@ from pathlib import Path
 
 from bcbench.errors import BCBenchError
 from bcbench.policies.publish import verify
-from bcbench.protocol import DROPPED_RUNS
+from bcbench.protocol import DROPPED_RUNS, MIXING_REASON
 from bcbench.utils.args import OneLineParser
 from bcbench.utils.io import append_jsonl, atomic_path, read_json
 
 
 def export_commit(export: Path) -> str:
-    """The one git commit every result file of the export was written at (the study's pin)."""
+    """The commit the study goes on at: the one every result file of the export was written at (the study's pin).
+
+    A study whose pin moved while it ran (its folder says why, in MIXING_REASON, and the report prints it) goes on
+    at its newest pin: the commit of the result file its last finished stage wrote (index.jsonl is in the order
+    stages finished). Mixed commits without that account are refused: nobody said the code stayed the same."""
     commits = {c for f in sorted(export.glob("runs/*/*.json"))
                if isinstance(data := read_json(f), dict) and (c := data.get("git_commit"))}
-    if len(commits) != 1:
-        raise BCBenchError(f"{export}: its result files carry {len(commits)} commits ({', '.join(sorted(commits))}); "
-                           "a study goes on at one commit")
-    return commits.pop()
+    if len(commits) == 1:
+        return commits.pop()
+    if len(commits) > 1 and (export / MIXING_REASON).is_file():
+        for line in reversed((export / "index.jsonl").read_text().splitlines()):
+            f = export / json.loads(line).get("file", "")
+            if f.is_file() and isinstance(data := read_json(f), dict) and data.get("git_commit") in commits:
+                return data["git_commit"]
+    raise BCBenchError(f"{export}: its result files carry {len(commits)} commits ({', '.join(sorted(commits))}) "
+                       f"and no {MIXING_REASON} says why; a study goes on at one commit")
 
 
 def restore(export: str | Path, out: str | Path) -> str:

@@ -1,0 +1,43 @@
+"""Run only some kinds of a study's stages now, in the study's order, with the study's own (pinned) code.
+
+Why: a study's driver runs timing and real-time stages last, after every training. When a new machine has to
+retrain a long run (its checkpoints stayed on the old machine), the stages that need only published weights
+(timing and real-time sweeps of training seed 0) can run first, alone on a quiet machine, and land in this
+session. Each stage is computed and recorded exactly as the study records it (StudyRunner.compute / finish):
+the same result file, the same index line; the study's later run skips them.
+
+    cd ~/.cache/bcbench/src-<pin> && PYTHONPATH=src python /path/to/scripts/study_stages.py \
+        SPEC.toml OUT latency realtime          (then start the study as usual; it goes on with the rest)
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from bcbench.study.runner import StudyRunner
+from bcbench.study.spec import load_spec
+
+
+def main(argv: list[str]) -> int:
+    if len(argv) < 3:
+        print("usage: study_stages.py SPEC.toml OUT KIND [KIND ...]   (KIND: latency, realtime, eval, check)",
+              file=sys.stderr)
+        return 2
+    spec_path, out, kinds = argv[0], argv[1], set(argv[2:])
+    runner = StudyRunner(load_spec(spec_path), out)
+    todo = [s for s in runner.stages() if s[0] in kinds and not runner.is_done(*s)]
+    missing = [s for s in todo if not runner.is_done("train", s[1], None)]
+    if missing:
+        print(f"error: {len(missing)} of these stages need a training that is not done here", file=sys.stderr)
+        return 2
+    for i, (stage, run, variant) in enumerate(todo, 1):
+        print(f"[{i}/{len(todo)}] {stage} {run.label} s{run.seed} {variant.key if variant else ''}", flush=True)
+        started = time.monotonic()
+        runner.finish(stage, run, variant, runner.compute(stage, run, variant), time.monotonic() - started)
+    print(f"{len(todo)} stage(s) run", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
