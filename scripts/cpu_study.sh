@@ -20,7 +20,9 @@
 # A spec with a `resources` table (e.g. resources = { train = { cpus = 1 }, eval = { cpus = 1 } }) runs its stages as
 # Ray tasks on this machine's cores, side by side where the table allows (`bcbench study --ray`): independent
 # trainings with 1 thread each train more samples/s in all than one at a time with every thread
-# (results/train-throughput/threads/). Timing stages still run alone.
+# (results/train-throughput/threads/). Timing stages still run alone. BCBENCH_RAY=0 runs such a spec in one process
+# instead, one stage at a time with `threads`: fewer samples/s in all, but the first of two long trainings finishes in
+# about half the time, which is what counts when a session's machine may not come back.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export BCBENCH_HOME="${BCBENCH_HOME:-$HOME/.cache/bcbench}"
@@ -62,7 +64,9 @@ case "${1:-start}" in
     export BCBENCH_DATA="${BCBENCH_DATA:-$PWD/../shared/data/pusht/pusht_cchi_v7_replay.zarr}"
     # exec: no shell stays behind holding the caller's stdout open (a tool that waits for EOF would hang).
     RAY=()
-    if grep -Eq '^[[:space:]]*resources[[:space:]]*=' "$SRC/$SPEC"; then RAY=(--ray --ray-cpus "$(nproc)"); fi
+    if [ "${BCBENCH_RAY:-1}" != 0 ] && grep -Eq '^[[:space:]]*resources[[:space:]]*=' "$SRC/$SPEC"; then
+      RAY=(--ray --ray-cpus "$(nproc)")
+    fi
     (cd "$SRC" && PYTHONPATH="$SRC/src" exec nohup nice -n 10 "$OLDPWD/.venv/bin/python" -m bcbench.cli \
         study "$SPEC" --out "$OUT" "${RAY[@]}" >>"$LOG" 2>&1 </dev/null &)
     echo "started at commit ${COMMIT:0:12}: results in $OUT, log $LOG" ;;
