@@ -206,6 +206,29 @@ def test_the_lead_names_the_machine_of_every_training_seed():
     assert hardware_line([one_seed[0], row(1, "AMD EPYC", "ddim10")]) == "Evaluated on AMD EPYC (avx2), 2 threads."
 
 
+
+def test_the_lead_names_the_machine_that_timed_when_another_evaluated():
+    """A study resumed on a new VM times there: same model name and family, other ISA flags (no avx512_bf16). The
+    lead must not say 'evaluated and timed' on the machine that only evaluated."""
+    from bcbench.analysis.provenance import hardware_line
+    from bcbench.analysis.results import Row
+
+    old = {"cpu_model": "Xeon", "cpu_id": "family 6 model 207", "cpu_flags": ["avx2", "avx512_bf16"],
+           "torch_threads": 2}
+    new = {**old, "cpu_flags": ["avx2"]}
+
+    def row(variant, timed):
+        return Row(key=f"dp:{variant}", label="DP", policy="diffusion", preset="cpu", variant=variant, sampler="ddim",
+                   steps=10, spacing=None, beta_schedule=None, params=1, summary={}, hardware=old, train_seed=0,
+                   latency={"fast": {"median_ms": 1.0}}, timed_hardware=timed)
+
+    assert hardware_line([row("ddim10", old)]) == ("Evaluated and timed on Xeon [family 6 model 207] (avx2, "
+                                                   "avx512_bf16), 2 threads.")
+    assert hardware_line([row("ddim10", new), row("ddim1", new)]) == (
+        "Evaluated on Xeon [family 6 model 207] (avx2, avx512_bf16), 2 threads. "
+        "Timed on Xeon [family 6 model 207] (avx2), 2 threads.")
+
+
 def test_a_carried_run_plays_the_part_the_studys_spec_gives_it(tmp_path):
     """A run carried from another study (same run key, so the same model) keeps that study's label in its files:
     the first round's 2x run is the second round's seed 0. Its role here comes from this study's spec.json (matched

@@ -35,9 +35,10 @@ def hardware_line(rows: list[Row]) -> str:
         items = by_hw.setdefault(hw, {}).setdefault(r.label, [])
         if item not in items:
             items.append(item)
-    did = "Evaluated and timed" if any(r.latency for r in rows) else "Evaluated"
+    timed = _timed_elsewhere(rows)
+    did = "Evaluated and timed" if any(r.latency for r in rows) and not timed else "Evaluated"
     if len(by_hw) <= 1:
-        return f"{did} on {', '.join(next(iter(by_hw), ('no machine',)))}."
+        return f"{did} on {', '.join(next(iter(by_hw), ('no machine',)))}.{timed}"
 
     def said(label: str, items: list[str]) -> list[str]:
         if multi:
@@ -52,7 +53,19 @@ def hardware_line(rows: list[Row]) -> str:
     parts = [f"{cpu}: " + "; ".join(", ".join(x for label, items in ran.items() for x in said(label, items))
                                     + f" with {t}" for (c, t), ran in sorted(by_hw.items()) if c == cpu)
              for cpu in cpus]
-    return f"{did} on {'several machines: ' if len(cpus) > 1 else ''}" + "; ".join(parts) + "."
+    return f"{did} on {'several machines: ' if len(cpus) > 1 else ''}" + "; ".join(parts) + "." + timed
+
+
+def _timed_elsewhere(rows: list[Row]) -> str:
+    """' Timed on CPU, N threads.' when some row's latency was measured on another CPU (model or ISA flags) than the
+    one that evaluated it, e.g. a study resumed on a new machine whose timing stages ran there; else ''. Two VMs
+    can share a model name and family yet differ in flags (one exposes avx512_bf16), so flags count."""
+    timed = [r for r in rows if r.latency and r.timed_hardware]
+    if not any(cpu_text(r.timed_hardware) != cpu_text(r.hardware) for r in timed):
+        return ""
+    where = sorted({f"{cpu_text(r.timed_hardware)}, {_threads(r.timed_hardware.get('torch_threads', '?'))}"
+                    for r in timed})
+    return f" Timed on {'several machines: ' if len(where) > 1 else ''}{'; '.join(where)}."
 
 
 def lead_line(results: Path, rows: list[Row], mixed: bool, runs: list[Row] | None = None) -> str:

@@ -63,6 +63,7 @@ class Row:
     train: dict[str, Any] = field(default_factory=dict)
     hardware: dict[str, Any] = field(default_factory=dict)
     timed_on: str | None = None  # the machine that timed it (recorded by studies; matters on a cluster)
+    timed_hardware: dict[str, Any] = field(default_factory=dict)  # its latency record's CPU and threads
     source: str = ""
     overrides: dict[str, Any] = field(default_factory=dict)  # dotted preset overrides (its run.json)
     preset_values: dict[str, Any] = field(default_factory=dict)  # the preset's value of each overridden key
@@ -149,7 +150,7 @@ def _row_from_eval(path: Path, margin: float = 0.05, role: dict[str, Any] | None
     if lat.exists():
         record = read_json(lat)
         row.latency = record["modes"]
-        row.timed_on = record.get("node")
+        row.timed_on, row.timed_hardware = record.get("node"), record.get("hardware") or {}
     if (run_dir / "run.json").exists():
         meta = read_json(run_dir / "run.json")
         row.overrides, row.preset_values = meta.get("overrides") or {}, meta.get("preset_values") or {}
@@ -280,10 +281,11 @@ def same_cpu_once(records: list[dict[str, Any]], key: Callable[[dict[str, Any]],
 
 
 def study_machines(results: str | Path) -> list[str]:
-    """The CPUs (model and ISA flags) a study's training sessions and evaluations ran on, from its records."""
+    """The CPUs (model and ISA flags) a study's training sessions, evaluations, timings and real-time sweeps ran on,
+    from its records."""
     found: list[dict[str, Any]] = []
     for f in Path(results).rglob("*.json"):
-        if f.name != "train_summary.json" and not f.name.startswith(("eval", "check")):
+        if f.name != "train_summary.json" and not f.name.startswith(("eval", "check", "latency", "realtime")):
             continue
         rec = read_json(f)
         found += [h for h in [*(rec.get("segments") or []), rec.get("hardware") or {}] if h.get("cpu_model")]
