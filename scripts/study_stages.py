@@ -27,7 +27,7 @@ def main(argv: list[str]) -> int:
     spec_path, out, kinds = argv[0], argv[1], set(argv[2:])
     runner = StudyRunner(load_spec(spec_path), out)
     todo = [s for s in runner.stages() if s[0] in kinds and not runner.is_done(*s)]
-    missing = [s for s in todo if not runner.is_done("train", s[1], None)]
+    missing = [s for s in todo if s[1].learned and not runner.is_done("train", s[1], None)]
     if missing:
         print(f"error: {len(missing)} of these stages need a training that is not done here", file=sys.stderr)
         return 2

@@ -184,6 +184,32 @@ def test_study_killed_then_rerun_resumes_without_redoing(synthetic_zarr, tmp_pat
     assert "0 stage(s) run" in capsys.readouterr().out
 
 
+def test_study_stages_runs_timing_first_and_the_study_then_skips_it(synthetic_zarr, tmp_path, capsys):
+    """scripts/study_stages.py: a study's timing and real-time stages now, recorded as the study records them (the
+    study's later run skips them); stages whose training is not done here are refused before anything runs."""
+    import importlib.util
+
+    from bcbench.cli.main import main
+
+    path = Path(__file__).parents[1] / "scripts" / "study_stages.py"
+    mod_spec = importlib.util.spec_from_file_location("study_stages", path)
+    stages = importlib.util.module_from_spec(mod_spec)
+    mod_spec.loader.exec_module(stages)
+    text = _spec_text(tmp_path)
+    spec = tmp_path / "tiny.toml"
+    spec.write_text(text)
+    out = tmp_path / "out"
+    assert stages.main([str(spec), str(out), "latency"]) == 2  # cnn_mlp's and DP's trainings are not done here
+    assert "need a training that is not done here" in capsys.readouterr().err and not (out / "index.jsonl").exists()
+    spec.write_text(text[:text.index("[[run]]\npolicy = \"cnn_mlp\"")])  # the random baseline only
+    assert stages.main([str(spec), str(out), "latency", "realtime"]) == 0
+    index = [json.loads(x) for x in (out / "index.jsonl").read_text().splitlines()]
+    assert [i["stage"] for i in index] == ["latency", "realtime", "realtime"]  # naive and ensemble sweeps
+    assert all((out / i["file"]).is_file() for i in index)
+    assert main(["study", str(spec), "--out", str(out), "--data", str(synthetic_zarr), "--quiet", "--no-report"]) == 0
+    assert "1 stage(s) run, 3 already done" in capsys.readouterr().out  # only the evaluation was left
+
+
 def test_restore_refuses_an_existing_folder_and_mixed_commits(tmp_path):
     from bcbench.study.restore import restore
     from bcbench.utils.io import write_json
