@@ -35,10 +35,11 @@ def test_the_check_sees_a_table_below_the_fold_and_a_page_too_wide(tmp_path):
     assert any("below the first screen" in p for p in found) and any("sideways" in p for p in found), found
 
 
-@pytest.mark.parametrize("study, untimed", [("cpu-confirm-dpflow-long", True), ("cpu", False)])
+@pytest.mark.parametrize("study, untimed", [("cpu-confirm-dpflow", True), ("cpu-confirm-dpflow-long", False),
+                                            ("cpu", False)])
 def test_figure3_says_when_nothing_is_timed_rather_than_draw_empty_axes(study, untimed, tmp_path, monkeypatch):
-    """A study exported before its latency stages ran (the second round, mid-study) gets a note in the latency
-    panel; a timed one (results/cpu) gets its lines and no note."""
+    """A study with no latency stages (the first confirm round) gets a note in the latency panel; a timed one
+    (results/cpu, the second round once its timing stages ran) gets its lines and no note."""
     from bcbench.analysis import figures
     from bcbench.analysis.results import load_rows
     from bcbench.analysis.seeds import merge_training_seeds

@@ -79,8 +79,6 @@ def lead_line(results: Path, rows: list[Row], mixed: bool, runs: list[Row] | Non
             + (" These results mix several commits: see Provenance at the end." if mixed else ""))
 
 
-
-
 def _short(commit: str) -> str:
     """A commit as git abbreviates it for people (12 hex digits; a "-dirty" mark kept)."""
     base, dirty = (commit[:-6], "-dirty") if commit.endswith("-dirty") else (commit, "")
