@@ -306,3 +306,25 @@ def test_sweeps_of_several_training_seeds_are_pooled_over_them(tmp_path):
     assert lo <= -0.2 + 1e-9 and hi >= -1e-9  # the interval spans both seeds' losses: seed variance is in it
     assert pooled["BCT"]["realtime-async-measured"]["summary"]["latency_source"]["median_ms"] == 50.0
     assert "Swept with several training seeds (BCT: 0, 1)" in "\n".join(realtime_lines(pooled, 0.05))
+
+
+def test_the_report_says_how_many_episodes_the_margin_needs():
+    """With per-episode differences of SD 0.25 and no true loss, 100 episodes give a 95% interval of about
+    +/-0.049, as wide as the 0.05 margin; about ((1.96 + 0.84) 0.25 / 0.05)^2 = 197 episodes show such a setting
+    within it with 80% power. Settings far outside the margin (a large loss widens the spread) are left out,
+    and no number of episodes shows a setting whose true loss is the margin or more."""
+    from bcbench.analysis.report import realtime_lines
+    from bcbench.stats import episodes_to_show_within
+
+    assert episodes_to_show_within(0.25, 0.05) == pytest.approx(196.2, abs=0.1)
+    assert episodes_to_show_within(0.25, 0.05, diff=-0.025) == pytest.approx(4 * 196.2, abs=0.5)
+    assert episodes_to_show_within(0.25, 0.05, diff=-0.05) == float("inf")
+    base = np.random.default_rng(2).uniform(0.3, 0.9, 100)
+    noise = np.tile([0.25, -0.25], 50)  # differences of mean 0 and SD 0.25 (0.2513 with n - 1)
+    sweep = {"realtime-sync": _setting(base), "realtime-async-d1": _setting(base + noise),
+             "realtime-async-d8": _setting(base - 0.4 + 2 * noise)}
+    text = "\n".join(realtime_lines({"P": sweep}, 0.05))
+    assert ("the per-episode differences to sync of the 1 delayed setting whose estimate is within the margin "
+            "have a standard deviation of 0.25, so a 95% interval reaches about +/-0.049") in text
+    assert "shown within the margin only where its estimate is above -0.001" in text
+    assert "needs about 199 paired episodes" in text

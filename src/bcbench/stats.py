@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from statistics import NormalDist
 from typing import Any
 
 import numpy as np
@@ -120,6 +121,20 @@ def two_level_bootstrap(seeds: list[dict[int, float]], others: list[list[dict[in
     share = between / (between + within) if between + within > 0 else 0.0
     return {"value": float(point), "ci95": [float(lo), float(hi)], "per_seed": seed_means.tolist(),
             "training_seed_share": share, "training_seeds": k}
+
+
+def episodes_to_show_within(sd: float, margin: float, diff: float = 0.0, power: float = 0.8,
+                            level: float = 0.95) -> float:
+    """Paired episodes needed for the `level` interval of a difference to lie above -margin with probability `power`,
+    when the true difference is `diff` and the per-episode differences have standard deviation `sd`.
+
+    The non-inferiority sample size under the normal approximation: the interval's lower bound sits
+    z_{(1+level)/2} standard errors below the mean, so n = ((z_{(1+level)/2} + z_power) sd / (margin + diff))^2.
+    inf where diff <= -margin: no number of episodes shows such a setting within the margin."""
+    if margin + diff <= 0:
+        return float("inf")
+    z = NormalDist().inv_cdf((1 + level) / 2) + NormalDist().inv_cdf(power)
+    return float((z * sd / (margin + diff)) ** 2)
 
 
 def estimate(values: np.ndarray, seed: int = 0) -> dict[str, Any]:

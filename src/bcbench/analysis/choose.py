@@ -59,7 +59,7 @@ def _rate_cell(settings: dict[str, Any] | None, ms: float | None, margin: float)
         return "not swept"
     mode, d = max(safe.items(), key=lambda kv: kv[1] or 0)
     if not d:
-        return "none: one step of delay already costs more than the margin"
+        return "none shown: no delay swept is shown within the margin of sync"
     rate = highest_safe_rate(d, ms) or 0.0
     return (f"{rate:.1f}" if rate < 100 else f"{rate:.0f}") + f" Hz ({mode}, up to d = {d})"
 

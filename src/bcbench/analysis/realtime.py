@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import collections
 import math
+import re
 import statistics
 from typing import Any
 
 from bcbench.protocol import CONTROL_DT_S, SYNC_SETTING, delay_setting
-from bcbench.stats import paired_bootstrap, two_level_bootstrap
+from bcbench.stats import episodes_to_show_within, paired_bootstrap, two_level_bootstrap
 
 
 def seed_scores(r: dict[str, Any]) -> dict[int, float]:
@@ -63,6 +64,49 @@ def compare(a: dict[str, Any], b: dict[str, Any]) -> tuple[float, float, float, 
     return paired_bootstrap(seed_scores(a), [seed_scores(b)])
 
 
+def paired_differences(a: dict[str, Any], b: dict[str, Any]) -> list[float]:
+    """a's per-episode scores minus b's on the episode seeds they share; within each training seed when pooled."""
+    if "by_training_seed" in a and "by_training_seed" in b:
+        pairs = list(zip(a["by_training_seed"], b["by_training_seed"], strict=True))
+    else:
+        pairs = [(seed_scores(a), seed_scores(b))]
+    return [x[k] - y[k] for x, y in pairs for k in sorted(set(x) & set(y))]
+
+
+def margin_power_sentence(realtime: dict[str, dict[str, Any]], margin: float) -> str:
+    """How wide a fixed delay's interval against sync is at the episodes swept, and how many paired episodes would
+    show a setting that is truly as good as sync within the margin (80% power): why "not shown within the margin"
+    is, by itself, no evidence of a loss. Reads every swept policy's fixed-delay settings."""
+    found: list[tuple[float, float, int, bool]] = []  # (|mean difference|, its SD, pairs, pooled) per setting
+    for settings in realtime.values():
+        if SYNC_SETTING not in settings:
+            continue
+        for name, r in settings.items():
+            if re.search(r"-d\d+$", name) and len(diffs := paired_differences(r, settings[SYNC_SETTING])) > 1:
+                found.append((abs(statistics.mean(diffs)), statistics.stdev(diffs), len(diffs),
+                              "by_training_seed" in r))
+    # the spread of a setting near sync, the case the question is about (a large loss widens it): the settings
+    # whose estimate is within the margin, or every setting where none is
+    near = [f for f in found if f[0] <= margin] or found
+    if not near:
+        return ""
+    sds = [f[1] for f in near]
+    sd, n = statistics.median(sds), int(statistics.median(f[2] for f in near))
+    half = 1.959964 * sd / math.sqrt(n)
+    need = [math.ceil(episodes_to_show_within(x, margin)) for x in (min(sds), max(sds))]
+    which = (f"the {len(near)} delayed setting{'s' if len(near) > 1 else ''}"
+             + (" whose estimate is within the margin" if near != found else ""))
+    spread = f"{sd:.2f}" if len(sds) == 1 else f"{min(sds):.2f}-{max(sds):.2f} (median {sd:.2f})"
+    episodes = f"{need[0]}" if need[0] == need[1] else f"{need[0]}-{need[1]}"
+    return (f"What the margin asks of {n} paired episodes: the per-episode differences to sync of {which} have a "
+            f"standard deviation of {spread}, so a 95% interval reaches "
+            f"about +/-{half:.3f} around its estimate" + (" (episode variance only)" if any(f[3] for f in near) else "")
+            + f", and a setting is shown within the margin only where its estimate is above {half - margin:+.3f}"
+            + (" (better than sync)" if half >= margin else "") + f". A setting truly as good as sync needs about "
+            f"{episodes} paired episodes (training seeds x test episodes) to be shown so with 80% power: "
+            "'not shown within the margin' is by itself no evidence of a loss; the paired difference is.")
+
+
 def pooled_sentence(sweeps: dict[str, dict[str, dict[str, Any]]]) -> str:
     """Which of the policies' sweeps are pooled over training seeds, and what that does to the numbers."""
     seeds = {label: next(iter(s.values()))["summary"]["training_seeds"] for label, s in sweeps.items()
@@ -109,7 +153,7 @@ def highest_safe_rate(safe_d: int | None, latency_ms: float) -> float | None:
     At rate f a call of L seconds takes d = ceil(L f) steps, so d <= safe_d for every f <= safe_d / L. This
     reads the score-against-delay curve, measured in 10 Hz steps, as holding in steps at other rates too
     (Diffusion Policy's Fig. 6 and Real-Time Chunking count delay in steps the same way). 0: no real-time
-    rate keeps the score (even one step of delay costs more than the margin); None: no sweep to read.
+    rate is shown to keep the score (not even one step of delay is shown within the margin); None: no sweep to read.
     """
     if safe_d is None:
         return None

@@ -21,7 +21,7 @@ from bcbench.analysis.fewstep import fewstep_lines, load_paired
 from bcbench.analysis.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
 from bcbench.analysis.findings import DEFAULT_MARGIN, judge, points_from_rows
 from bcbench.analysis.provenance import lead_line, provenance_notes
-from bcbench.analysis.realtime import pooled_sentence, safe_delay_sentence
+from bcbench.analysis.realtime import margin_power_sentence, pooled_sentence, safe_delay_sentence
 from bcbench.analysis.results import (
     Row,
     cpu_text,
@@ -190,7 +190,7 @@ def realtime_lines(realtime: dict[str, dict[str, Any]], margin: float) -> list[s
              "(median; slowest timed call) still takes at most that many steps (d / L), reading the delay curve "
              "as holding in steps at other rates.")
     out = ["## Under real-time execution (10 Hz control)", "",
-           " ".join(filter(None, [intro, pooled_sentence(realtime)])), ""]
+           " ".join(filter(None, [intro, pooled_sentence(realtime), margin_power_sentence(realtime, margin)])), ""]
     out += [*realtime_table(realtime), "", "Every setting with its 95% interval, and what the sweep says (a measured "
             "or profile setting whose calls all took the same d repeats that fixed-delay setting and is marked so):",
             ""]

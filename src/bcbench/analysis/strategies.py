@@ -86,7 +86,7 @@ def strategy_table(by_policy: dict[str, dict[str, dict[str, Any]]], margin: floa
                 cells.append(cell + (f"<br>{vs[0]:+.3f} [{vs[1]:+.2f}, {vs[2]:+.2f}]" if vs else ""))
             ms = measured_ms(sweeps[kind], execution)
             safe, rate = keeps_sync_rate(sweeps, kind, margin, execution)
-            keeps = ("" if safe is None else "none: the first delay swept costs more than the margin" if safe == 0
+            keeps = ("" if safe is None else "none shown: no delay swept is shown within the margin" if safe == 0
                      else f"d = {safe}" + (f", {rate:.1f} Hz" if rate is not None else ""))
             lines.append(f"| {label} | {kind} | " + " | ".join(cells) + f" | {'' if ms is None else f'{ms:.0f}'} | "
                          f"{keeps} |")

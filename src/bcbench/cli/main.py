@@ -170,7 +170,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 def cmd_realtime(args: argparse.Namespace) -> int:
     from bcbench.analysis.figures import figure5_realtime, realtime_figure
     from bcbench.analysis.findings import DEFAULT_MARGIN
-    from bcbench.analysis.realtime import safe_delay_sentence
+    from bcbench.analysis.realtime import margin_power_sentence, safe_delay_sentence
     from bcbench.evaluation.latency_sources import LatencySource
     from bcbench.evaluation.realtime import finished_settings, realtime_record, sweep
     from bcbench.policies.learned import PolicyRunner
@@ -220,6 +220,8 @@ def cmd_realtime(args: argparse.Namespace) -> int:
         if figure5_realtime({policy.name: results}, where / "fig5_realtime.png") is None:
             (where / "fig5_realtime.png").unlink(missing_ok=True)  # no measured setting this time: no stale figure
         print(f"  {safe_delay_sentence(results, DEFAULT_MARGIN)}")
+        if power := margin_power_sentence({policy.name: results}, DEFAULT_MARGIN):
+            print(f"  {power}")
         # One record of the whole sweep, the form a study's report reads: inside a study's folder (e.g. beside a
         # run's own sweep, with another --backend), `bcbench report` shows it under its label.
         label = base if kind == "naive" else f"{base} + {kind}"
