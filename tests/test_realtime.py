@@ -328,3 +328,5 @@ def test_the_report_says_how_many_episodes_the_margin_needs():
             "have a standard deviation of 0.25, so a 95% interval reaches about +/-0.049") in text
     assert "shown within the margin only where its estimate is above -0.001" in text
     assert "needs about 199 paired episodes" in text
+    far = {"realtime-sync": sweep["realtime-sync"], "realtime-async-d8": sweep["realtime-async-d8"]}
+    assert "What the margin asks" not in "\n".join(realtime_lines({"P": far}, 0.05))  # no setting near sync

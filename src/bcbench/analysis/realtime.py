@@ -76,7 +76,8 @@ def paired_differences(a: dict[str, Any], b: dict[str, Any]) -> list[float]:
 def margin_power_sentence(realtime: dict[str, dict[str, Any]], margin: float) -> str:
     """How wide a fixed delay's interval against sync is at the episodes swept, and how many paired episodes would
     show a setting that is truly as good as sync within the margin (80% power): why "not shown within the margin"
-    is, by itself, no evidence of a loss. Reads every swept policy's fixed-delay settings."""
+    is, by itself, no evidence of a loss. Reads every swept policy's fixed-delay settings whose estimate is within
+    the margin of sync ("" where none is)."""
     found: list[tuple[float, float, int, bool]] = []  # (|mean difference|, its SD, pairs, pooled) per setting
     for settings in realtime.values():
         if SYNC_SETTING not in settings:
@@ -86,16 +87,15 @@ def margin_power_sentence(realtime: dict[str, dict[str, Any]], margin: float) ->
                 found.append((abs(statistics.mean(diffs)), statistics.stdev(diffs), len(diffs),
                               "by_training_seed" in r))
     # the spread of a setting near sync, the case the question is about (a large loss widens it): the settings
-    # whose estimate is within the margin, or every setting where none is
-    near = [f for f in found if f[0] <= margin] or found
+    # whose estimate is within the margin; none such, nothing to say
+    near = [f for f in found if f[0] <= margin]
     if not near:
         return ""
     sds = [f[1] for f in near]
     sd, n = statistics.median(sds), int(statistics.median(f[2] for f in near))
     half = 1.959964 * sd / math.sqrt(n)
     need = [math.ceil(episodes_to_show_within(x, margin)) for x in (min(sds), max(sds))]
-    which = (f"the {len(near)} delayed setting{'s' if len(near) > 1 else ''}"
-             + (" whose estimate is within the margin" if near != found else ""))
+    which = f"the {len(near)} delayed setting{'s' if len(near) > 1 else ''} whose estimate is within the margin"
     spread = f"{sd:.2f}" if len(sds) == 1 else f"{min(sds):.2f}-{max(sds):.2f} (median {sd:.2f})"
     episodes = f"{need[0]}" if need[0] == need[1] else f"{need[0]}-{need[1]}"
     return (f"What the margin asks of {n} paired episodes: the per-episode differences to sync of {which} have a "
