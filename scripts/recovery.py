@@ -6,6 +6,9 @@ differences between CPUs.
 
     python scripts/recovery.py --sync A/naive/realtime-sync.json --naive A/naive/realtime-async-d8.json \
         B/rtc/realtime-async-d8.json B/naive/realtime-async-d8.json
+
+A record is one setting's file, or a whole sweep's (a study's real-time stage, `realtime-sweep.json`) with the
+setting named after a colon: `RUN/realtime-ddim10.json:realtime-async-d8`.
 """
 
 from __future__ import annotations
@@ -24,14 +27,24 @@ def main() -> None:
     ap.add_argument("--naive", required=True, help="naive async's record at the delay (the loss to recover)")
     ap.add_argument("settings", nargs="+", help="records of the settings compared with it")
     args = ap.parse_args()
-    for f in [args.sync, args.naive, *args.settings]:
-        if not Path(f).is_file():
-            ap.error(f"no record '{f}'")
-    sync, naive = seed_scores(read_json(args.sync)), seed_scores(read_json(args.naive))
+
+    def scores(ref: str) -> dict[int, float]:
+        path, _, setting = ref.partition(":")
+        if not Path(path).is_file():
+            ap.error(f"no record '{path}'")
+        data = read_json(path)
+        if "settings" in data:  # a sweep: one of its settings
+            if setting not in data["settings"]:
+                ap.error(f"'{path}' is a sweep: name one of its settings after a colon "
+                         f"({', '.join(data['settings'])})")
+            data = data["settings"][setting]
+        return seed_scores(data)
+
+    sync, naive = scores(args.sync), scores(args.naive)
     s, a = (sum(v.values()) / len(v) for v in (sync, naive))
     print(f"naive sync {s:.3f}, naive at the delay {a:.3f}: loss {s - a:.3f}")
     for f in args.settings:
-        other = seed_scores(read_json(f))
+        other = scores(f)
         d, dlo, dhi, _ = paired_bootstrap(other, [naive])
         r, lo, hi, n = recovered_share(sync, naive, other)
         print(f"{f}: {sum(other.values()) / len(other):.3f}, {d:+.3f} [{dlo:+.3f}, {dhi:+.3f}] over naive, "

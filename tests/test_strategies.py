@@ -549,3 +549,27 @@ def test_strategy_cells_regenerate_the_committed_readme_table():
         assert cell in out and cell in readme
     bad = subprocess.run([*run, str(repo / "no-such-folder")], capture_output=True, text=True)
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
+
+
+def test_recovery_regenerates_the_committed_d8_shares_on_one_machine():
+    """scripts/recovery.py rebuilds results/strategies-confirm-long/README.md's one-machine d = 8 table from the
+    committed records: the study's own sync and default-horizon naive d = 8 (settings of its sweep records, named
+    after a colon) against RTC and naive at s = 7; a sweep without a setting named is one line and exit 2."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    study = repo / "results/cpu-confirm-dpflow-long/runs/diffusion-cpu-s0-21c61ecc/realtime-ddim10.json"
+    s7 = repo / "results/strategies-confirm-long/dp-ddim10-s7-torch"
+    run = [sys.executable, str(repo / "scripts" / "recovery.py"), "--sync", f"{study}:realtime-sync"]
+    out = subprocess.run([*run, "--naive", f"{study}:realtime-async-d8", str(s7 / "rtc/realtime-async-d8.json"),
+                          str(s7 / "naive/realtime-async-d8.json")], capture_output=True, text=True, check=True).stdout
+    readme = (repo / "results/strategies-confirm-long/README.md").read_text()
+    assert "naive sync 0.851, naive at the delay 0.449: loss 0.402" in out
+    assert "rtc/realtime-async-d8.json: 0.730, +0.281 [+0.209, +0.352] over naive, recovers 70% [56, 84]" in out
+    assert "naive/realtime-async-d8.json: 0.632, +0.183 [+0.106, +0.260] over naive, recovers 45% [29, 60]" in out
+    assert "| 0.730, **recovers 70% [56, 84]** of naive's loss | 0.632, 45% [29, 60] |" in readme
+    bad = subprocess.run([*run, "--naive", str(study), str(study)], capture_output=True, text=True)
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
+    assert "name one of its settings" in bad.stderr
