@@ -22,7 +22,11 @@
 # trainings with 1 thread each train more samples/s in all than one at a time with every thread
 # (results/train-throughput/threads/). Timing stages still run alone. BCBENCH_RAY=0 runs such a spec in one process
 # instead, one stage at a time with `threads`: fewer samples/s in all, but the first of two long trainings finishes in
-# about half the time, which is what counts when a session's machine may not come back.
+# about half the time, which is what counts when a session's machine may not come back. BCBENCH_RAY_CPUS=N gives a
+# spec's Ray instance N CPUs instead of all: two studies side by side each with one core (each starts its own local
+# Ray instance; they coexist), e.g. a small-policy study on the core another study's last training leaves free.
+# A timing stage then has its own instance to itself, not the machine: let the other study finish before one starts
+# (`pause` stops every study's Ray workers, ray::..., not only SPEC's).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export BCBENCH_HOME="${BCBENCH_HOME:-$HOME/.cache/bcbench}"
@@ -65,7 +69,7 @@ case "${1:-start}" in
     # exec: no shell stays behind holding the caller's stdout open (a tool that waits for EOF would hang).
     RAY=()
     if [ "${BCBENCH_RAY:-1}" != 0 ] && grep -Eq '^[[:space:]]*resources[[:space:]]*=' "$SRC/$SPEC"; then
-      RAY=(--ray --ray-cpus "$(nproc)")
+      RAY=(--ray --ray-cpus "${BCBENCH_RAY_CPUS:-$(nproc)}")
     fi
     (cd "$SRC" && PYTHONPATH="$SRC/src" exec nohup nice -n 10 "$OLDPWD/.venv/bin/python" -m bcbench.cli \
         study "$SPEC" --out "$OUT" "${RAY[@]}" >>"$LOG" 2>&1 </dev/null &)
