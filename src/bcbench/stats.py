@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 N_BOOT = 10_000
+Z95 = 1.959964  # the normal 97.5% quantile: a two-sided 95% interval is +/- Z95 standard errors
 
 
 def bootstrap_ci(values: np.ndarray, level: float = 0.95, n_boot: int = N_BOOT, seed: int = 0) -> tuple[float, float]:
@@ -162,7 +163,7 @@ def intervals_overlap(a: dict[str, Any], b: dict[str, Any]) -> bool:
     return not (a["ci95"][1] < b["ci95"][0] or b["ci95"][1] < a["ci95"][0])
 
 
-def wilson(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+def wilson(k: int, n: int, z: float = Z95) -> tuple[float, float]:
     """Wilson score interval of a share k / n (never [0, 0] at 0%, unlike a percentile bootstrap)."""
     if n <= 0:
         return (float("nan"), float("nan"))

@@ -10,7 +10,7 @@ import statistics
 from typing import Any
 
 from bcbench.protocol import CONTROL_DT_S, SYNC_SETTING, delay_setting
-from bcbench.stats import episodes_to_show_within, paired_bootstrap, two_level_bootstrap
+from bcbench.stats import Z95, episodes_to_show_within, paired_bootstrap, two_level_bootstrap
 
 
 def seed_scores(r: dict[str, Any]) -> dict[int, float]:
@@ -93,7 +93,7 @@ def margin_power_sentence(realtime: dict[str, dict[str, Any]], margin: float) ->
         return ""
     sds = [f[1] for f in near]
     sd, n = statistics.median(sds), int(statistics.median(f[2] for f in near))
-    half = 1.959964 * sd / math.sqrt(n)
+    half = Z95 * sd / math.sqrt(n)
     need = [math.ceil(episodes_to_show_within(x, margin)) for x in (min(sds), max(sds))]
     which = f"the {len(near)} delayed setting{'s' if len(near) > 1 else ''} whose estimate is within the margin"
     spread = f"{sd:.2f}" if len(sds) == 1 else f"{min(sds):.2f}-{max(sds):.2f} (median {sd:.2f})"
