@@ -20,6 +20,7 @@ repeated beside every timed row or mode, and the floor of every row uses the bes
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import Any
 
 import torch
@@ -32,7 +33,7 @@ READ_MB = 256  # bytes streamed per bandwidth sample: well past any L3 cache
 GEMM_N = 1024
 
 
-def wall_times(fn: Any, n: int) -> list[float]:
+def wall_times(fn: Callable[[], object], n: int) -> list[float]:
     """Wall times of n calls of `fn()` in seconds, after one warm-up call."""
     fn()
     ts = []

@@ -18,13 +18,16 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.config import StrategyConfig
 from bcbench.interface import CandidatePolicy, ChunkPolicy, GuidedPolicy, Observation, SelfTimedPolicy
+
+if TYPE_CHECKING:  # the controller itself runs on numpy; generators only pass through to the policy
+    import torch
 
 T = TypeVar("T")
 
@@ -148,7 +151,7 @@ class Strategy:
         return out.reshape(len(obs["agent_pos"]), n, *out.shape[1:])
 
     def request(self, obs: Observation, target: np.ndarray | None = None, weights: np.ndarray | None = None,
-                weak_generators: list[Any] | None = None) -> np.ndarray:
+                weak_generators: list[torch.Generator] | None = None) -> np.ndarray:
         """(B, Tp, 2) chunks for a batch of observations; target (B, Tp, 2) and weights (B, Tp) for rtc and bid."""
         self._compute, self._calls_wall, t0 = 0.0, 0.0, time.perf_counter()
         if self.kind == "rtc":

@@ -15,6 +15,7 @@ run the same graphs compiled by OpenVINO. Exact forms equal the reference within
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
@@ -50,7 +51,8 @@ class TimingConfig:
             raise BCBenchError("need warmup >= 0 and 1 <= min_calls <= max_calls")
 
 
-def time_calls(fn: Any, cfg: TimingConfig, cuda: bool = False, clock: Any = None, what: str = ""
+def time_calls(fn: Callable[[], object], cfg: TimingConfig, cuda: bool = False,
+               clock: Callable[[], float] | None = None, what: str = ""
                ) -> dict[str, Any]:
     """Time `fn()`; returns statistics in milliseconds, and what else used the CPUs meanwhile (`cpu_contention`;
     a warning on stderr naming `what` when the machine was not quiet, none when `what` is empty). `clock()`, where
@@ -137,7 +139,7 @@ def measure_runner(runner: ChunkPolicy, cfg: TimingConfig, rate_hz: float = 10.0
     return {**stats, **verdicts(stats["tail_ms"], rate_hz, runner.action_horizon, stats["tail_stat"])}
 
 
-def self_clock(runner: object) -> Any:
+def self_clock(runner: object) -> Callable[[], float] | None:
     """For a policy that times itself (`SelfTimedPolicy`), the function that reads its last call's seconds."""
     return (lambda: runner.last_compute_s) if isinstance(runner, SelfTimedPolicy) else None
 

@@ -22,6 +22,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from bcbench.data.sequence import SequenceDataset
 from bcbench.errors import BCBenchError
 from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile, pick_preset
 from bcbench.policies.encoders import RESNET18_LAYERS, FrameFeatures
@@ -128,7 +129,7 @@ class BeTPolicy(BCPolicy):
                              persistent=False)
         self.register_buffer("centres", torch.zeros(c.n_bins, 2))  # k-means bins, saved with the weights
 
-    def prepare(self, train_ds: Any) -> None:
+    def fit_data(self, train_ds: SequenceDataset) -> None:
         """Fit the k-means bins on the normalised actions of the training split (once, before training)."""
         steps = np.unique(train_ds.indices)
         actions = train_ds.normalizer.normalize("action", train_ds.buffer.action[steps])

@@ -29,6 +29,7 @@ import torch
 from torch import nn
 
 from bcbench.data.normalizer import MinMaxNormalizer
+from bcbench.data.sequence import SequenceDataset
 from bcbench.errors import BCBenchError
 from bcbench.interface import Observation, RunInfo
 from bcbench.policies.config import config_to_dict
@@ -108,6 +109,9 @@ class BCPolicy(nn.Module):
             return draw((ref.shape[0], *shape), device=ref.device)
         g = batch["rng"]
         return draw((batch["global_batch"], *shape), generator=g, device=g.device)[batch["rows"]].to(ref.device)
+
+    def fit_data(self, train_ds: SequenceDataset) -> None:
+        """Data-dependent set-up, once before a fresh run's first step (BeT fits its k-means bins); none by default."""
 
     def optim_groups(self, weight_decay: float) -> list[dict[str, Any]]:
         """Parameter groups for the optimiser (one group, decay on everything, unless a policy says otherwise)."""

@@ -26,6 +26,7 @@ import torch
 from tqdm import tqdm
 
 from bcbench.data import MinMaxNormalizer, load_replay_buffer, make_datasets, resolve_dataset
+from bcbench.data.sequence import SequenceDataset
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.evaluate import EvalConfig, run_episodes
 from bcbench.policies import REGISTRY
@@ -46,6 +47,7 @@ from bcbench.training.options import TrainOptions
 from bcbench.training.parts import (
     EMA,
     Distributed,
+    Scheduler,
     StopFlag,
     autocast,
     channels_last_convs,
@@ -95,9 +97,9 @@ class Run:
     model: BCPolicy
     ema: EMA | None
     optimizer: torch.optim.Optimizer
-    scheduler: Any
-    train_ds: Any
-    val_ds: Any
+    scheduler: Scheduler
+    train_ds: SequenceDataset
+    val_ds: SequenceDataset
     normalizer: MinMaxNormalizer
     device: torch.device
     precision: str  # resolved: fp32 or bf16
@@ -204,10 +206,9 @@ def _log_segment(r: Run) -> None:
 def _resume(r: Run) -> None:
     ckpt = latest_checkpoint(r.run_dir)
     if ckpt is None:
-        if hasattr(r.model, "prepare"):  # data-dependent set-up (BeT's k-means), fresh runs only
-            r.model.prepare(r.train_ds)
-            if r.ema is not None:
-                r.ema.model.load_state_dict(r.model.state_dict())
+        r.model.fit_data(r.train_ds)  # data-dependent set-up (BeT's k-means), fresh runs only
+        if r.ema is not None:  # the EMA copy was made before it
+            r.ema.model.load_state_dict(r.model.state_dict())
         return
     state = load_state(ckpt)  # first: a folder without trainer state (a published model) is refused in one line
     load_weights(ckpt, r.model)
@@ -224,7 +225,7 @@ def _resume(r: Run) -> None:
     write_jsonl(metrics, [m for m in read_jsonl(metrics) if m.get("step", 0) <= r.state.step])
 
 
-def _batch(r: Run, ids: np.ndarray, ds: Any) -> dict[str, torch.Tensor]:
+def _batch(r: Run, ids: np.ndarray, ds: SequenceDataset) -> dict[str, torch.Tensor]:
     nb = r.device.type == "cuda"
     return {k: torch.from_numpy(v).to(r.device, non_blocking=nb) for k, v in ds.get_batch(ids).items()}
 

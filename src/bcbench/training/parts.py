@@ -9,6 +9,7 @@ import ctypes
 import math
 import os
 import signal
+from collections.abc import Iterable
 from typing import Any
 
 import torch
@@ -16,6 +17,9 @@ import torch
 from bcbench.errors import BCBenchError
 from bcbench.policies.config import OptimConfig
 from bcbench.utils.system import cpu_has_bf16
+
+# What the loop steps: per optimiser step (LambdaLR), or per validation (ReduceLROnPlateau).
+Scheduler = torch.optim.lr_scheduler.LambdaLR | torch.optim.lr_scheduler.ReduceLROnPlateau
 
 PRECISIONS = ("auto", "fp32", "bf16")
 
@@ -28,7 +32,7 @@ def make_optimizer(model: torch.nn.Module, o: OptimConfig) -> torch.optim.Optimi
                fused=fused)
 
 
-def make_scheduler(opt: torch.optim.Optimizer, o: OptimConfig, total_steps: int) -> Any:
+def make_scheduler(opt: torch.optim.Optimizer, o: OptimConfig, total_steps: int) -> Scheduler:
     if o.schedule == "plateau":
         return torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=o.plateau_factor, patience=o.plateau_patience)
 
@@ -111,7 +115,7 @@ def has_batchnorm(model: torch.nn.Module) -> bool:
 
 
 @torch.no_grad()
-def precise_batchnorm(model: torch.nn.Module, batches: Any) -> None:
+def precise_batchnorm(model: torch.nn.Module, batches: Iterable[dict[str, torch.Tensor]]) -> None:
     """Recompute BatchNorm running statistics as exact averages over `batches` ("precise BN").
 
     The momentum estimates kept during training average only the last few batches; these policies turned
