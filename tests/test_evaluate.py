@@ -136,6 +136,51 @@ def test_two_level_bootstrap_widens_with_training_seed_variance():
     assert paired["value"] == pytest.approx(0.0, abs=1e-12) and paired["ci95"][0] < 0 < paired["ci95"][1]
 
 
+@pytest.mark.parametrize(("df", "quantile"), [(1, 12.7062047), (2, 4.3026527), (4, 2.7764451), (30, 2.0422725)])
+def test_t_quantile_matches_the_tables(df, quantile):
+    from bcbench.stats import t_quantile
+
+    assert t_quantile(0.975, df) == pytest.approx(quantile, abs=1e-6)
+    assert t_quantile(0.025, df) == pytest.approx(-quantile, abs=1e-6)
+
+
+def test_over_training_seeds_gives_the_t_interval_of_the_seed_means_and_keeps_the_bootstrap_beside_it():
+    """Three seeds 0.2 apart: the interval is mean +/- t(0.975, 2) s / sqrt(3) of the seed means, far wider than the
+    two-level bootstrap's; paired against another setting it is the t interval of the per-seed differences."""
+    from bcbench.stats import over_training_seeds, two_level_bootstrap
+
+    eps = np.random.default_rng(0).uniform(0, 1, 100)
+    apart = [{100_000 + i: float(s) + shift for i, s in enumerate(eps)} for shift in (-0.2, 0.0, 0.2)]
+    est = over_training_seeds(apart, n_boot=2000)
+    half = 4.3026527 * 0.2 / np.sqrt(3)  # the seed means' SD is exactly 0.2
+    assert est["value"] == pytest.approx(eps.mean())
+    assert est["ci95"] == pytest.approx([eps.mean() - half, eps.mean() + half], abs=1e-6)
+    assert est["ci95_bootstrap"] == two_level_bootstrap(apart, n_boot=2000)["ci95"]
+    assert est["ci95"][0] < est["ci95_bootstrap"][0] and est["ci95"][1] > est["ci95_bootstrap"][1]
+    assert est["interval"] == "t over 3 training seeds"
+    alike = [{100_000 + i: float(s) for i, s in enumerate(eps)} for _ in range(3)]
+    paired = over_training_seeds(apart, [alike, [{k: v - 1 for k, v in a.items()} for a in alike]], n_boot=2000)
+    assert paired["per_seed"] == pytest.approx([-0.2, 0.0, 0.2])  # against the better alternative, per seed
+    assert paired["ci95"] == pytest.approx([-half, half], abs=1e-6)
+    one = over_training_seeds(apart[:1], n_boot=2000)  # one seed: no t interval, the episode bootstrap
+    assert one["ci95"] == one["ci95_bootstrap"] and one["interval"] == "two-level bootstrap"
+
+
+def test_with_three_seeds_the_t_interval_covers_and_the_two_level_bootstrap_does_not():
+    """The reason reports use t (benchmarks/seed_intervals.py at full size): seeds that differ by SD 0.08 around the
+    true mean, 100 episodes of SD 0.25 each; 200 simulated studies, seeded."""
+    from bcbench.stats import over_training_seeds
+
+    rng = np.random.default_rng(7)
+    hits = np.zeros(2)
+    for r in range(200):
+        x = rng.normal(0.0, 0.08, 3)[:, None] + rng.normal(0.0, 0.25, (3, 100))  # (seeds, episodes)
+        est = over_training_seeds([dict(enumerate(row)) for row in x], seed=r, n_boot=400)
+        hits += [est["ci95"][0] <= 0 <= est["ci95"][1], est["ci95_bootstrap"][0] <= 0 <= est["ci95_bootstrap"][1]]
+    t_cover, boot_cover = hits / 200
+    assert t_cover >= 0.91 and boot_cover <= 0.88
+
+
 def test_a_tree_copied_to_another_machine_is_stamped_with_the_commit_its_launcher_declares(tmp_path, monkeypatch):
     """A lent GPU machine gets the files and, at best, a stale snapshot of .git: $BCBENCH_COMMIT names the commit
     that was copied there and wins; without it, git's HEAD (or None outside a repository)."""

@@ -281,7 +281,7 @@ def test_sweeps_of_several_training_seeds_are_pooled_over_them(tmp_path):
     from bcbench.analysis.realtime import delay_vs_sync
     from bcbench.analysis.report import realtime_lines
     from bcbench.analysis.results import load_realtime
-    from bcbench.stats import two_level_bootstrap
+    from bcbench.stats import over_training_seeds
     from bcbench.utils.io import write_json
 
     base = np.random.default_rng(1).uniform(0.3, 0.9, 50)
@@ -301,7 +301,7 @@ def test_sweeps_of_several_training_seeds_are_pooled_over_them(tmp_path):
     assert d1["summary"]["mean_score"]["value"] == pytest.approx(base.mean() + 0.025 - 0.1)
     assert sync["summary"]["training_seeds"] == [0, 1] and sync["summary"]["n"] == 100
     est, lo, hi, pairs = delay_vs_sync(pooled["BCT"], "realtime-async-d1")
-    expected = two_level_bootstrap([{100_000 + i: -loss for i in range(50)} for loss in losses.values()])
+    expected = over_training_seeds([{100_000 + i: -loss for i in range(50)} for loss in losses.values()])
     assert (est, [lo, hi], pairs) == (pytest.approx(-0.1), pytest.approx(expected["ci95"]), 100)
     assert lo <= -0.2 + 1e-9 and hi >= -1e-9  # the interval spans both seeds' losses: seed variance is in it
     assert pooled["BCT"]["realtime-async-measured"]["summary"]["latency_source"]["median_ms"] == 50.0

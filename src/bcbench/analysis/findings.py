@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-from bcbench.stats import paired_bootstrap, two_level_bootstrap
+from bcbench.stats import over_training_seeds, paired_bootstrap
 
 SUPPORTED, CONTRADICTED, INCONCLUSIVE, UNDERTRAINED = "supported", "contradicted", "inconclusive", "undertrained"
 DEFAULT_MARGIN = 0.05
@@ -52,6 +52,7 @@ class Diff(NamedTuple):
     k: int = 1
     share: float | None = None
     fixed: tuple[str, ...] = ()  # single trained runs paired with every training seed of the others (held fixed)
+    boot: tuple[float, float] | None = None  # several training seeds: the two-level bootstrap's interval, shown beside
 
 
 @dataclass
@@ -74,8 +75,9 @@ def _by_training_seed(p: Point, ids: list[int]) -> list[dict[int, float]]:
 def paired_interval(a: Point, others: list[Point], seed: int = 0) -> Diff:
     """Mean of a - max(others) over shared episode seeds with its 95% paired-bootstrap interval
     (bcbench.stats.paired_bootstrap). Where a setting has several training seeds, the difference is taken per episode
-    within each training seed the settings share, and the interval resamples training seeds too
-    (bcbench.stats.two_level_bootstrap); a single run or a baseline is paired with every seed of the other."""
+    within each training seed the settings share, and the interval is a t interval over the training seeds' paired
+    differences (bcbench.stats.over_training_seeds; the two-level bootstrap's is kept beside it); a single run or a
+    baseline is paired with every seed of the other."""
     multi = [p for p in (a, *others) if p.seeds]
     if not multi:
         return Diff(*paired_bootstrap(a.scores, [o.scores for o in others], seed))
@@ -83,10 +85,11 @@ def paired_interval(a: Point, others: list[Point], seed: int = 0) -> Diff:
     if not ids:
         return Diff(float("nan"), float("nan"), float("nan"), 0)
     mine, rest = _by_training_seed(a, ids), [_by_training_seed(o, ids) for o in others]
-    est = two_level_bootstrap(mine, rest, seed)
+    est = over_training_seeds(mine, rest, seed)
     n = len(set(mine[0]).intersection(*(r[0] for r in rest)))
     fixed = tuple(f"{p.name} (s{p.train_seed})" for p in (a, *others) if held_fixed(p))
-    return Diff(est["value"], *est["ci95"], n, len(ids), est["training_seed_share"], fixed)
+    boot = tuple(est["ci95_bootstrap"]) if len(ids) > 1 else None
+    return Diff(est["value"], *est["ci95"], n, len(ids), est["training_seed_share"], fixed, boot)
 
 
 def held_fixed(p: Point) -> bool:
@@ -115,8 +118,10 @@ def _fmt(p: Point) -> str:
 def _fmt_diff(d: Diff) -> str:
     if d.k == 1:
         return f"paired difference {d.est:+.3f} [{d.lo:+.3f}, {d.hi:+.3f}] over {d.n} seeds"
+    boot = f"; two-level bootstrap [{d.boot[0]:+.3f}, {d.boot[1]:+.3f}]" if d.boot else ""
     return (f"paired difference {d.est:+.3f} [{d.lo:+.3f}, {d.hi:+.3f}] over {d.k} training seeds x {d.n} episodes "
-            f"(two-level bootstrap; training seeds carry {100 * (d.share or 0):.0f}% of its variance{_fixed_note(d)})")
+            f"(t over training seeds{boot}; training seeds carry {100 * (d.share or 0):.0f}% of its variance"
+            f"{_fixed_note(d)})")
 
 
 def _undertrained(points: list[Point]) -> list[str]:

@@ -10,7 +10,7 @@ import statistics
 from typing import Any
 
 from bcbench.protocol import CONTROL_DT_S, SYNC_SETTING, delay_setting
-from bcbench.stats import Z95, episodes_to_show_within, paired_bootstrap, two_level_bootstrap
+from bcbench.stats import Z95, episodes_to_show_within, over_training_seeds, paired_bootstrap
 
 
 def seed_scores(r: dict[str, Any]) -> dict[int, float]:
@@ -24,8 +24,8 @@ def training_seed(r: dict[str, Any]) -> int:
 
 def pool_training_seeds(sweeps: list[dict[str, dict[str, Any]]]) -> dict[str, dict[str, Any]]:
     """One policy's sweeps, one per training seed, as one sweep: each setting every seed ran, its mean score the
-    mean over training seeds with a two-level interval (training seeds and, within each, episodes resampled:
-    `bcbench.stats.two_level_bootstrap`), its per-seed episode scores kept under "by_training_seed" so that
+    mean over training seeds with a t interval over the training seeds (`bcbench.stats.over_training_seeds`; the
+    two-level bootstrap's beside it), its per-seed episode scores kept under "by_training_seed" so that
     `compare` pairs within a training seed. The measured call time is the median of the seeds' medians (the
     slowest call: the slowest of any), and the delays their calls took are counted over every seed."""
     if len(sweeps) == 1:
@@ -35,9 +35,9 @@ def pool_training_seeds(sweeps: list[dict[str, dict[str, Any]]]) -> dict[str, di
     for name in [n for n in sweeps[0] if all(n in s for s in sweeps)]:
         rs = [s[name] for s in sweeps]
         by_seed = [seed_scores(r) for r in rs]
-        est = two_level_bootstrap(by_seed)
+        est = over_training_seeds(by_seed)
         summary = {**rs[0]["summary"], "n": sum(len(r["episodes"]) for r in rs),
-                   "mean_score": {"value": est["value"], "ci95": est["ci95"]},
+                   "mean_score": {"value": est["value"], "ci95": est["ci95"], "ci95_bootstrap": est["ci95_bootstrap"]},
                    "training_seeds": [training_seed(r) for r in rs], "per_training_seed": est["per_seed"]}
         steps: collections.Counter[str] = collections.Counter()
         for r in rs:
@@ -55,10 +55,10 @@ def pool_training_seeds(sweeps: list[dict[str, dict[str, Any]]]) -> dict[str, di
 
 def compare(a: dict[str, Any], b: dict[str, Any]) -> tuple[float, float, float, int]:
     """a's score minus b's, paired over the episode seeds they share, with its 95% interval and the number of
-    pairs. Pooled over training seeds (`pool_training_seeds`): paired within each training seed, training seeds
-    resampled as well (two-level), so the interval includes training-seed variance."""
+    pairs. Pooled over training seeds (`pool_training_seeds`): paired within each training seed, a t interval over the
+    training seeds' paired differences (`bcbench.stats.over_training_seeds`), so it includes training-seed variance."""
     if "by_training_seed" in a and "by_training_seed" in b:
-        pooled = two_level_bootstrap(a["by_training_seed"], [b["by_training_seed"]])
+        pooled = over_training_seeds(a["by_training_seed"], [b["by_training_seed"]])
         pairs = sum(len(set(x) & set(y)) for x, y in zip(a["by_training_seed"], b["by_training_seed"], strict=True))
         return pooled["value"], *pooled["ci95"], pairs
     return paired_bootstrap(seed_scores(a), [seed_scores(b)])

@@ -2,8 +2,9 @@
 
 A confirm study trains each preset with several seeds (`seeds = [0, 1, 2]`) and evaluates every seed on the same
 test episodes. The report then shows a setting (policy label + sampler variant) once: the mean over training seeds
-of each seed's mean episode score, with an interval that resamples training seeds and, within each, its episodes
-(bcbench.stats.two_level_bootstrap), and each seed's own score beside it. Shares (> 0.5, > 0.9, success) pool the
+of each seed's mean episode score, with a t interval over the training seeds' means (bcbench.stats.over_training_seeds:
+with three seeds a bootstrap over them covers too rarely) and the two-level bootstrap's beside it, and each seed's
+own score. Shares (> 0.5, > 0.9, success) pool the
 episodes of all seeds. Latency is the first seed's (the seeds share one network and its cost). A study with one
 seed per setting is returned unchanged, so its report reads exactly as before.
 """
@@ -13,7 +14,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from bcbench.analysis.results import Row
-from bcbench.stats import two_level_bootstrap
+from bcbench.stats import over_training_seeds
 
 SHARES = ("share_above_0.5", "share_above_0.9", "success_rate")
 
@@ -36,9 +37,10 @@ def merge_training_seeds(rows: list[Row]) -> list[Row]:
 
 def _merged(group: list[Row]) -> Row:
     first = group[0]
-    est = two_level_bootstrap([r.scores for r in group])
+    est = over_training_seeds([r.scores for r in group])
     n = sum(len(r.scores) for r in group)
-    summary = {**first.summary, "n": n, "mean_score": {"value": est["value"], "ci95": est["ci95"]},
+    summary = {**first.summary, "n": n, "mean_score": {"value": est["value"], "ci95": est["ci95"],
+                                                       "ci95_bootstrap": est["ci95_bootstrap"]},
                "training_seeds": len(group), "training_seed_share": est["training_seed_share"],
                "per_seed": est["per_seed"]}
     for k in SHARES:  # pooled over every seed's episodes
@@ -51,11 +53,14 @@ def _merged(group: list[Row]) -> Row:
 
 
 def per_seed_cell(r: Row) -> str:
-    """'s0 0.712, s1 0.684, s2 0.741 (seeds: 31% of variance)' for a merged row; '-' for a single run."""
+    """'s0 0.712, s1 0.684, s2 0.741 (training seeds: 31% of variance; two-level bootstrap [0.69, 0.73])' for a
+    merged row; '-' for a single run."""
     if not r.seed_scores:
         return "-"
     scores = ", ".join(f"s{i} {v:.3f}" for i, v in zip(r.seed_ids, r.summary["per_seed"], strict=True))
-    return f"{scores} (training seeds: {100 * r.summary['training_seed_share']:.0f}% of variance)"
+    boot = r.summary["mean_score"].get("ci95_bootstrap")
+    boot_txt = f"; two-level bootstrap [{boot[0]:.3f}, {boot[1]:.3f}]" if boot else ""
+    return f"{scores} (training seeds: {100 * r.summary['training_seed_share']:.0f}% of variance{boot_txt})"
 
 
 def episodes_and_seeds(rows: list[Row]) -> tuple[list[int], list[int], list[int]]:
