@@ -1,6 +1,7 @@
-"""How often does each interval over training seeds cover the true mean? The t interval over the seeds' means
-(`bcbench.stats.over_training_seeds`, what reports show) against the two-level bootstrap (`two_level_bootstrap`),
-by simulation, at the design of the confirm studies: k training seeds x n episodes.
+"""How often does each interval over training seeds cover the true mean? The t interval over the seeds' means with
+its within-seed floor (the modified Hartung-Knapp interval, `bcbench.stats.over_training_seeds`, what reports show)
+against the two-level bootstrap (`two_level_bootstrap`), by simulation, at the design of the confirm studies: k
+training seeds x n episodes.
 
     .venv/bin/python benchmarks/seed_intervals.py [--k 3 5] [--episodes 100] [--reps 400] [--boot 2000]
                 [--out results/seed-intervals]

@@ -153,28 +153,38 @@ def t_quantile(p: float, df: int) -> float:
 def over_training_seeds(seeds: list[dict[int, float]], others: list[list[dict[int, float]]] | None = None,
                         seed: int = 0, level: float = 0.95, n_boot: int = N_BOOT) -> dict[str, Any]:
     """Mean over training seeds of each seed's mean score (or, with `others`, of the paired difference a - the best of
-    them), with a t interval over the k training seeds' own values (k - 1 degrees of freedom) and, beside it, the
-    two-level bootstrap's (`two_level_bootstrap`, whose value, per-seed values and variance share this returns).
+    them), with a t interval over the k training seeds (k - 1 degrees of freedom) and, beside it, the two-level
+    bootstrap's (`two_level_bootstrap`, whose variance share this also returns).
 
-    Why t: with k = 3 training seeds a percentile bootstrap that resamples them covers the true mean far less often
-    than stated when training seeds carry most of the variance (80-86% for a nominal 95% in
-    `benchmarks/seed_intervals.py`, results/seed-intervals/). Each seed's mean is one draw of (seed effect + the mean
-    of its episodes), so for a balanced design the t interval over the k seed means is exact under normality and
-    uses both sources of variance; it is what Cameron & Miller (2015, "A Practitioner's Guide to Cluster-Robust
-    Inference", sec. VI) recommend with few clusters: T(G - 1) critical values. With k = 3 it is wide (t = 4.30),
-    the honest price of three seeds. With `others` the best alternative is the one with the highest mean over
-    every seed (fixed, so the seeds' values average to the estimate); the bootstrap also resamples that choice.
-    With one training seed there is no t interval: "ci95" is the episode bootstrap's."""
+    Why not the bootstrap alone: with k = 3 training seeds a percentile bootstrap that resamples them covers the
+    true mean far less often than stated when training seeds carry most of the variance (about 80-86% for a nominal
+    95%: `benchmarks/seed_intervals.py`, results/seed-intervals/). The interval here is the modified
+    Hartung-Knapp-Sidik-Jonkman interval of a random-effects meta-analysis with equal weights (Roever, Knapp &
+    Friede 2015, "Hartung-Knapp-Sidik-Jonkman approach and its modification for random-effects meta-analysis with
+    few studies", BMC Med. Res. Methodol. 15:99): each seed's value is one draw of (seed effect + the mean of its
+    episodes); the variance of their mean is estimated by the spread of the k values, s^2 / k, but never below the
+    within-seed part alone, mean_j(var_j / n_j) / k (which 100 episodes per seed estimate well: three seeds that
+    happen to agree must not give an interval narrower than one seed's episodes allow), with Student's t at k - 1
+    degrees of freedom (4.30 for k = 3: wide, the honest price of three seeds; cf. Cameron & Miller 2015 on few
+    clusters). With `others` the best alternative is the one with the highest mean over every seed (fixed, so the
+    seeds' values average to the estimate); the bootstrap resamples that choice too. With one training seed there
+    is no t interval: "ci95" is the episode bootstrap's."""
     boot = two_level_bootstrap(seeds, others, seed=seed, level=level, n_boot=n_boot)
     k = len(seeds)
     out = {**boot, "ci95_bootstrap": boot["ci95"], "interval": "two-level bootstrap"}
     if k < 2:
         return out
+    per_episode = []  # for each training seed: (n_j,) its per-episode values (a, or a minus the chosen best)
     shared = [sorted(set(seeds[j]).intersection(*(o[j] for o in (others or [])))) for j in range(k)]
-    mine = np.array([np.mean([seeds[j][e] for e in shared[j]]) for j in range(k)])  # (k,) each seed's mean
     rest = np.array([[np.mean([o[j][e] for e in shared[j]]) for j in range(k)] for o in (others or [])])  # (m, k)
-    v = mine - (rest[int(np.argmax(rest.mean(axis=1)))] if others else 0.0)  # (k,) each seed's value
-    half = t_quantile((1 + level) / 2, k - 1) * float(v.std(ddof=1)) / math.sqrt(k)
+    best = int(np.argmax(rest.mean(axis=1))) if others else None
+    for j in range(k):
+        a = np.array([seeds[j][e] for e in shared[j]])
+        per_episode.append(a - np.array([others[best][j][e] for e in shared[j]]) if others else a)
+    v = np.array([x.mean() for x in per_episode])  # (k,) each seed's value
+    within = float(np.mean([x.var(ddof=1) / x.size for x in per_episode if x.size > 1]))
+    var_mean = max(float(v.var(ddof=1)), within) / k
+    half = t_quantile((1 + level) / 2, k - 1) * math.sqrt(var_mean)
     return {**out, "value": float(v.mean()), "ci95": [float(v.mean() - half), float(v.mean() + half)],
             "per_seed": v.tolist(), "interval": f"t over {k} training seeds"}
 
