@@ -157,7 +157,7 @@ def over_training_seeds(seeds: list[dict[int, float]], others: list[list[dict[in
     bootstrap's (`two_level_bootstrap`, whose variance share this also returns).
 
     Why not the bootstrap alone: with k = 3 training seeds a percentile bootstrap that resamples them covers the
-    true mean far less often than stated when training seeds carry most of the variance (about 80-86% for a nominal
+    true mean far less often than stated when training seeds carry most of the variance (about 80-85% for a nominal
     95%: `benchmarks/seed_intervals.py`, results/seed-intervals/). The interval here is the modified
     Hartung-Knapp-Sidik-Jonkman interval of a random-effects meta-analysis with equal weights (Roever, Knapp &
     Friede 2015, "Hartung-Knapp-Sidik-Jonkman approach and its modification for random-effects meta-analysis with

@@ -103,7 +103,7 @@ SEEDS_NOTE = ("A setting trained with several training seeds shows the mean over
               "so it is wide; its variance never below what each seed's own episodes give: the modified "
               "Hartung-Knapp interval), which keeps its 95% coverage; the two-level bootstrap's interval (seeds and, "
               "within each, episodes resampled) is shown beside it, but with 3 seeds it covers the true mean only "
-              "80-86% of the time when training seeds carry most of the variance (simulated: "
+              "80-85% of the time when training seeds carry most of the variance (simulated: "
               "results/seed-intervals/). Each seed's score and the share of the variance that training seeds carry "
               "are beside it. Shares pool the episodes of every seed; their Wilson intervals treat those episodes as "
               "independent, so they leave out the spread between seeds. Paired comparisons pair episodes within "
