@@ -1,5 +1,5 @@
-"""How often does each interval over training seeds cover the true mean? The t interval over the seeds' means with
-its within-seed floor (the modified Hartung-Knapp interval, `bcbench.stats.over_training_seeds`, what reports show)
+"""How often does each interval over training seeds cover the true mean? The t interval over the seeds' means,
+never narrower than the episodes-only interval (`bcbench.stats.over_training_seeds`, what reports show)
 against the two-level bootstrap (`two_level_bootstrap`), by simulation, at the design of the confirm studies: k
 training seeds x n episodes.
 

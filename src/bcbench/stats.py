@@ -158,17 +158,18 @@ def over_training_seeds(seeds: list[dict[int, float]], others: list[list[dict[in
 
     Why not the bootstrap alone: with k = 3 training seeds a percentile bootstrap that resamples them covers the
     true mean far less often than stated when training seeds carry most of the variance (about 80-85% for a nominal
-    95%: `benchmarks/seed_intervals.py`, results/seed-intervals/). The interval here is the modified
-    Hartung-Knapp-Sidik-Jonkman interval of a random-effects meta-analysis with equal weights (Roever, Knapp &
-    Friede 2015, "Hartung-Knapp-Sidik-Jonkman approach and its modification for random-effects meta-analysis with
-    few studies", BMC Med. Res. Methodol. 15:99): each seed's value is one draw of (seed effect + the mean of its
-    episodes); the variance of their mean is estimated by the spread of the k values, s^2 / k, but never below the
-    within-seed part alone, mean_j(var_j / n_j) / k (which 100 episodes per seed estimate well: three seeds that
-    happen to agree must not give an interval narrower than one seed's episodes allow), with Student's t at k - 1
-    degrees of freedom (4.30 for k = 3: wide, the honest price of three seeds; cf. Cameron & Miller 2015 on few
-    clusters). With `others` the best alternative is the one with the highest mean over every seed (fixed, so the
-    seeds' values average to the estimate); the bootstrap resamples that choice too. With one training seed there
-    is no t interval: "ci95" is the episode bootstrap's."""
+    95%: `benchmarks/seed_intervals.py`, results/seed-intervals/). Each seed's value is one draw of (seed effect +
+    the mean of its episodes), so Student's t over the k values, t_{k-1} s / sqrt(k), is exact for a balanced
+    design under normality (4.30 for k = 3: wide, the honest price of three seeds; Cameron & Miller 2015 on few
+    clusters). Three seeds that happen to agree can make it narrower than their episodes allow, so the half-width is
+    the wider of it and the episodes-only one, z sqrt(mean_j(var_j / n_j) / k) (which 100 episodes per seed estimate
+    well): the Hartung-Knapp interval of an equal-weight random-effects meta-analysis, widened to the standard
+    interval where that is wider, as Jackson, Law, Ruecker & Schwarzer (2017, "The Hartung-Knapp modification for
+    random-effects meta-analysis: a useful refinement but are there any residual concerns?", Stat. Med. 36) propose.
+    It always contains the exact t interval, so it covers at least as often. With `others` the best alternative is
+    the one with the highest mean over every seed (fixed, so the seeds' values average to the estimate); the
+    bootstrap resamples that choice too. With one training seed there is no t interval: "ci95" is the episode
+    bootstrap's."""
     boot = two_level_bootstrap(seeds, others, seed=seed, level=level, n_boot=n_boot)
     k = len(seeds)
     out = {**boot, "ci95_bootstrap": boot["ci95"], "interval": "two-level bootstrap"}
@@ -183,8 +184,8 @@ def over_training_seeds(seeds: list[dict[int, float]], others: list[list[dict[in
         per_episode.append(a - np.array([others[best][j][e] for e in shared[j]]) if others else a)
     v = np.array([x.mean() for x in per_episode])  # (k,) each seed's value
     within = float(np.mean([x.var(ddof=1) / x.size for x in per_episode if x.size > 1]))
-    var_mean = max(float(v.var(ddof=1)), within) / k
-    half = t_quantile((1 + level) / 2, k - 1) * math.sqrt(var_mean)
+    half = max(t_quantile((1 + level) / 2, k - 1) * float(v.std(ddof=1)), NormalDist().inv_cdf((1 + level) / 2)
+               * math.sqrt(within)) / math.sqrt(k)
     return {**out, "value": float(v.mean()), "ci95": [float(v.mean() - half), float(v.mean() + half)],
             "per_seed": v.tolist(), "interval": f"t over {k} training seeds"}
 

@@ -100,8 +100,8 @@ def _fast_cell(fast: dict[str, Any]) -> str:
 
 SEEDS_NOTE = ("A setting trained with several training seeds shows the mean over seeds of each seed's mean score, "
               "with a t interval over the training seeds' means (k - 1 degrees of freedom: with 3 seeds t = 4.30, "
-              "so it is wide; its variance never below what each seed's own episodes give: the modified "
-              "Hartung-Knapp interval), which keeps its 95% coverage; the two-level bootstrap's interval (seeds and, "
+              "so it is wide; never narrower than the interval the episodes alone give), which keeps its 95% "
+              "coverage; the two-level bootstrap's interval (seeds and, "
               "within each, episodes resampled) is shown beside it, but with 3 seeds it covers the true mean only "
               "80-85% of the time when training seeds carry most of the variance (simulated: "
               "results/seed-intervals/). Each seed's score and the share of the variance that training seeds carry "
