@@ -102,8 +102,10 @@ def test_report_shows_each_seed_and_says_how_it_was_computed(tmp_path):
     assert "| per training seed |" in md and re.search(r"s0 0\.5[45]\d, s1 0\.(59|60)\d, s2 0\.6[45]\d", md)
     table = md.split("## Results")[1].split("## Training")[0]
     assert table.count("| ResNet-50 |") == 1  # one row per setting, not one per seed
-    assert "over 3 training seeds x 100 episodes (two-level bootstrap" in md  # finding 4's pairs
-    assert "two-level bootstrap" in md.split("## How to read the numbers")[1]
+    assert "over 3 training seeds x 100 episodes (t over training seeds; two-level bootstrap [" in md  # finding 4
+    how = md.split("## How to read the numbers")[1]
+    assert "t interval over the training seeds' means" in how and "two-level bootstrap" in how
+    assert re.search(r"\(training seeds: \d+% of variance; two-level bootstrap \[0\.\d{3}, 0\.\d{3}\]\)", table)
 
 
 def test_the_double_is_compared_with_its_own_seed(tmp_path):
