@@ -4,9 +4,9 @@ A confirm study trains each preset with several seeds (`seeds = [0, 1, 2]`) and 
 test episodes. The report then shows a setting (policy label + sampler variant) once: the mean over training seeds
 of each seed's mean episode score, with a t interval over the training seeds' means (bcbench.stats.over_training_seeds:
 with three seeds a bootstrap over them covers too rarely) and the two-level bootstrap's beside it, and each seed's
-own score. Shares (> 0.5, > 0.9, success) pool the
-episodes of all seeds. Latency is the first seed's (the seeds share one network and its cost). A study with one
-seed per setting is returned unchanged, so its report reads exactly as before.
+own score. Shares (> 0.5, > 0.9, success) pool the episodes of all seeds. Latency is the first seed's (the seeds
+share one network and its cost). A study with one seed per setting is returned unchanged, so its report reads
+exactly as before.
 """
 
 from __future__ import annotations
