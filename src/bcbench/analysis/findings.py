@@ -2,7 +2,8 @@
 
 Every verdict rests on one pre-specified paired comparison (or a fixed set of them): the per-seed score
 differences of two settings evaluated on the same episode seeds, with a 95% paired-bootstrap interval of
-their mean, set against an equivalence margin m (default 0.05 mean score, `margin` in the study spec).
+their mean (over several training seeds, a t interval over the seeds' mean differences: `paired_interval`), set
+against an equivalence margin m (default 0.05 mean score, `margin` in the study spec).
 A claim is supported when the interval lies inside the margin or beyond it in the claimed direction,
 contradicted when it lies wholly on the other side, and inconclusive otherwise. A finding that rests on
 a policy not shown converged (its twice-the-steps check, or in older studies its learning curve: the report's

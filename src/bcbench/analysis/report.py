@@ -131,7 +131,8 @@ def table_rows(rows: list[Row], multi: bool = False) -> list[list[str]]:
 
 
 FINDINGS_INTRO = ("Each verdict rests on paired comparisons: per-seed score differences of two settings evaluated on "
-                  "the same episode seeds, with a 95% paired-bootstrap interval of their mean, against an equivalence "
+                  "the same episode seeds, with a 95% paired-bootstrap interval of their mean (over several training "
+                  "seeds: a t interval over the seeds' mean differences), against an equivalence "
                   "margin of {m} mean score. Supported: the interval lies inside the margin or beyond it in the "
                   "claimed direction; contradicted: wholly on the other side; inconclusive: otherwise.")
 
