@@ -167,6 +167,15 @@ def test_bid_with_one_sample_is_naive_and_candidates_share_one_encoding():
     assert not np.allclose(a[:, 0], a[:, 1])  # different noise per candidate
 
 
+def test_bid_on_a_deterministic_policy_executes_naives_actions():
+    """BCT samples nothing: its N candidates are one chunk N times, so BID chooses that chunk and acts as naive (up to
+    the float rounding of a larger batch), which is why the study sweeps BCT with naive and ensemble only."""
+    runner = _runner("bct")
+    bid = _drive(runner, "bid", "async", 2, seed=3, bid_samples=4)
+    naive = _drive(runner, "naive", "async", 2, seed=3)
+    np.testing.assert_allclose(np.stack(bid), np.stack(naive), atol=1e-3)  # pixels
+
+
 def test_bid_selects_coherent_candidates_and_contrasts_against_the_weak_policy():
     rng = np.random.default_rng(0)
     cands = rng.normal(0, 10, (6, 16, 2)).astype(np.float32)
