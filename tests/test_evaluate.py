@@ -170,6 +170,17 @@ def test_over_training_seeds_gives_the_t_interval_of_the_seed_means_and_keeps_th
     assert one["ci95"] == one["ci95_bootstrap"] and one["interval"] == "two-level bootstrap"
 
 
+def test_seeds_to_decide_projects_the_same_interval_to_more_seeds():
+    """The smallest k whose interval, max(t_{k-1} sd, z sqrt(within)) / sqrt(k), excludes every bound."""
+    from bcbench.stats import seeds_to_decide
+
+    spread = [0.017 - 0.05, 0.017, 0.017 + 0.05]  # estimate +0.017, per-seed SD 0.05
+    assert seeds_to_decide(spread, 1e-8, [-0.05]) == 5  # 2.776 * 0.05 / sqrt(5) = 0.062 < 0.067 < 0.080 (k = 4)
+    assert seeds_to_decide(spread, 1e-8, [-0.05, 0.05]) > 5  # the upper bound is only 0.033 away
+    assert seeds_to_decide([-0.1, 0.0, 0.1], 1e-8, [0.0]) is None  # an estimate on the bound: never
+    assert seeds_to_decide([-0.02, -0.02, -0.02], 0.02**2, [-0.05]) == 2  # agreeing seeds: the episodes' floor only
+
+
 def test_with_three_seeds_the_t_interval_covers_and_the_two_level_bootstrap_does_not():
     """The reason reports use t (benchmarks/seed_intervals.py at full size): seeds that differ by SD 0.08 around the
     true mean, 100 episodes of SD 0.25 each; 200 simulated studies, seeded."""

@@ -228,3 +228,13 @@ def test_study_machines_name_one_cpu_once_across_records_with_and_without_cpu_id
     write_json(tmp_path / "runs" / "a" / "eval-x.json", {"hardware": {**xeon, "cpu_id": "fam 6"}})
     write_json(tmp_path / "runs" / "b" / "eval-y.json", {"hardware": {"cpu_model": "EPYC", "cpu_flags": ["avx2"]}})
     assert study_machines(tmp_path) == ["EPYC (avx2)", "Xeon [fam 6] (avx2, avx512f)"]
+
+
+def test_an_undecided_comparison_over_seeds_says_how_many_seeds_would_decide_it():
+    from bcbench.analysis.findings import Diff, seeds_note
+
+    d = Diff(0.017, -0.106, 0.140, 100, 3, 0.5, (), (-0.04, 0.07), (0.017 - 0.05, 0.017, 0.017 + 0.05), 1e-8)
+    assert seeds_note(d, [-0.05]) == ("; about 5 training seeds would decide it, if its estimate and the spread of its "
+                                      "3 seeds held (a projection, not a result)")
+    assert seeds_note(d._replace(lo=-0.04), [-0.05]) == ""  # decided already
+    assert seeds_note(Diff(0.017, -0.106, 0.140, 100), [-0.05]) == ""  # one training seed: nothing to project

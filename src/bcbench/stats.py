@@ -187,7 +187,23 @@ def over_training_seeds(seeds: list[dict[int, float]], others: list[list[dict[in
     half = max(t_quantile((1 + level) / 2, k - 1) * float(v.std(ddof=1)), NormalDist().inv_cdf((1 + level) / 2)
                * math.sqrt(within)) / math.sqrt(k)
     return {**out, "value": float(v.mean()), "ci95": [float(v.mean() - half), float(v.mean() + half)],
-            "per_seed": v.tolist(), "interval": f"t over {k} training seeds"}
+            "per_seed": v.tolist(), "within_var": within, "interval": f"t over {k} training seeds"}
+
+
+def seeds_to_decide(per_seed: list[float], within_var: float, bounds: list[float], level: float = 0.95,
+                    most: int = 50) -> int | None:
+    """How many training seeds would put `over_training_seeds`' interval wholly on one side of every bound, if the
+    estimate (the mean of `per_seed`), the spread of the per-seed values and the within-seed variance of a seed's
+    value (`within_var`) stayed as they are: a projection for planning the next run, not a result. None when more
+    than `most` would be needed (an estimate on a bound needs infinitely many)."""
+    v = np.asarray(per_seed, dtype=np.float64)
+    est, sd = float(v.mean()), float(v.std(ddof=1))
+    z = NormalDist().inv_cdf((1 + level) / 2)
+    for k in range(2, most + 1):
+        half = max(t_quantile((1 + level) / 2, k - 1) * sd, z * math.sqrt(within_var)) / math.sqrt(k)
+        if all(abs(est - b) > half for b in bounds):
+            return k
+    return None
 
 
 def episodes_to_show_within(sd: float, margin: float, diff: float = 0.0, power: float = 0.8,

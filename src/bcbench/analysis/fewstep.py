@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from bcbench.analysis.findings import Point, dp_point, held_fixed, paired_interval
+from bcbench.stats import seeds_to_decide
 from bcbench.utils.io import read_json
 
 PAIRED_FILE = "latency-paired.json"
@@ -73,7 +74,9 @@ def fewstep_lines(points: list[Point], margin: float, mode: str = "fast",
     out = ["## Few-step generative policy against Diffusion Policy", "",
            f"Flow matching on DP's network with K Euler steps, against DP DDPM-100 on the same seeds (paired "
            f"interval of the difference; margin {margin}) and DP DDIM-K; latency: median of one call in the "
-           f"'{mode}' mode, {source}, as a share of DP DDIM-10's ({_ms(ddim10)} ms). DP DDPM-100: {_score(ref)}.",
+           f"'{mode}' mode, {source}, as a share of DP DDIM-10's ({_ms(ddim10)} ms). DP DDPM-100: {_score(ref)}. "
+           "Over several training seeds an inconclusive verdict says how many seeds would decide it if its estimate "
+           "and the spread of its seeds held (a projection, not a result).",
            "",
            "| flow K | flow score | DP DDIM-K | flow-K - DP DDPM-100 (paired) | verdict | flow ms | / DDIM-10 |",
            "|---|---|---|---|---|---|---|"]
@@ -83,6 +86,9 @@ def fewstep_lines(points: list[Point], margin: float, mode: str = "fast",
         d = paired_interval(p, [ref])
         est, lo, hi, n = d.est, d.lo, d.hi, d.n
         verdict = _verdict(lo, hi, margin)
+        if verdict == "inconclusive" and d.k > 1 and d.within_var is not None:  # a projection for planning
+            need = seeds_to_decide(list(d.per_seed), d.within_var, [-margin])
+            verdict += f" (about {need} training seeds would decide it)" if need else " (> 50 training seeds)"
         share = p.latency_ms / base_ms if p.latency_ms is not None and base_ms else None
         seeds = f"{n} seeds" + ("" if d.k == 1 else f" x {d.k} training seeds")
         seeds += "".join(f"; {who}'s one training seed held fixed" for who, q in (("flow", p), ("DP", ref))

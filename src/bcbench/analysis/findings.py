@@ -16,7 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-from bcbench.stats import over_training_seeds, paired_bootstrap
+from bcbench.stats import over_training_seeds, paired_bootstrap, seeds_to_decide
 
 SUPPORTED, CONTRADICTED, INCONCLUSIVE, UNDERTRAINED = "supported", "contradicted", "inconclusive", "undertrained"
 DEFAULT_MARGIN = 0.05
@@ -54,6 +54,8 @@ class Diff(NamedTuple):
     share: float | None = None
     fixed: tuple[str, ...] = ()  # single trained runs paired with every training seed of the others (held fixed)
     boot: tuple[float, float] | None = None  # several training seeds: the two-level bootstrap's interval, shown beside
+    per_seed: tuple[float, ...] = ()  # several training seeds: each seed's difference (for `seeds_note`)
+    within_var: float | None = None  # and the within-seed variance of one seed's difference
 
 
 @dataclass
@@ -89,8 +91,10 @@ def paired_interval(a: Point, others: list[Point], seed: int = 0) -> Diff:
     est = over_training_seeds(mine, rest, seed)
     n = len(set(mine[0]).intersection(*(r[0] for r in rest)))
     fixed = tuple(f"{p.name} (s{p.train_seed})" for p in (a, *others) if held_fixed(p))
-    boot = tuple(est["ci95_bootstrap"]) if len(ids) > 1 else None
-    return Diff(est["value"], *est["ci95"], n, len(ids), est["training_seed_share"], fixed, boot)
+    if len(ids) < 2:
+        return Diff(est["value"], *est["ci95"], n, len(ids), est["training_seed_share"], fixed)
+    return Diff(est["value"], *est["ci95"], n, len(ids), est["training_seed_share"], fixed,
+                tuple(est["ci95_bootstrap"]), tuple(est["per_seed"]), est["within_var"])
 
 
 def held_fixed(p: Point) -> bool:
@@ -123,6 +127,16 @@ def _fmt_diff(d: Diff) -> str:
     return (f"paired difference {d.est:+.3f} [{d.lo:+.3f}, {d.hi:+.3f}] over {d.k} training seeds x {d.n} episodes "
             f"(t over training seeds{boot}; training seeds carry {100 * (d.share or 0):.0f}% of its variance"
             f"{_fixed_note(d)})")
+
+
+def seeds_note(d: Diff, bounds: list[float]) -> str:
+    """'; about 5 training seeds would decide it, if ...' for a comparison over several training seeds whose interval
+    still contains one of its claim's bounds (stats.seeds_to_decide, a projection); '' otherwise."""
+    if d.k < 2 or d.within_var is None or all(not d.lo <= b <= d.hi for b in bounds):
+        return ""
+    k = seeds_to_decide(list(d.per_seed), d.within_var, bounds)
+    need = f"about {k} training seeds would decide it" if k else "more than 50 training seeds would be needed"
+    return f"; {need}, if its estimate and the spread of its {d.k} seeds held (a projection, not a result)"
 
 
 def _undertrained(points: list[Point]) -> list[str]:
@@ -179,7 +193,7 @@ def finding_1(points: list[Point], m: float) -> Finding:
     d = paired_interval(slow, fast)
     best = max(fast, key=lambda p: p.score)
     evidence = (f"{_fmt(slow)} against the best of {len(fast)} settings >= {SLOWER:g}x faster ({_fmt(best)}): "
-                f"{_fmt_diff(d)}")
+                f"{_fmt_diff(d)}{seeds_note(d, [m])}")
     verdict = _at_most(d.lo, d.hi, m)
     # more training can only raise the faster settings' scores, which keeps "supported" supported: then only
     # the slow setting's convergence matters (an undertrained slow one could still rise above them)
@@ -193,7 +207,7 @@ def finding_2(points: list[Point], m: float) -> Finding:
     if p10 is None or p100 is None:
         return Finding(2, claim, INCONCLUSIVE, "DDPM-10 and DDPM-100 of the cosine model are not both evaluated", rule)
     d = paired_interval(p10, [p100])
-    evidence = f"{_fmt(p10)} vs {_fmt(p100)}: {_fmt_diff(d)}"
+    evidence = f"{_fmt(p10)} vs {_fmt(p100)}: {_fmt_diff(d)}{seeds_note(d, [-m])}"
     return _finish(2, claim, rule, _at_least(d.lo, d.hi, -m), evidence, [p10, p100])
 
 
@@ -222,7 +236,8 @@ def finding_3(points: list[Point], m: float, ratios: dict[str, float] | None = N
         else:
             verdicts.append(SUPPORTED if -m < lo and hi < m else INCONCLUSIVE)
         time_note = f", time ratio {ratio:.2f}{' (interleaved timing)' if interleaved else ''}" if ratio else ""
-        notes.append(f"{a.name} vs {b.name}: {_fmt_diff(d)}{time_note}")
+        projection = seeds_note(d, [-m, m]) if not notes else ""  # the tested pair only
+        notes.append(f"{a.name} vs {b.name}: {_fmt_diff(d)}{time_note}{projection}")
     notes[0] = "tested: " + notes[0] + (". Not tested (descriptive): " if len(notes) > 1 else "")
     return _finish(3, claim, rule, verdicts[0], notes[0] + "; ".join(notes[1:]), list(pairs[0]))
 
@@ -237,8 +252,8 @@ def finding_4(points: list[Point], m: float) -> Finding:
         return Finding(4, claim, INCONCLUSIVE, "ResNet-50, BCT and CNN-MLP are not all evaluated", rule)
     d1, d2 = paired_interval(r, [b]), paired_interval(b, [c])
     v1, v2 = _at_least(d1.lo, d1.hi, m), _at_least(d2.lo, d2.hi, m)
-    evidence = (f"{_fmt(r)}; {_fmt(b)}; {_fmt(c)}; ResNet-50 - BCT: {_fmt_diff(d1)}; BCT - CNN-MLP: "
-                f"{_fmt_diff(d2)}")
+    evidence = (f"{_fmt(r)}; {_fmt(b)}; {_fmt(c)}; ResNet-50 - BCT: {_fmt_diff(d1)}{seeds_note(d1, [m])}; "
+                f"BCT - CNN-MLP: {_fmt_diff(d2)}{seeds_note(d2, [m])}")
     return _finish(4, claim, rule, _combine([v1, v2]), evidence, [r, b, c])
 
 
@@ -250,7 +265,7 @@ def finding_5(points: list[Point], m: float) -> Finding:
     if bet is None or rnd is None:
         return Finding(5, claim, INCONCLUSIVE, "BeT and the random baseline are not both evaluated", rule)
     d = paired_interval(bet, [rnd])
-    evidence = f"{_fmt(bet)} vs {_fmt(rnd)}: {_fmt_diff(d)}"
+    evidence = f"{_fmt(bet)} vs {_fmt(rnd)}: {_fmt_diff(d)}{seeds_note(d, [m])}"
     return _finish(5, claim, rule, _at_most(d.lo, d.hi, m), evidence, [bet])
 
 
