@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from statistics import NormalDist
 from typing import Any
@@ -125,6 +126,7 @@ def two_level_bootstrap(seeds: list[dict[int, float]], others: list[list[dict[in
             "training_seed_share": share, "training_seeds": k}
 
 
+@functools.cache  # a report asks for the same few (p, df) hundreds of times
 def t_quantile(p: float, df: int) -> float:
     """The p-quantile of Student's t with `df` degrees of freedom (p in (0, 1)), to about 1e-9.
 
