@@ -76,6 +76,18 @@ def recovered_share(sync: dict[int, float], naive: dict[int, float], other: dict
     return est, float(lo), float(hi), n
 
 
+def _seed_arrays(seeds: list[dict[int, float]], others: list[list[dict[int, float]]] | None
+                 ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """For each training seed j: (n_j,) seeds[j]'s scores and (m, n_j) the others', on the episodes all share."""
+    out = []
+    for j in range(len(seeds)):
+        shared = sorted(set(seeds[j]).intersection(*(o[j] for o in (others or []))))
+        a = np.array([seeds[j][e] for e in shared])
+        rest = np.array([[o[j][e] for e in shared] for o in (others or [])]).reshape(len(others or []), len(shared))
+        out.append((a, rest))
+    return out
+
+
 def two_level_bootstrap(seeds: list[dict[int, float]], others: list[list[dict[int, float]]] | None = None,
                         seed: int = 0, level: float = 0.95, n_boot: int = N_BOOT) -> dict[str, Any]:
     """Mean over training seeds of each seed's mean episode score, with an interval that resamples training seeds
@@ -92,12 +104,7 @@ def two_level_bootstrap(seeds: list[dict[int, float]], others: list[list[dict[in
     if k == 0 or any(len(g) != k for g in groups):
         raise ValueError("every alternative needs the same training seeds as the first")
     rng = np.random.default_rng(seed)
-    per_seed = []  # for each training seed: (n_j,) a's scores and (m, n_j) the others', on shared episodes
-    for j in range(k):
-        shared = sorted(set(seeds[j]).intersection(*(o[j] for o in (others or []))))
-        a = np.array([seeds[j][e] for e in shared])
-        rest = np.array([[o[j][e] for e in shared] for o in (others or [])]).reshape(len(others or []), len(shared))
-        per_seed.append((a, rest))
+    per_seed = _seed_arrays(seeds, others)
 
     def stat(means_a: np.ndarray, means_rest: np.ndarray) -> np.ndarray:
         return means_a - (means_rest.max(axis=0) if means_rest.size else 0.0)
@@ -177,13 +184,9 @@ def over_training_seeds(seeds: list[dict[int, float]], others: list[list[dict[in
     out = {**boot, "ci95_bootstrap": boot["ci95"], "interval": "two-level bootstrap"}
     if k < 2:
         return out
-    per_episode = []  # for each training seed: (n_j,) its per-episode values (a, or a minus the chosen best)
-    shared = [sorted(set(seeds[j]).intersection(*(o[j] for o in (others or [])))) for j in range(k)]
-    rest = np.array([[np.mean([o[j][e] for e in shared[j]]) for j in range(k)] for o in (others or [])])  # (m, k)
-    best = int(np.argmax(rest.mean(axis=1))) if others else None
-    for j in range(k):
-        a = np.array([seeds[j][e] for e in shared[j]])
-        per_episode.append(a - np.array([others[best][j][e] for e in shared[j]]) if others else a)
+    arrays = _seed_arrays(seeds, others)  # per seed: (n_j,) a and (m, n_j) the others, on shared episodes
+    best = int(np.argmax(np.mean([r.mean(axis=1) for _, r in arrays], axis=0))) if others else None
+    per_episode = [a - r[best] if others else a for a, r in arrays]  # (n_j,) each: a, or a minus the chosen best
     v = np.array([x.mean() for x in per_episode])  # (k,) each seed's value
     within = float(np.mean([x.var(ddof=1) / x.size for x in per_episode if x.size > 1]))
     half = max(t_quantile((1 + level) / 2, k - 1) * float(v.std(ddof=1)), NormalDist().inv_cdf((1 + level) / 2)
