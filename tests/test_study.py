@@ -458,9 +458,9 @@ def test_twice_the_steps_decides_convergence():
     (c,) = doubling_checks(same, 0.05)
     assert c.verdict == "converged" and c.n == 60 and c.run == "DP"
     assert doubling_checks(better, 0.05)[0].verdict == "not converged"
-    apply_checks(better, doubling_checks(better, 0.05), strict=True)
+    apply_checks(better, doubling_checks(better, 0.05), strict=True, margin=0.05)
     assert better[0].converged is False and "twice the steps" in better[0].convergence
-    assert "1 not converged" in better[0].convergence
+    assert "+0.200 [+0.200, +0.200] over 1 of 1 settings, not converged" in better[0].convergence
     # settings in sampler order, steps as numbers; each row gives both runs' means and the paired difference
     many = [row("DP", base_scores), row("DP 2x", base_scores + 0.2, doubles="DP")]
     for steps in (100, 2, 5):
@@ -468,13 +468,67 @@ def test_twice_the_steps_decides_convergence():
     checks = doubling_checks(many, 0.05)
     assert [c.variant for c in checks] == ["ddim2", "ddim5", "ddim10", "ddim100"]
     assert f"| {np.mean(base_scores):.3f} | {np.mean(base_scores) + 0.2:.3f} | +0.200" in checks[0].table_row()
-    apply_checks(many, checks, strict=True)
-    assert "4 not converged of 4 settings" in many[0].convergence
+    apply_checks(many, checks, strict=True, margin=0.05)
+    assert "over 4 of 4 settings, not converged; setting by setting 4 not converged" in many[0].convergence
     lone = [row("BCT", base_scores)]
-    apply_checks(lone, [], strict=False)
+    apply_checks(lone, [], strict=False, margin=0.05)
     assert lone[0].converged is True  # an older study: the curve rule stands (the report says what it is worth)
-    apply_checks(lone, [], strict=True)
+    apply_checks(lone, [], strict=True, margin=0.05)
     assert lone[0].converged is False and "no twice-the-steps check" in lone[0].convergence
+
+
+def test_a_run_is_judged_on_its_settings_pooled():
+    """The 2x verdict per run: settings whose own intervals straddle the margin but whose per-episode differences
+    average out pass together; a setting both runs fail is left out of the pool; one setting clearly above the
+    margin fails the run whatever the pool says."""
+    import numpy as np
+
+    from bcbench.analysis.convergence import CONVERGED, INCONCLUSIVE, NOT_CONVERGED, apply_checks, doubling_checks
+    from bcbench.analysis.results import Row
+
+    rng = np.random.default_rng(1)
+    n = 100
+    base = rng.uniform(0.5, 1.0, n)
+
+    def row(label, variant, scores, doubles=None):
+        return Row(key=f"{label}:{variant}", label=label, policy="flow", preset="cpu", variant=variant,
+                   sampler="euler", steps=int(variant.removeprefix("euler")), spacing=None, beta_schedule=None,
+                   params=1, summary={"mean_score": {"value": float(np.mean(scores)), "ci95": [0, 1]}},
+                   scores={200_000 + i: float(x) for i, x in enumerate(scores)}, converged=True, run_label=label,
+                   doubles=doubles)
+
+    def study(shifts, noise=0.3, broken=()):
+        rows = []
+        for k, shift in enumerate(shifts):
+            v = f"euler{k + 1}"
+            run = np.full(n, 0.05) if v in broken else base
+            twice = np.full(n, 0.05) if v in broken else base + shift + rng.normal(0, noise, n)  # independent noise
+            rows += [row("flow", v, run), row("flow 2x", v, twice, doubles="flow")]
+        return rows
+
+    # eight settings, no true gain: each setting's own interval is about +/-0.06, so some are inconclusive and
+    # requiring every setting to pass would not show the run converged ...
+    rows = study([0.0] * 8)
+    checks = doubling_checks(rows, 0.05)
+    assert any(c.verdict == INCONCLUSIVE for c in checks)
+    verdicts = apply_checks(rows, checks, strict=True, margin=0.05)
+    v = verdicts["flow"]  # ... the average over them is about +/-0.02 wide and passes
+    assert v.verdict == CONVERGED and v.hi < 0.05 and (v.hi - v.lo) < 0.5 * min(c.hi - c.lo for c in checks)
+    assert rows[0].converged is True and "over 8 of 8 settings, converged" in rows[0].convergence
+    # a setting both runs fail (DP with one step) is not averaged in: its zero difference would dilute the pool
+    rows = study([0.1] * 3, noise=0.1, broken=("euler1",))
+    v = apply_checks(rows, doubling_checks(rows, 0.05), strict=True, margin=0.05)["flow"]
+    assert v.pooled == ["euler2", "euler3"] and v.est > 0.085 and v.verdict == NOT_CONVERGED  # diluted: 0.067
+    # one setting gaining clearly fails the run though the pool's interval lies below the margin
+    rows = study([0.0] * 7 + [0.3], noise=0.05)
+    checks = doubling_checks(rows, 0.05)
+    v = apply_checks(rows, checks, strict=True, margin=0.05)["flow"]
+    assert v.hi < 0.05 and checks[-1].verdict == NOT_CONVERGED and v.verdict == NOT_CONVERGED
+    assert rows[0].converged is False
+    # where neither is decided the run is inconclusive, and not shown converged
+    rows = study([0.05] * 2)
+    v = apply_checks(rows, doubling_checks(rows, 0.05), strict=True, margin=0.05)["flow"]
+    assert v.verdict == INCONCLUSIVE and rows[0].converged is False
 
 
 @pytest.mark.parametrize("doubled, message", [

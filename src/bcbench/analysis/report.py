@@ -16,7 +16,7 @@ from typing import Any
 
 from bcbench.analysis.choose import HEADER as CHOOSE_HEADER
 from bcbench.analysis.choose import control_loop_lines, control_loop_rows
-from bcbench.analysis.convergence import Check, apply_checks, doubling_checks
+from bcbench.analysis.convergence import apply_checks, check_lines, doubling_checks
 from bcbench.analysis.fewstep import fewstep_lines, load_paired
 from bcbench.analysis.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
 from bcbench.analysis.findings import DEFAULT_MARGIN, judge, points_from_rows
@@ -253,23 +253,6 @@ def preset_change_lines(rows: list[Row]) -> list[str]:
     return list(dict.fromkeys(lines))
 
 
-def check_lines(checks: list[Check], strict: bool, margin: float, validation: bool = False) -> list[str]:
-    """The twice-the-steps checks, or what the curve rule above is worth when a study has none."""
-    if not checks:
-        return [] if strict else [
-            "This study has no twice-the-steps convergence check: 'converged' above is the learning-curve rule (a line "
-            "through the last quarter's rollout points rising by less than the margin), which a cosine schedule "
-            "passes by construction; read it as 'the curve flattened', not as evidence of convergence.", ""]
-    return ["### Twice the steps", "",
-            f"A run trained again with twice its optimiser steps (same recipe, its own schedule), minus the run, on "
-            f"the same episodes (paired, two-sided 95%): converged if the interval lies below +{margin}."
-            + (" Compared on validation episodes (seeds 200000+), not on the test seeds of the table; the verdict "
-               "holds for every training seed of the preset." if validation else ""), "",
-            "| run | setting | the run | twice the steps | difference [95%] | episodes | verdict |",
-            "|---|---|---|---|---|---|---|",
-            *[c.table_row() for c in checks], ""]
-
-
 def convergence_lines(rows: list[Row]) -> list[str]:
     """One line per trained run: whether its learning curve reached its plateau, and why. A label trained with
     several seeds names each line's training seed (one seed per label needs no name)."""
@@ -308,7 +291,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     check_rows = load_check_rows(results)  # a confirm study compares on validation episodes, apart from its table
     checks = doubling_checks(check_rows or rows, margin)
     strict = bool(_spec(results).get("purpose"))  # studies under the seed protocol need the check
-    apply_checks(rows, checks, strict)
+    verdicts = apply_checks(rows, checks, strict, margin)
     # one row per setting from here on (several training seeds merged); `rows` keeps one per run for training
     settings = merge_training_seeds(rows)
     out = results / "report"
@@ -342,7 +325,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
           "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
     md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
     md += ["", "## Results", "", _md_table(columns, table), "", "## Training: converged?", "",
-           *convergence_lines(rows), "", *check_lines(checks, strict, margin, validation=bool(check_rows)),
+           *convergence_lines(rows), "", *check_lines(verdicts, strict, margin, validation=bool(check_rows)),
            *deviation_lines(rows),
            *fewstep_lines(points_from_rows(settings, "fast"), margin, paired=paired),
            *time_lines(results),
