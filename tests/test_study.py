@@ -481,6 +481,8 @@ def test_a_run_is_judged_on_its_settings_pooled():
     """The 2x verdict per run: settings whose own intervals straddle the margin but whose per-episode differences
     average out pass together; a setting both runs fail is left out of the pool; one setting clearly above the
     margin fails the run whatever the pool says."""
+    import dataclasses
+
     import numpy as np
 
     from bcbench.analysis.convergence import CONVERGED, INCONCLUSIVE, NOT_CONVERGED, apply_checks, doubling_checks
@@ -512,23 +514,30 @@ def test_a_run_is_judged_on_its_settings_pooled():
     checks = doubling_checks(rows, 0.05)
     assert any(c.verdict == INCONCLUSIVE for c in checks)
     verdicts = apply_checks(rows, checks, strict=True, margin=0.05)
-    v = verdicts["flow"]  # ... the average over them is about +/-0.02 wide and passes
+    v = verdicts["flow", None]  # ... the average over them is about +/-0.02 wide and passes
     assert v.verdict == CONVERGED and v.hi < 0.05 and (v.hi - v.lo) < 0.5 * min(c.hi - c.lo for c in checks)
     assert rows[0].converged is True and "over 8 of 8 settings, converged" in rows[0].convergence
     # a setting both runs fail (DP with one step) is not averaged in: its zero difference would dilute the pool
     rows = study([0.1] * 3, noise=0.1, broken=("euler1",))
-    v = apply_checks(rows, doubling_checks(rows, 0.05), strict=True, margin=0.05)["flow"]
+    v = apply_checks(rows, doubling_checks(rows, 0.05), strict=True, margin=0.05)["flow", None]
     assert v.pooled == ["euler2", "euler3"] and v.est > 0.085 and v.verdict == NOT_CONVERGED  # diluted: 0.067
     # one setting gaining clearly fails the run though the pool's interval lies below the margin
     rows = study([0.0] * 7 + [0.3], noise=0.05)
     checks = doubling_checks(rows, 0.05)
-    v = apply_checks(rows, checks, strict=True, margin=0.05)["flow"]
+    v = apply_checks(rows, checks, strict=True, margin=0.05)["flow", None]
     assert v.hi < 0.05 and checks[-1].verdict == NOT_CONVERGED and v.verdict == NOT_CONVERGED
     assert rows[0].converged is False
     # where neither is decided the run is inconclusive, and not shown converged
     rows = study([0.05] * 2)
-    v = apply_checks(rows, doubling_checks(rows, 0.05), strict=True, margin=0.05)["flow"]
+    v = apply_checks(rows, doubling_checks(rows, 0.05), strict=True, margin=0.05)["flow", None]
     assert v.verdict == INCONCLUSIVE and rows[0].converged is False
+    # two checked training seeds are pooled apart; a seed without its own check takes both verdicts
+    same, gain = study([0.0] * 4), study([0.2] * 4, noise=0.05)
+    rows = [dataclasses.replace(r, train_seed=0) for r in same] + [dataclasses.replace(r, train_seed=1) for r in gain]
+    unchecked = dataclasses.replace(rows[0], train_seed=2)
+    verdicts = apply_checks([*rows, unchecked], doubling_checks(rows, 0.05), strict=True, margin=0.05)
+    assert verdicts["flow", 0].verdict == CONVERGED and verdicts["flow", 1].verdict == NOT_CONVERGED
+    assert rows[0].converged is True and rows[len(same)].converged is False and unchecked.converged is False
 
 
 @pytest.mark.parametrize("doubled, message", [

@@ -12,9 +12,10 @@ settings where either run works (scores >= POOL_FLOOR), with one interval. Requi
 lie below the margin asks too much of 100 episodes: a setting's paired differences have an SD of about 0.23-0.36
 (results/cpu-confirm-dpflow), so its interval is +/-0.045-0.070 wide and a run that doubling truly leaves unchanged
 passes each setting with probability about 0.3-0.6, and all of four or thirteen rarely. Averaged over the settings
-(each samples its own chunks on the same episode seeds, so much of their noise is independent), the SD falls to 0.10-0.12 (DP, 13 settings) and 0.24
-(flow, 4): the same question asked once, with the power to answer it. A setting whose own interval lies wholly
-above the margin still makes the run not converged, so a gain confined to one sampler is not averaged away.
+(each samples its own chunks on the same episode seeds, so much of their noise is independent), the SD falls to
+0.10-0.12 (DP, 13 settings) and 0.24 (flow, 4): the same question asked once, with the power to answer it. A setting
+whose own interval lies wholly above the margin still makes the run not converged, so a gain confined to one sampler
+is not averaged away.
 """
 
 from __future__ import annotations
@@ -77,7 +78,7 @@ class RunVerdict:
     """One run's check over all its settings (module docstring): the pooled paired difference and the verdict."""
 
     run: str
-    train_seed: int
+    train_seed: int | None
     est: float
     lo: float
     hi: float
@@ -88,18 +89,20 @@ class RunVerdict:
 
     def table_row(self) -> str:
         names = ", ".join(v.upper() for v in self.pooled) if len(self.pooled) <= 4 else f"{len(self.pooled)} settings"
-        return (f"| {self.run} | {names} (of {len(self.settings)}) | {self.est:+.3f} [{self.lo:+.3f}, {self.hi:+.3f}] "
-                f"| {self.n} | **{self.verdict}** |")
+        seed = f" (training seed {self.train_seed})" if self.train_seed else ""
+        return (f"| {self.run}{seed} | {names} (of {len(self.settings)}) | {self.est:+.3f} "
+                f"[{self.lo:+.3f}, {self.hi:+.3f}] | {self.n} | **{self.verdict}** |")
 
 
-def run_verdicts(checks: list[Check], margin: float) -> dict[str, RunVerdict]:
-    """Each checked run's verdict: converged if the interval of its pooled difference lies below +margin and no
-    setting's own interval lies above it; not converged if the pooled interval or any setting's lies above."""
-    by_run: dict[str, list[Check]] = {}
+def run_verdicts(checks: list[Check], margin: float) -> dict[tuple[str, int | None], RunVerdict]:
+    """Each checked (run, training seed)'s verdict: converged if the interval of its pooled difference lies below
+    +margin and no setting's own interval lies above it; not converged if the pooled interval or any setting's lies
+    above. Settings are pooled within one training seed only (their differences share its episodes)."""
+    by_run: dict[tuple[str, int | None], list[Check]] = {}
     for c in checks:
-        by_run.setdefault(c.run, []).append(c)
+        by_run.setdefault((c.run, c.train_seed), []).append(c)
     out = {}
-    for run, mine in by_run.items():
+    for (run, seed), mine in by_run.items():
         pool = [c for c in mine if max(c.means) >= POOL_FLOOR] or mine  # none works: all of them, as they are
         shared = set.intersection(*(set(c.diffs) for c in pool))
         d = np.array([np.mean([c.diffs[k] for c in pool]) for k in sorted(shared)])  # (episodes,)
@@ -109,30 +112,36 @@ def run_verdicts(checks: list[Check], margin: float) -> dict[str, RunVerdict]:
             verdict = NOT_CONVERGED
         else:
             verdict = CONVERGED if hi < margin else INCONCLUSIVE
-        out[run] = RunVerdict(run, mine[0].train_seed, est, lo, hi, int(d.size), [c.variant for c in pool], mine,
-                              verdict)
+        out[run, seed] = RunVerdict(run, seed, est, lo, hi, int(d.size), [c.variant for c in pool], mine, verdict)
     return out
 
 
-def apply_checks(rows: list[Row], checks: list[Check], strict: bool, margin: float) -> dict[str, RunVerdict]:
-    """Set each trained row's `converged` from its run's verdict over all its settings (`run_verdicts`), and return
-    the verdicts. strict (a study under the seed protocol): a trained run without a check is not shown converged;
-    otherwise (older studies) the learning-curve rule stands, and the report says what it is worth."""
+def apply_checks(rows: list[Row], checks: list[Check], strict: bool, margin: float
+                 ) -> dict[tuple[str, int | None], RunVerdict]:
+    """Set each trained row's `converged` from its run's verdict over all its settings (`run_verdicts`): its own
+    training seed's where that seed was checked, else every checked seed's (the verdict holds for the preset).
+    Returns the verdicts. strict (a study under the seed protocol): a trained run without a check is not shown
+    converged; otherwise (older studies) the learning-curve rule stands, and the report says what it is worth."""
     verdicts = run_verdicts(checks, margin)
     for r in rows:
         if r.converged is None or r.doubles:  # baselines; the checking runs themselves
             continue
-        v = verdicts.get(r.run_label)
-        if v:
-            r.converged = v.verdict == CONVERGED
-            counts = collections.Counter(c.verdict for c in v.settings)
-            each = ", ".join(f"{counts[x]} {x}" for x in (NOT_CONVERGED, INCONCLUSIVE, CONVERGED) if counts[x])
-            r.convergence = (f"twice the steps (training seed {v.train_seed}'s check): {v.est:+.3f} [{v.lo:+.3f}, "
-                             f"{v.hi:+.3f}] over {len(v.pooled)} of {len(v.settings)} settings, {v.verdict}"
-                             + (f"; setting by setting {each} (tables below)" if len(v.settings) > 1 else ""))
+        own = verdicts.get((r.run_label, r.train_seed))
+        mine = [own] if own else [v for (run, _), v in verdicts.items() if run == r.run_label]
+        if mine:
+            r.converged = all(v.verdict == CONVERGED for v in mine)
+            r.convergence = "; ".join(_verdict_text(v) for v in mine)
         elif strict:
             r.converged, r.convergence = False, "no twice-the-steps check yet (" + r.convergence + ")"
     return verdicts
+
+
+def _verdict_text(v: RunVerdict) -> str:
+    counts = collections.Counter(c.verdict for c in v.settings)
+    each = ", ".join(f"{counts[x]} {x}" for x in (NOT_CONVERGED, INCONCLUSIVE, CONVERGED) if counts[x])
+    return (f"twice the steps (training seed {v.train_seed}'s check): {v.est:+.3f} [{v.lo:+.3f}, {v.hi:+.3f}] over "
+            f"{len(v.pooled)} of {len(v.settings)} settings, {v.verdict}"
+            + (f"; setting by setting {each} (tables below)" if len(v.settings) > 1 else ""))
 
 
 def _widths(verdicts: dict[str, RunVerdict]) -> str:
