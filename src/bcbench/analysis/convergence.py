@@ -144,7 +144,7 @@ def _verdict_text(v: RunVerdict) -> str:
             + (f"; setting by setting {each} (tables below)" if len(v.settings) > 1 else ""))
 
 
-def _widths(verdicts: dict[str, RunVerdict]) -> str:
+def _widths(verdicts: dict[tuple[str, int | None], RunVerdict]) -> str:
     """How wide one setting's interval is against the pooled one: why a run is judged on the pool."""
     one = [(c.hi - c.lo) / 2 for v in verdicts.values() for c in v.settings if c.variant in v.pooled]
     pooled = [(v.hi - v.lo) / 2 for v in verdicts.values() if len(v.pooled) > 1]
@@ -155,7 +155,8 @@ def _widths(verdicts: dict[str, RunVerdict]) -> str:
             f"every one of several settings of the former width only by chance.")
 
 
-def check_lines(verdicts: dict[str, RunVerdict], strict: bool, margin: float, validation: bool = False) -> list[str]:
+def check_lines(verdicts: dict[tuple[str, int | None], RunVerdict], strict: bool, margin: float,
+                validation: bool = False) -> list[str]:
     """The twice-the-steps checks (each run's verdict, then every setting's), or what the curve rule above is worth
     when a study has none."""
     if not verdicts:
