@@ -9,8 +9,10 @@ timed DP DDPM-10 at 122.6 ms and DDIM-10, four minutes later, at 94.4 ms). Here 
 Policy DDPM-K and DDIM-K, flow Euler-K, at the preset's network size) runs --calls calls in each of --rounds
 rounds, in turn, so drift hits all alike; per setting the median over all its calls, and per pair the median
 over rounds of the ratio of round medians. Weights are random (they do not change the time of a call).
-Stop anything else running first. A study's report reads `latency-paired.json` from the study's folder
-(copy it there): its few-step section and finding 3 then use these times and ratios.
+Stop anything else running first. A study's report reads `latency-paired*.json` from the study's folder, one
+file per mode (copy it there, e.g. as latency-paired.json for --mode reference, latency-paired-fast.json for fast):
+findings 1 and 3 then use the reference mode's times and ratios (Figure 5's axis), the few-step section the fast
+mode's.
 """
 
 from __future__ import annotations

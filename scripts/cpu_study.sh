@@ -16,7 +16,8 @@
 # nice 10 yields to other work of the same login session only: with the kernel's autogroup scheduling
 # (/proc/sys/kernel/sched_autogroup_enabled = 1 on this project's VMs) a job started in another session (nohup,
 # setsid) gets an equal share whatever its nice. To give foreground work the machine, pause the study:
-#   scripts/cpu_study.sh pause [SPEC]   ...   scripts/cpu_study.sh resume [SPEC]   (SIGSTOP / SIGCONT of its processes)
+#   scripts/cpu_study.sh pause [SPEC]   ...   scripts/cpu_study.sh resume [SPEC]   (SIGSTOP / SIGCONT of its processes
+#   and all their children)
 # A spec with a `resources` table (e.g. resources = { train = { cpus = 1 }, eval = { cpus = 1 } }) runs its stages as
 # Ray tasks on this machine's cores, side by side where the table allows (`bcbench study --ray`): independent
 # trainings with 1 thread each train more samples/s in all than one at a time with every thread
@@ -79,8 +80,12 @@ case "${1:-start}" in
   pause|resume)  # the driver and, under Ray, its workers (ray::...): nothing of the study computes while paused
     SIG=$([ "$1" = pause ] && echo STOP || echo CONT)
     pgrep -f "$PATTERN" >/dev/null || { echo "not running"; exit 0; }
-    pkill -"$SIG" -f "$PATTERN"; pkill -"$SIG" -f "^ray::" || true
-    echo "${1}d" ;;
+    # with every descendant: an evaluation's episode workers (multiprocessing) are children of the driver or of
+    # a Ray worker, and would go on computing beside a timing if only their parent stopped
+    tree() { local p; for p in "$@"; do echo "$p"; tree $(pgrep -P "$p"); done; }
+    PIDS="$(tree $(pgrep -f "$PATTERN") $(pgrep -f "^ray::"))"
+    kill -"$SIG" $PIDS 2>/dev/null || true
+    echo "${1}d ($(echo $PIDS | wc -w) processes)" ;;
   status)
     pgrep -f "$PATTERN" >/dev/null && echo "running" || echo "not running"
     [ -f "$PIN" ] && echo "pinned commit: $(cut -c1-12 "$PIN")"

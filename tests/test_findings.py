@@ -173,6 +173,39 @@ def test_interleaved_timings_replace_the_study_blocks_where_given():
     assert f3.verdict == SUPPORTED and "0.99 (interleaved timing)" in f3.evidence
 
 
+def test_finding_1_takes_interleaved_times_in_its_mode_and_says_so(tmp_path):
+    """Which settings count as 10x faster than DDPM-100 rests on times that a drifting machine shifts between the
+    study's separate blocks; an interleaved timing in the findings' mode replaces them where it timed the setting,
+    the evidence names its source, and a study folder holds one such file per mode."""
+    import json
+
+    from bcbench.analysis.fewstep import load_paired
+    from bcbench.analysis.findings import with_interleaved
+    from bcbench.errors import BCBenchError
+
+    dp100 = pt("dp100", "diffusion", BASE, 1000.0, "ddpm100")
+    flow10, cnn = pt("flow10", "flow", BASE, 95.0, "euler10"), pt("cnn", "cnn_mlp", BASE - FAR, 2.0)
+    by_blocks = judge([dp100, flow10, cnn])[0]
+    assert by_blocks.verdict == SUPPORTED and "best of 2 settings" in by_blocks.evidence
+    assert "interleaved" not in by_blocks.evidence
+    timing = {"mode": "reference", "rounds": 10, "median_ms": {"ddpm100": 900.0, "euler10": 95.0},
+              "file": "latency-paired.json"}
+    points = with_interleaved([dp100, flow10, cnn], timing)
+    assert [p.latency_ms for p in points] == [900.0, 95.0, 2.0]
+    f1 = judge(points)[0]  # flow's 95 ms is no longer a tenth of DDPM-100's 900: only the weaker CNN is compared
+    assert f1.verdict == CONTRADICTED and "best of 1 settings" in f1.evidence
+    assert f1.evidence.endswith("; 1 of 2 times (the others: the study's blocks) from 10 interleaved rounds "
+                                "(latency-paired.json)")
+    assert with_interleaved([dp100], None) == [dp100]
+    for name, mode in (("latency-paired.json", "reference"), ("latency-paired-fast.json", "fast")):
+        (tmp_path / name).write_text(json.dumps({**timing, "mode": mode}))
+    loaded = load_paired(tmp_path)
+    assert sorted(loaded) == ["fast", "reference"] and loaded["fast"]["file"] == "latency-paired-fast.json"
+    (tmp_path / "latency-paired-again.json").write_text(json.dumps(timing))
+    with pytest.raises(BCBenchError, match="a second interleaved timing in mode 'reference'"):
+        load_paired(tmp_path)
+
+
 def test_finding_1_compares_the_fixed_slow_setting_not_the_slowest():
     """DP cosine DDPM-100 is fixed in advance: an even slower setting (DP linear DDIM-100) does not replace it."""
     fast = [pt("cnn", "cnn_mlp", BASE, ms=2.0)]

@@ -407,6 +407,7 @@ def test_provenance_reads_every_file_kind_and_states_the_reason(tmp_path):
     (run / "train_summary.json").write_text(json.dumps({"git_commit": "aaa"}))
     (run / "realtime-default.json").write_text(json.dumps({"git_commit": "bbb"}))
     (tmp_path / "latency-paired.json").write_text(json.dumps({"git_commit": "ccc"}))
+    (tmp_path / "latency-paired-fast.json").write_text(json.dumps({"git_commit": "ccc"}))  # not "timing" as well
     commits = file_commits(tmp_path)
     assert commits == {"aaa": ["evaluations", "training"], "bbb": ["real-time sweeps"], "ccc": ["interleaved latency"]}
     notes = provenance_notes([], commits, "sweeps added later")

@@ -150,9 +150,14 @@ def _widths(verdicts: dict[tuple[str, int | None], RunVerdict]) -> str:
     pooled = [(v.hi - v.lo) / 2 for v in verdicts.values() if len(v.pooled) > 1]
     if not one or not pooled:
         return ""
-    return (f" One setting's interval reaches +/-{min(one):.3f} to {max(one):.3f} around its estimate here, the "
-            f"pooled one +/-{min(pooled):.3f} to {max(pooled):.3f}: a run that doubling leaves unchanged would pass "
-            f"every one of several settings of the former width only by chance.")
+
+    def span(xs: list[float]) -> str:  # training seeds that share one check repeat its widths
+        lo, hi = f"{min(xs):.3f}", f"{max(xs):.3f}"
+        return lo if lo == hi else f"{lo} to {hi}"
+
+    return (f" One setting's interval reaches +/-{span(one)} around its estimate here, the pooled one "
+            f"+/-{span(pooled)}: a run that doubling leaves unchanged would pass every one of several settings of "
+            f"the former width only by chance.")
 
 
 def check_lines(verdicts: dict[tuple[str, int | None], RunVerdict], strict: bool, margin: float,

@@ -7,22 +7,22 @@ DP DDIM-10's (the fast sampler a DP user deploys) in the same inference mode. Th
 K <= 2 is no worse than DDPM-100 by more than the margin (interval above -margin) at <= 1/5 of DDIM-10's
 median latency.
 
-Latency comes from the study's timing stages, unless the study's folder holds `latency-paired.json`
-(benchmarks/paired_latency.py): settings timed in interleaved rounds, so that a drifting machine does not
-change their ratio (a study times each setting in its own block, minutes apart from the others).
+Latency comes from the study's timing stages, unless the study's folder holds a `latency-paired*.json` in the
+section's mode (benchmarks/paired_latency.py): settings timed in interleaved rounds, so that a drifting machine does
+not change their ratio (a study times each setting in its own block, minutes apart from the others).
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from bcbench.analysis.findings import Point, dp_point, held_fixed, paired_interval
+from bcbench.analysis.findings import Point, dp_point, held_fixed, paired_interval, with_interleaved
+from bcbench.errors import BCBenchError
 from bcbench.stats import seeds_to_decide
 from bcbench.utils.io import read_json
 
-PAIRED_FILE = "latency-paired.json"
+PAIRED_GLOB = "latency-paired*.json"  # one file per inference mode: latency-paired.json, latency-paired-fast.json, ...
 
 GOAL_STEPS = 2  # few-step: at most this many network calls
 GOAL_SPEEDUP = 5.0  # at most 1/5 of DP DDIM-10's latency
@@ -46,15 +46,17 @@ def _score(p: Point | None) -> str:
     return "-" if p is None else f"{p.score:.3f} [{p.ci[0]:.3f}, {p.ci[1]:.3f}]"
 
 
-def load_paired(study_dir: str | Path) -> dict[str, Any] | None:
-    path = Path(study_dir) / PAIRED_FILE
-    return read_json(path) if path.exists() else None
-
-
-def _with_paired(p: Point | None, paired: dict[str, Any] | None) -> Point | None:
-    if p is None or paired is None or p.variant not in paired["median_ms"]:
-        return p
-    return replace(p, latency_ms=paired["median_ms"][p.variant])
+def load_paired(study_dir: str | Path) -> dict[str, dict[str, Any]]:
+    """Inference mode -> the study folder's interleaved timing in that mode (benchmarks/paired_latency.py), its file
+    name under "file"; {} when there is none."""
+    out: dict[str, dict[str, Any]] = {}
+    for path in sorted(Path(study_dir).glob(PAIRED_GLOB)):
+        timing = read_json(path)
+        if timing.get("mode") in out:
+            raise BCBenchError(f"{path}: a second interleaved timing in mode {timing.get('mode')!r} "
+                               f"(the first: {out[timing['mode']]['file']}); keep one per mode")
+        out[timing.get("mode", "fast")] = {**timing, "file": path.name}
+    return out
 
 
 def fewstep_lines(points: list[Point], margin: float, mode: str = "fast",
@@ -63,13 +65,15 @@ def fewstep_lines(points: list[Point], margin: float, mode: str = "fast",
     `points` carry their latency in `mode` (bcbench.analysis.findings.points_from_rows); `paired` (load_paired), when
     given and timed in the same mode, replaces the flow and DDIM-10 latencies."""
     paired = paired if paired is not None and paired.get("mode") == mode else None
-    flows = sorted((_with_paired(p, paired) for p in points if p.policy == "flow" and p.variant.startswith("euler")),
+    timed = with_interleaved(points, paired)
+    flows = sorted((p for p in timed if p.policy == "flow" and p.variant.startswith("euler")),
                    key=lambda p: int(p.variant.removeprefix("euler")))
-    ref, ddim10 = dp_point(points, "ddpm", 100), _with_paired(dp_point(points, "ddim", 10), paired)
+    ref, ddim10 = dp_point(points, "ddpm", 100), dp_point(timed, "ddim", 10)
     if not flows or ref is None:
         return []
     base_ms = ddim10.latency_ms if ddim10 is not None else None  # the goal's yardstick
-    source = (f"timed in {paired['rounds']} interleaved rounds ({PAIRED_FILE}, {paired['threads']} threads)"
+    source = (f"timed in {paired['rounds']} interleaved rounds ({paired.get('file', 'latency-paired')}, "
+              f"{paired['threads']} threads)"
               if paired else "timed by the study's stages")
     out = ["## Few-step generative policy against Diffusion Policy", "",
            f"Flow matching on DP's network with K Euler steps, against DP DDPM-100 on the same seeds (paired "

@@ -13,8 +13,8 @@ Each finding's `rule` states its test in one sentence (printed in the report).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import NamedTuple
+from dataclasses import dataclass, field, replace
+from typing import Any, NamedTuple
 
 from bcbench.stats import over_training_seeds, paired_bootstrap, seeds_to_decide
 
@@ -40,6 +40,7 @@ class Point:
     seeds: list[dict[int, float]] = field(default_factory=list)  # several training seeds: each one's `scores`
     seed_ids: list[int] = field(default_factory=list)
     train_seed: int | None = None  # a single trained run's seed (None: a baseline, or several seeds in `seeds`)
+    timed: str = ""  # where latency_ms comes from when not the study's own timing block (`with_interleaved`)
 
 
 class Diff(NamedTuple):
@@ -193,11 +194,33 @@ def finding_1(points: list[Point], m: float) -> Finding:
     d = paired_interval(slow, fast)
     best = max(fast, key=lambda p: p.score)
     evidence = (f"{_fmt(slow)} against the best of {len(fast)} settings >= {SLOWER:g}x faster ({_fmt(best)}): "
-                f"{_fmt_diff(d)}{seeds_note(d, [m])}")
+                f"{_fmt_diff(d)}{seeds_note(d, [m])}{_timing_note([slow, *fast])}")
     verdict = _at_most(d.lo, d.hi, m)
     # more training can only raise the faster settings' scores, which keeps "supported" supported: then only
     # the slow setting's convergence matters (an undertrained slow one could still rise above them)
     return _finish(1, claim, rule, verdict, evidence, [slow] if verdict == SUPPORTED else [slow, *fast])
+
+
+def _timing_note(compared: list[Point]) -> str:
+    """Which of the compared settings' times were taken in interleaved rounds (a drifting machine shifts the study's
+    separate timing blocks by tens of percent, enough to move a setting across the 10x line)."""
+    sources = sorted({p.timed for p in compared if p.timed})
+    n = sum(bool(p.timed) for p in compared)
+    if not sources:
+        return ""
+    which = "every time" if n == len(compared) else f"{n} of {len(compared)} times (the others: the study's blocks)"
+    return f"; {which} from {', '.join(sources)}"
+
+
+def with_interleaved(points: list[Point], timing: dict[str, Any] | None) -> list[Point]:
+    """The points with the medians of an interleaved timing (`latency-paired*.json`, benchmarks/paired_latency.py:
+    DP and flow settings timed in turn, round after round) in place of the study's own blocks, where it timed the
+    setting. `timing` must be in the points' inference mode (the caller picks the file by mode)."""
+    if not timing:
+        return points
+    ms, source = timing["median_ms"], f"{timing['rounds']} interleaved rounds ({timing.get('file', 'latency-paired')})"
+    return [replace(p, latency_ms=ms[p.variant], timed=source)
+            if p.policy in ("diffusion", "flow") and p.variant in ms else p for p in points]
 
 
 def finding_2(points: list[Point], m: float) -> Finding:

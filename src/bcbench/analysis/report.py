@@ -19,7 +19,7 @@ from bcbench.analysis.choose import control_loop_lines, control_loop_rows
 from bcbench.analysis.convergence import apply_checks, check_lines, doubling_checks
 from bcbench.analysis.fewstep import fewstep_lines, load_paired
 from bcbench.analysis.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
-from bcbench.analysis.findings import DEFAULT_MARGIN, judge, points_from_rows
+from bcbench.analysis.findings import DEFAULT_MARGIN, judge, points_from_rows, with_interleaved
 from bcbench.analysis.provenance import lead_line, provenance_notes
 from bcbench.analysis.realtime import margin_power_sentence, pooled_sentence, safe_delay_sentence
 from bcbench.analysis.results import (
@@ -305,8 +305,12 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
         figs["Score under real-time execution"] = realtime_figure(realtime, out / "realtime.png")
         figs["Figure 5, real time"] = figure5_realtime(realtime, out / "fig5_realtime.png")
         figs["Execution strategies: score against delay"] = strategy_figure(strategies, out / "strategies.png")
-    paired = load_paired(results)  # latency timed in interleaved rounds, when the study's folder has it
-    findings = judge(points_from_rows(settings), margin, paired and paired.get("ratios"))
+    # latency timed in interleaved rounds, per inference mode, where the study's folder has it: the findings' times
+    # (reference mode, Figure 5's axis) and finding 3's DDIM/DDPM ratios (any mode's where reference has none)
+    paired = load_paired(results)
+    ratio_file = paired.get("reference") or next(iter(paired.values()), {})
+    findings = judge(with_interleaved(points_from_rows(settings), paired.get("reference")), margin,
+                     ratio_file.get("ratios"))
     multi = any(r.seed_scores for r in settings)
     columns = [*COLUMNS[:3], "per training seed", *COLUMNS[3:]] if multi else COLUMNS
     table = table_rows(settings, multi)
@@ -327,7 +331,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     md += ["", "## Results", "", _md_table(columns, table), "", "## Training: converged?", "",
            *convergence_lines(rows), "", *check_lines(verdicts, strict, margin, validation=bool(check_rows)),
            *deviation_lines(rows),
-           *fewstep_lines(points_from_rows(settings, "fast"), margin, paired=paired),
+           *fewstep_lines(points_from_rows(settings, "fast"), margin, paired=paired.get("fast")),
            *time_lines(results),
            *realtime_lines(realtime, margin), *strategy_lines(strategies, margin)]
     for title, path in figs.items():

@@ -21,7 +21,7 @@ from bcbench.utils.io import read_json, read_jsonl
 _KINDS = (("eval-*.json", "evaluations"), ("eval.json", "evaluations"), ("check-*.json", "convergence checks"),
           ("latency-*.json", "timing"),
           ("train_summary.json", "training"), ("realtime-*.json", "real-time sweeps"), ("tiers.json", "tiers"),
-          ("latency-paired.json", "interleaved latency"))
+          ("latency-paired*.json", "interleaved latency"))
 
 
 def file_commits(results: Path, extra_dirs: list[str] | None = None) -> dict[str, list[str]]:
@@ -32,7 +32,7 @@ def file_commits(results: Path, extra_dirs: list[str] | None = None) -> dict[str
         for pattern, kind in _KINDS:
             for f in folder.rglob(pattern):
                 if ("report" in f.relative_to(folder).parts or f.name.startswith(".")
-                        or (kind == "timing" and f.name == "latency-paired.json")):
+                        or (kind == "timing" and f.name.startswith("latency-paired"))):
                     continue
                 commit = read_json(f).get("git_commit") or "unknown"
                 out.setdefault(commit, set()).add(kind)
