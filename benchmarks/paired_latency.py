@@ -1,14 +1,15 @@
 """Latency ratios that survive a drifting machine: settings timed in interleaved rounds, not one after another.
 
     .venv/bin/python benchmarks/paired_latency.py [--config cpu] [--steps 1 2 ... 100] [--flow-steps 1 2 4 10]
-                [--rounds 10] [--calls 5] [--mode fast] [--threads 2] [--out results/latency-paired-cpu]
+                [--policies bct resnet50 cnn_mlp] [--rounds 10] [--calls 5] [--mode fast] [--threads 2]
+                [--out results/latency-paired-cpu]
 
 A study times each setting in its own block of about 100 calls. On a shared VM whose speed drifts by tens of
 percent within minutes, two blocks a few minutes apart can differ by 30% for the same work (the CPU study
 timed DP DDPM-10 at 122.6 ms and DDIM-10, four minutes later, at 94.4 ms). Here every setting (Diffusion
-Policy DDPM-K and DDIM-K, flow Euler-K, at the preset's network size) runs --calls calls in each of --rounds
-rounds, in turn, so drift hits all alike; per setting the median over all its calls, and per pair the median
-over rounds of the ratio of round medians. Weights are random (they do not change the time of a call).
+Policy DDPM-K and DDIM-K, flow Euler-K and any --policies, at the preset's network size) runs --calls calls in
+each of --rounds rounds, in turn, so drift hits all alike; per setting the median over all its calls, and per
+pair the median over rounds of the ratio of round medians. Weights are random (they do not change the time of a call).
 Stop anything else running first. A study's report reads `latency-paired*.json` from the study's folder, one
 file per mode (copy it there, e.g. as latency-paired.json for --mode reference, latency-paired-fast.json for fast):
 findings 1 and 3 then use the reference mode's times and ratios (Figure 5's axis), the few-step section the fast
@@ -30,8 +31,10 @@ from bcbench.utils.io import write_json
 from bcbench.utils.system import provenance
 
 
-def settings(config: str, steps: list[int], flow_steps: list[int], mode: str) -> dict[str, tuple]:
-    """name -> (model, sampler, K); one model per family, so DDPM and DDIM time the very same weights."""
+def settings(config: str, steps: list[int], flow_steps: list[int], mode: str,
+             policies: list[str] = ()) -> dict[str, tuple]:
+    """name -> (model, sampler, K); one model per family, so DDPM and DDIM time the very same weights. Other policies
+    (no sampler) under their registry name, as a study's report looks them up (`findings.with_interleaved`)."""
     torch.manual_seed(0)
     dp, flow = make_policy("diffusion", config).eval(), make_policy("flow", config).eval()
     for m in (dp, flow):
@@ -40,6 +43,10 @@ def settings(config: str, steps: list[int], flow_steps: list[int], mode: str) ->
     for k in steps:
         out |= {f"ddpm{k}": (dp, "ddpm", k), f"ddim{k}": (dp, "ddim", k)}
     out |= {f"euler{k}": (flow, "euler", k) for k in flow_steps}
+    for name in policies:
+        model = make_policy(name, config).eval()
+        set_mode(model, mode)
+        out[name] = (model, None, None)
     return out
 
 
@@ -50,17 +57,20 @@ def main() -> None:
     ap.add_argument("--flow-steps", type=int, nargs="+", default=[1, 2, 4, 10], help="flow Euler")
     ap.add_argument("--rounds", type=int, default=10)
     ap.add_argument("--calls", type=int, default=5, help="timed calls per setting and round")
+    ap.add_argument("--policies", nargs="*", default=[],
+                    help="other policies timed in the same rounds (e.g. bct resnet50 cnn_mlp): finding 1 compares them")
     ap.add_argument("--mode", default="fast")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--out", default="results/latency-paired-cpu")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
-    runs = settings(args.config, args.steps, args.flow_steps, args.mode)
+    runs = settings(args.config, args.steps, args.flow_steps, args.mode, args.policies)
     ms: dict[str, list[list[float]]] = {name: [] for name in runs}
     with torch.inference_mode():
         for r in range(args.rounds):
             for name, (model, kind, k) in runs.items():
-                model.set_sampler(kind, k)
+                if kind:
+                    model.set_sampler(kind, k)
                 obs = model.example_obs(1)
                 model.predict_action_chunk(obs)  # warm-up after switching the sampler
                 times = []

@@ -197,6 +197,9 @@ def test_finding_1_takes_interleaved_times_in_its_mode_and_says_so(tmp_path):
     assert f1.evidence.endswith("; 1 of 2 times (the others: the study's blocks) from 10 interleaved rounds "
                                 "(latency-paired.json)")
     assert with_interleaved([dp100], None) == [dp100]
+    both = {**timing, "median_ms": {"ddpm100": 900.0, "cnn_mlp": 3.0}}
+    every = judge(with_interleaved([dp100, flow10, cnn], both))[0]
+    assert every.evidence.endswith("; every time from 10 interleaved rounds (latency-paired.json)")  # by policy name
     for name, mode in (("latency-paired.json", "reference"), ("latency-paired-fast.json", "fast")):
         (tmp_path / name).write_text(json.dumps({**timing, "mode": mode}))
     loaded = load_paired(tmp_path)

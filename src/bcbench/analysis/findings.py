@@ -214,13 +214,17 @@ def _timing_note(compared: list[Point]) -> str:
 
 def with_interleaved(points: list[Point], timing: dict[str, Any] | None) -> list[Point]:
     """The points with the medians of an interleaved timing (`latency-paired*.json`, benchmarks/paired_latency.py:
-    DP and flow settings timed in turn, round after round) in place of the study's own blocks, where it timed the
-    setting. `timing` must be in the points' inference mode (the caller picks the file by mode)."""
+    settings timed in turn, round after round) in place of the study's own blocks, where it timed the setting: DP and
+    flow by sampler ("ddpm100", "euler2"), another policy's default setting by its name ("bct"). `timing` must be in
+    the points' inference mode (the caller picks the file by mode)."""
     if not timing:
         return points
     ms, source = timing["median_ms"], f"{timing['rounds']} interleaved rounds ({timing.get('file', 'latency-paired')})"
-    return [replace(p, latency_ms=ms[p.variant], timed=source)
-            if p.policy in ("diffusion", "flow") and p.variant in ms else p for p in points]
+
+    def key(p: Point) -> str:
+        return p.variant if p.policy in ("diffusion", "flow") else p.policy if p.variant == "default" else ""
+
+    return [replace(p, latency_ms=ms[key(p)], timed=source) if key(p) in ms else p for p in points]
 
 
 def finding_2(points: list[Point], m: float) -> Finding:
