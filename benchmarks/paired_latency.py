@@ -28,7 +28,7 @@ import torch
 from bcbench.evaluation.backends import set_mode
 from bcbench.policies import make_policy
 from bcbench.utils.io import write_json
-from bcbench.utils.system import provenance
+from bcbench.utils.system import CpuContention, provenance
 
 
 def settings(config: str, steps: list[int], flow_steps: list[int], mode: str,
@@ -66,7 +66,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     runs = settings(args.config, args.steps, args.flow_steps, args.mode, args.policies)
     ms: dict[str, list[list[float]]] = {name: [] for name in runs}
-    with torch.inference_mode():
+    with torch.inference_mode(), CpuContention() as contention:  # what else ran meanwhile, and the VM's steal
         for r in range(args.rounds):
             for name, (model, kind, k) in runs.items():
                 if kind:
@@ -101,6 +101,7 @@ def main() -> None:
     write_json(out / "latency-paired.json", {"type": "latency-paired", "config": args.config, "mode": args.mode,
                                              "rounds": args.rounds, "calls": args.calls, "threads": args.threads,
                                              "median_ms": median, "ratios": pairs, "samples_ms": ms,
+                                             "contention": contention.result,
                                              **provenance("cpu")})
     (out / "latency-paired.md").write_text("\n".join(lines) + "\n")
 

@@ -416,6 +416,18 @@ def test_provenance_reads_every_file_kind_and_states_the_reason(tmp_path):
     assert provenance_notes([], {"aaa": ["evaluations"]}) == ["Produced at commit: aaa."]  # one commit: no warning
 
 
+def test_provenance_says_whether_an_interleaved_timing_ran_on_a_quiet_machine():
+    from bcbench.analysis.provenance import paired_conditions
+
+    quiet = {"file": "latency-paired.json", "contention": {"other_cpus": 0.02, "steal_cpus": 0.0, "seconds": 180.0}}
+    busy = {"file": "latency-paired-fast.json", "contention": {"other_cpus": 1.06, "steal_cpus": 0.1, "seconds": 9.0}}
+    lines = paired_conditions({"reference": quiet, "fast": busy, "old": {"file": "latency-paired-old.json"}})
+    assert lines == ["The interleaved timing latency-paired.json ran on a quiet machine (0.02 CPUs other, 0.00 stolen, "
+                     "over 180 s).",
+                     "Warning: the interleaved timing latency-paired-fast.json ran beside other work (1.06 CPUs other, "
+                     "0.10 stolen, over 9 s): its times are not quiet-machine times."]
+
+
 def test_provenance_names_the_timings_taken_beside_other_work():
     """A timing records what else used the CPUs; the report warns about the rows timed on a busy machine, and says so
     when every recorded timing was quiet (older files, which recorded nothing, are neither)."""

@@ -4,6 +4,7 @@ every result file, with a warning when they differ. Reads result rows only."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from bcbench.analysis.results import Row, cpu_text
 from bcbench.analysis.seeds import episodes_and_seeds
@@ -134,3 +135,20 @@ def timing_conditions(rows: list[Row]) -> str:
         return (f"Every one of the {recorded} timings that recorded it ran on a quiet machine (other processes and "
                 f"the hypervisor's steal under {CONTENDED_CPUS} CPUs each).")
     return ""
+
+
+def paired_conditions(paired: dict[str, dict[str, Any]]) -> list[str]:
+    """The same for the interleaved timings (`latency-paired*.json`, by mode): one line per file that recorded what
+    else ran (files from before it was recorded say nothing)."""
+    out = []
+    for timing in paired.values():
+        c = timing.get("contention")
+        if not c:
+            continue
+        busy = max(c["other_cpus"], c["steal_cpus"]) > CONTENDED_CPUS
+        out.append(f"{'Warning: the' if busy else 'The'} interleaved timing {timing['file']} ran "
+                   f"{'beside other work' if busy else 'on a quiet machine'} ({c['other_cpus']:.2f} CPUs other, "
+                   f"{c['steal_cpus']:.2f} stolen, over {c['seconds']:.0f} s)"
+                   + (": its times are not quiet-machine times." if busy else "."))
+    return out
+

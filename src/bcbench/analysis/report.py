@@ -20,7 +20,7 @@ from bcbench.analysis.convergence import apply_checks, check_lines, doubling_che
 from bcbench.analysis.fewstep import fewstep_lines, load_paired
 from bcbench.analysis.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
 from bcbench.analysis.findings import DEFAULT_MARGIN, judge, points_from_rows, with_interleaved
-from bcbench.analysis.provenance import lead_line, provenance_notes
+from bcbench.analysis.provenance import lead_line, paired_conditions, provenance_notes
 from bcbench.analysis.realtime import margin_power_sentence, pooled_sentence, safe_delay_sentence
 from bcbench.analysis.results import (
     Row,
@@ -322,6 +322,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     reason_file = results / MIXING_REASON
     notes = provenance_notes(rows, file_commits(results, extra_dirs),
                              " ".join(reason_file.read_text().split()) if reason_file.exists() else "")
+    notes += paired_conditions(paired)
     fig5 = figs.pop(FIG5)  # the report opens with it, and with which policy suits which control loop
     lead = lead_line(results, settings, mixed=any("mix several commits" in n for n in notes), runs=rows)
     md = ["# bcbench report", "", lead, "",
