@@ -32,7 +32,7 @@ from bcbench.utils.system import CpuContention, provenance
 
 
 def settings(config: str, steps: list[int], flow_steps: list[int], mode: str,
-             policies: list[str] = ()) -> dict[str, tuple]:
+             policies: tuple[str, ...] = ()) -> dict[str, tuple]:
     """name -> (model, sampler, K); one model per family, so DDPM and DDIM time the very same weights. Other policies
     (no sampler) under their registry name, as a study's report looks them up (`findings.with_interleaved`)."""
     torch.manual_seed(0)
@@ -64,7 +64,7 @@ def main() -> None:
     ap.add_argument("--out", default="results/latency-paired-cpu")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
-    runs = settings(args.config, args.steps, args.flow_steps, args.mode, args.policies)
+    runs = settings(args.config, args.steps, args.flow_steps, args.mode, tuple(args.policies))
     ms: dict[str, list[list[float]]] = {name: [] for name in runs}
     with torch.inference_mode(), CpuContention() as contention:  # what else ran meanwhile, and the VM's steal
         for r in range(args.rounds):

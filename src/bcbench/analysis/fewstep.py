@@ -52,10 +52,11 @@ def load_paired(study_dir: str | Path) -> dict[str, dict[str, Any]]:
     out: dict[str, dict[str, Any]] = {}
     for path in sorted(Path(study_dir).glob(PAIRED_GLOB)):
         timing = read_json(path)
-        if timing.get("mode") in out:
-            raise BCBenchError(f"{path}: a second interleaved timing in mode {timing.get('mode')!r} "
-                               f"(the first: {out[timing['mode']]['file']}); keep one per mode")
-        out[timing.get("mode", "fast")] = {**timing, "file": path.name}
+        mode = timing.get("mode", "fast")  # the benchmark's default mode
+        if mode in out:
+            raise BCBenchError(f"{path}: a second interleaved timing in mode {mode!r} (the first: "
+                               f"{out[mode]['file']}); keep one per mode")
+        out[mode] = {**timing, "file": path.name}
     return out
 
 

@@ -151,4 +151,3 @@ def paired_conditions(paired: dict[str, dict[str, Any]]) -> list[str]:
                    f"{c['steal_cpus']:.2f} stolen, over {c['seconds']:.0f} s)"
                    + (": its times are not quiet-machine times." if busy else "."))
     return out
-
