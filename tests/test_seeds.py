@@ -144,6 +144,33 @@ def test_a_confirm_study_checks_convergence_on_validation_only(tmp_path):
         parse_spec(tomllib.loads('run = [{ policy = "cnn_mlp" }]\n[study]\ncheck_episodes = 20\n'))
 
 
+def test_a_resized_check_runs_again_for_both_runs_and_nothing_else(tmp_path):
+    """check_episodes on a doubling run sizes its check and that of the run it doubles (one set of episodes); a
+    check file of another size is not done, so changing the count re-runs the check (issue 30: flow's check, first
+    read on 100 episodes, re-read on 400), while the same file of the study's size stays done."""
+    import tomllib
+
+    from bcbench.study.runner import StudyRunner
+    from bcbench.study.spec import parse_spec
+
+    spec = parse_spec(tomllib.loads(
+        'run = [{ policy = "cnn_mlp", label = "base", steps = 20, seeds = [0, 1] },'
+        ' { policy = "cnn_mlp", label = "2x", steps = 40, doubles = "base", check_episodes = 80 }]\n'
+        '[study]\npurpose = "confirm"\nepisodes = 100\nseed_start = 100000\ncheck_episodes = 60\n'))
+    base0, base1, double = spec.runs
+    assert [spec.check_size(r) for r in (base0, base1, double)] == [80, 60, 80]  # seed 1 has no doubling run
+    runner = StudyRunner(spec, tmp_path)
+    for run, n in ((base0, 60), (double, 80), (base1, 60)):
+        rec = {"eval_config": {"episodes": n, "seed_start": 200_000}}
+        write_json(runner.result_file("check", run, run.variants[0]), rec)
+    assert [runner.is_done("check", r, r.variants[0]) for r in (base0, double, base1)] == [False, True, True]
+    for bad in ('{ policy = "cnn_mlp", label = "base", steps = 20, check_episodes = 80 }',
+                '{ policy = "cnn_mlp", label = "2x", steps = 40, doubles = "base", check_episodes = 20 }'):
+        with pytest.raises(Exception, match="check_episodes goes on a doubling run"):
+            parse_spec(tomllib.loads(f'run = [{{ policy = "cnn_mlp", label = "base", steps = 20 }}, {bad}]\n'
+                                     '[study]\npurpose = "confirm"\nepisodes = 100\nseed_start = 100000\n'))
+
+
 def test_report_reads_the_checks_from_validation_files(tmp_path):
     _study(tmp_path, {"ResNet-50": [0.55, 0.60, 0.65], "BCT": [0.40, 0.45, 0.50], "CNN-MLP": [0.2, 0.2, 0.2]})
     write_json(tmp_path / "spec.json", {"purpose": "confirm", "margin": 0.05})

@@ -94,6 +94,8 @@ class StudyRunner:
         f = self.result_file(stage, run, variant)
         if not f.exists():
             return False
+        if stage == "check":  # a check re-sized in the spec runs again, on the new count of episodes
+            return read_json(f)["eval_config"]["episodes"] == self.spec.check_size(run)
         return stage != "train" or training_done(read_json(f))
 
     # ------------------------------------------------------------------ stages
@@ -119,7 +121,7 @@ class StudyRunner:
         return runner
 
     def _eval(self, run: RunSpec, variant: Variant, check: bool = False) -> dict[str, Any]:
-        episodes, start = (self.spec.check_episodes, VALIDATION_SEED_START) if check else (
+        episodes, start = (self.spec.check_size(run), VALIDATION_SEED_START) if check else (
             self.spec.episodes, self.spec.seed_start)
         cfg = EvalConfig(episodes=episodes, seed_start=start, max_steps=self.spec.max_steps)
         extra = {"study": {"name": self.spec.name, "purpose": self.spec.purpose, **({"check": True} if check else {}),

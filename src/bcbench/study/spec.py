@@ -35,6 +35,8 @@
     doubles = "LABEL"       # this run checks the convergence of run LABEL: twice its steps, same preset. In a
                             # confirm study the two (same seed) are compared on validation episodes only
                             # (check-*.json); the doubling run is not evaluated on the test seeds
+    check_episodes = 400    # a doubling run only: its check on this many validation episodes (default: the
+                            # study's); a changed count re-runs the check of both runs, not the rest
 
 Validation happens before anything runs and names the offending entry in one line.
 """
@@ -49,20 +51,18 @@ from pathlib import Path
 from typing import Any
 
 from bcbench.errors import BCBenchError
-from bcbench.evaluation.config import STRATEGIES
-from bcbench.evaluation.latency_sources import PROFILES
 from bcbench.modes import MODES, mode_name
 from bcbench.policies import REGISTRY, is_learned, make_config, sampler_kinds
 from bcbench.policies.config import config_to_dict
 from bcbench.policies.outside import load_factory
 from bcbench.protocol import MIN_CHOICE_EPISODES, check_purpose
+from bcbench.study.spec_tables import realtime_table, resources_table
 
 STUDY_KEYS = {"name", "episodes", "seed_start", "val_fraction", "latency", "threads", "max_steps", "rate_hz",
               "latency_min_calls", "latency_min_seconds", "device", "margin", "curve_episodes", "realtime",
               "check_episodes", "backend", "precision", "latency_modes", "resources", "purpose"}
 RUN_KEYS = {"policy", "preset", "config", "steps", "max_minutes", "seeds", "set", "eval", "label", "eval_every",
-            "realtime", "args", "doubles"}
-REALTIME_KEYS = {"delays", "execution", "profiles", "measured", "strategies", "execution_horizon", "rtc_jacobian"}
+            "realtime", "args", "doubles", "check_episodes"}
 
 
 @dataclass(frozen=True)
@@ -95,6 +95,7 @@ class RunSpec:
     realtime: list[Variant] = field(default_factory=list)  # variants swept under real-time execution
     args: dict[str, Any] = field(default_factory=dict)  # an outside policy's factory arguments
     doubles: str | None = None  # the label of the run whose convergence this run checks (twice its steps)
+    check_episodes: int | None = None  # a doubling run's check size, where it differs from the study's
 
     @property
     def outside(self) -> bool:
@@ -146,6 +147,13 @@ class StudySpec:
         """In a confirm study: a doubling run, or the run of the same label and seed that one checks."""
         return self.purpose == "confirm" and (run.doubles is not None or any(
             d.doubles == run.label and d.seed == run.seed for d in self.runs))
+
+    def check_size(self, run: RunSpec) -> int:
+        """Validation episodes of the run's twice-the-steps check: the doubling run's own count where it gives one
+        (both runs of a check are compared on the same episodes), else the study's."""
+        double = run if run.doubles is not None else next(
+            (d for d in self.runs if d.doubles == run.label and d.seed == run.seed), None)
+        return (double.check_episodes if double else None) or self.check_episodes
 
     def shown(self, run: RunSpec) -> bool:
         """Whether the run is evaluated (and timed) as a setting: a confirm study's doubling runs are only checks."""
@@ -247,8 +255,12 @@ def _run_specs(i: int, run: Any) -> list[RunSpec]:
     doubles = run.get("doubles")
     if doubles is not None and not isinstance(doubles, str):
         raise BCBenchError(f"{_where(i, run)}: doubles names the label of the run this one checks (twice its steps)")
-    return [RunSpec(policy, config, s, minutes, overrides, variants, label, every, realtime, doubles=doubles)
-            for s in seeds]
+    n = run.get("check_episodes")
+    if n is not None and (doubles is None or not isinstance(n, int) or isinstance(n, bool) or n < MIN_CHOICE_EPISODES):
+        raise BCBenchError(f"{_where(i, run)}: check_episodes goes on a doubling run (doubles = ...) and must be a "
+                           f"whole number >= {MIN_CHOICE_EPISODES}, got {n!r}")
+    return [RunSpec(policy, config, s, minutes, overrides, variants, label, every, realtime, doubles=doubles,
+                    check_episodes=n) for s in seeds]
 
 
 def _seeds(i: int, run: dict[str, Any]) -> list[int]:
@@ -277,32 +289,6 @@ def _outside_run_specs(i: int, run: dict[str, Any], policy: str) -> list[RunSpec
     label = run.get("label", policy)
     return [RunSpec(policy, "-", s, None, {}, [Variant()], label, None, [Variant()] if rt else [], dict(args))
             for s in seeds]
-
-
-def _realtime_table(rt: Any) -> dict[str, Any]:
-    """[study] realtime = { delays = [1, 2, 4, 8], execution = ["blocking", "async"], profiles = ["a100"],
-    measured = true }, validated; defaults fill what is left out."""
-    if not isinstance(rt, dict) or set(rt) - REALTIME_KEYS:
-        raise BCBenchError(f"study.realtime must be a table with keys {', '.join(sorted(REALTIME_KEYS))}")
-    out = {"delays": rt.get("delays", [1, 2, 4, 8]), "executions": rt.get("execution", ["blocking", "async"]),
-           "profiles": rt.get("profiles", []), "measured": rt.get("measured", True),
-           "strategies": rt.get("strategies", ["naive"]), "execution_horizon": rt.get("execution_horizon"),
-           "rtc_jacobian": rt.get("rtc_jacobian", True)}  # RTC's form (StrategyConfig.rtc_jacobian)
-    if not out["strategies"] or any(k not in STRATEGIES for k in out["strategies"]):
-        raise BCBenchError(f"study.realtime.strategies must list some of {', '.join(STRATEGIES)}")
-    s = out["execution_horizon"]
-    if s is not None and (not isinstance(s, int) or isinstance(s, bool) or s < 1):
-        raise BCBenchError("study.realtime.execution_horizon must be a whole number of actions >= 1")
-    if not all(isinstance(d, int) and not isinstance(d, bool) and d >= 0 for d in out["delays"]):
-        raise BCBenchError("study.realtime.delays must be whole numbers of control steps >= 0")
-    if not set(out["executions"]) <= {"blocking", "async"} or not out["executions"]:
-        raise BCBenchError("study.realtime.execution must list blocking and/or async")
-
-    if not isinstance(out["rtc_jacobian"], bool):
-        raise BCBenchError("study.realtime.rtc_jacobian must be true (the paper's RTC) or false (J = I)")
-    if any(p not in PROFILES for p in out["profiles"]) or not isinstance(out["measured"], bool):
-        raise BCBenchError(f"study.realtime.profiles must be among {', '.join(PROFILES)}; measured true or false")
-    return out
 
 
 def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
@@ -335,9 +321,9 @@ def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
     if problem:
         raise BCBenchError(f"study.purpose: {problem}")
     if "realtime" in study:
-        spec.realtime = _realtime_table(study["realtime"])
+        spec.realtime = realtime_table(study["realtime"])
     _backend_keys(study, spec)
-    spec.resources = _resources(study.get("resources", {}))
+    spec.resources = resources_table(study.get("resources", {}))
     for i, run in enumerate(runs):
         spec.runs.extend(_run_specs(i, run))
     _check_doubling(spec)
@@ -378,18 +364,6 @@ def _backend_keys(study: dict[str, Any], spec: StudySpec) -> None:
     if not isinstance(modes, list) or not modes or any(m not in MODES for m in modes):
         raise BCBenchError(f"study.latency_modes must be a non-empty list of {', '.join(MODES)}, got {modes!r}")
     spec.latency_modes = tuple(modes)
-
-
-def _resources(table: Any) -> dict[str, dict[str, float]]:
-    kinds = ("train", "eval", "latency", "realtime")
-    if not isinstance(table, dict) or set(table) - set(kinds):
-        raise BCBenchError(f"study.resources must be a table with keys among {', '.join(kinds)}, got {table!r}")
-    for kind, res in table.items():
-        ok = isinstance(res, dict) and not set(res) - {"cpus", "gpus"} and all(
-            isinstance(v, int | float) and not isinstance(v, bool) and v >= 0 for v in res.values())
-        if not ok or res.get("cpus", 1) <= 0:
-            raise BCBenchError(f"study.resources.{kind} must be {{ cpus = N > 0, gpus = N >= 0 }}, got {res!r}")
-    return {k: dict(v) for k, v in table.items()}
 
 
 def load_spec(path: str | Path) -> StudySpec:
