@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -22,6 +23,9 @@ def test_committed_report_regenerates_identically(study, tmp_path):
     """A fresh copy (as in a clone: no checkpoints, no runs/) rebuilds the same Markdown report."""
     copy = tmp_path / study.name
     shutil.copytree(study, copy, ignore=shutil.ignore_patterns("report"))
+    combine = study / "combine.json"  # a combined report: the study folders it names come along, as in a clone
+    for name in json.loads(combine.read_text())["studies"] if combine.exists() else []:
+        shutil.copytree((study / name).resolve(), (copy / name).resolve(), ignore=shutil.ignore_patterns("report"))
     assert not list(copy.rglob("*.safetensors"))  # result files only
     paths = write_report(copy)
     assert Path(paths["markdown"]).read_text() == (study / "report" / "report.md").read_text()

@@ -3,7 +3,6 @@ every result file, with a warning when they differ. Reads result rows only."""
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 from bcbench.analysis.results import Row, cpu_text
@@ -69,14 +68,14 @@ def _timed_elsewhere(rows: list[Row]) -> str:
     return f" Timed on {'several machines: ' if len(where) > 1 else ''}{'; '.join(where)}."
 
 
-def lead_line(results: Path, rows: list[Row], mixed: bool, runs: list[Row] | None = None) -> str:
+def lead_line(name: str, rows: list[Row], mixed: bool, runs: list[Row] | None = None) -> str:
     """The report's first line: what it holds (`rows`: one per setting), on which episodes, where (`runs`: one row
     per run, which machine evaluated each); details follow at its end."""
     ns, seeds, k = episodes_and_seeds(rows)
     eps = (f"{'/'.join(map(str, ns))} episodes each (seeds {seeds[0]}-{seeds[-1]})" if seeds else "no episodes")
     if k:
         eps += f", {'/'.join(map(str, k))} training seeds per trained setting"
-    return (f"Study `{results.name}`: {len(rows)} evaluated settings, {eps}. {hardware_line(runs or rows)}"
+    return (f"Study `{name}`: {len(rows)} evaluated settings, {eps}. {hardware_line(runs or rows)}"
             + (" These results mix several commits: see Provenance at the end." if mixed else ""))
 
 

@@ -29,16 +29,18 @@ from bcbench.analysis.results import (
     load_check_rows,
     load_realtime,
     load_rows,
+    mixing_reason,
     same_cpu_once,
+    study_dirs,
     study_machines,
+    study_spec,
     study_time,
 )
 from bcbench.analysis.seeds import merge_training_seeds, per_seed_cell
 from bcbench.analysis.strategies import load_strategy_sweeps, strategy_figure, strategy_lines
-from bcbench.protocol import MIXING_REASON
 from bcbench.reference import CPU_DEVIATIONS, STUDY_REFERENCE
 from bcbench.stats import fmt_estimate, fmt_share
-from bcbench.utils.io import atomic_path, read_json
+from bcbench.utils.io import atomic_path
 
 FIG5 = "Figure 5: accuracy against inference time"
 COLUMNS = ["policy", "params", "mean score [95% CI]", "> 0.5 [Wilson 95%]", "> 0.9 [Wilson 95%]",
@@ -135,11 +137,6 @@ FINDINGS_INTRO = ("Each verdict rests on paired comparisons: per-seed score diff
                   "seeds: a t interval over the seeds' mean differences), against an equivalence "
                   "margin of {m} mean score. Supported: the interval lies inside the margin or beyond it in the "
                   "claimed direction; contradicted: wholly on the other side; inconclusive: otherwise.")
-
-
-def _spec(results: Path) -> dict[str, Any]:
-    f = results / "spec.json"
-    return read_json(f) if f.exists() else {}
 
 
 def _spacing_note(rows: list[Row]) -> str:
@@ -286,11 +283,11 @@ def _html_table(header: list[str], rows: list[list[str]]) -> str:
 
 def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> dict[str, str]:
     results = Path(results)
-    margin = _spec(results).get("margin", DEFAULT_MARGIN)
+    margin = study_spec(results).get("margin", DEFAULT_MARGIN)
     rows = load_rows(results, extra_dirs, margin)
     check_rows = load_check_rows(results)  # a confirm study compares on validation episodes, apart from its table
     checks = doubling_checks(check_rows or rows, margin)
-    strict = bool(_spec(results).get("purpose"))  # studies under the seed protocol need the check
+    strict = bool(study_spec(results).get("purpose"))  # studies under the seed protocol need the check
     verdicts = apply_checks(rows, checks, strict, margin)
     # one row per setting from here on (several training seeds merged); `rows` keeps one per run for training
     settings = merge_training_seeds(rows)
@@ -319,12 +316,12 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
              + "Latency: one call at batch 1, raw observation in, chunk out (median, and the p99 from at "
              "least 100 calls or else the maximum, labelled 'max of N'). The study's numbers were measured by the "
              "study on an A100; ours on the hardware named at the top. " + _spacing_note(rows))
-    reason_file = results / MIXING_REASON
-    notes = provenance_notes(rows, file_commits(results, extra_dirs),
-                             " ".join(reason_file.read_text().split()) if reason_file.exists() else "")
+    notes = provenance_notes(rows, file_commits(results, extra_dirs), mixing_reason(results))
     notes += paired_conditions(paired)
     fig5 = figs.pop(FIG5)  # the report opens with it, and with which policy suits which control loop
-    lead = lead_line(results, settings, mixed=any("mix several commits" in n for n in notes), runs=rows)
+    sources = [d.name for d in study_dirs(results) if d != results]
+    name = results.name + (f" (combines {', '.join(sources)})" if sources else "")
+    lead = lead_line(name, settings, mixed=any("mix several commits" in n for n in notes), runs=rows)
     md = ["# bcbench report", "", lead, "",
           *([f"![{FIG5}]({fig5.name})", ""] if fig5 else []), *control_loop_lines(settings, realtime, margin),
           "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]

@@ -1,7 +1,9 @@
 """Reading result files back: evaluations, latencies, training summaries, as flat rows for the report.
 
 Only files are read (never a model): a results directory from `bcbench study`, plus any extra folders of
-result JSON (e.g. `results/` brought back from a GPU machine).
+result JSON (e.g. `results/` brought back from a GPU machine). A combined report's folder holds `combine.json`, which
+names the study folders it reads (e.g. issue 30's confirm stages, one study per stage); each keeps its own spec, so
+each run plays the part its own study gave it.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from bcbench.analysis.curves import Curve, load_curve, plateau
 from bcbench.analysis.realtime import pool_training_seeds
 from bcbench.errors import BCBenchError
 from bcbench.modes import EXACT_MODES
+from bcbench.protocol import MIXING_REASON
 from bcbench.utils.io import read_json, read_jsonl
 
 # Result files the report reads, by kind: every one records the commit its process ran.
@@ -24,11 +27,56 @@ _KINDS = (("eval-*.json", "evaluations"), ("eval.json", "evaluations"), ("check-
           ("latency-paired*.json", "interleaved latency"))
 
 
+COMBINE_FILE = "combine.json"  # {"studies": ["../cpu-confirm-dpflow-long", ...], "why": "..."}
+
+
+def combined(results: Path) -> dict[str, Any] | None:
+    """A combined report's combine.json (validated), or None for a study's own folder."""
+    f = Path(results) / COMBINE_FILE
+    if not f.exists():
+        return None
+    spec = read_json(f)
+    names = spec.get("studies") if isinstance(spec, dict) else None
+    if not isinstance(names, list) or not names or not all(isinstance(n, str) and n for n in names):
+        raise BCBenchError(f"{f}: 'studies' must list the study folders it combines (paths relative to it)")
+    for n in names:
+        if not (Path(results) / n / "spec.json").is_file():
+            raise BCBenchError(f"{f} names {n}, which is not a study folder (no spec.json there)")
+    return spec
+
+
+def study_dirs(results: Path) -> list[Path]:
+    """The study folders a report reads: the folder itself, or each folder a combined report names."""
+    spec = combined(Path(results))
+    return [Path(results) / n for n in spec["studies"]] if spec else [Path(results)]
+
+
+def study_spec(results: Path) -> dict[str, Any]:
+    """The study's spec.json; for a combined report, the margin and purpose its studies share (they must: one rule
+    judges every finding)."""
+    specs = [read_json(d / "spec.json") if (d / "spec.json").exists() else {} for d in study_dirs(results)]
+    if len(specs) == 1:
+        return specs[0]
+    for key in ("margin", "purpose"):
+        if len({str(s.get(key)) for s in specs}) > 1:
+            raise BCBenchError(f"{results}: its studies differ in {key} ({', '.join(str(s.get(key)) for s in specs)}); "
+                               "a combined report needs one")
+    return {"margin": specs[0].get("margin"), "purpose": specs[0].get("purpose")}
+
+
+def mixing_reason(results: Path) -> str:
+    """Why the result files carry several commits, as each study folder (and a combined report's own) records it."""
+    dirs = dict.fromkeys([results, *study_dirs(results)])
+    found = [(d, d / MIXING_REASON) for d in dirs if (d / MIXING_REASON).exists()]
+    texts = [(d.name, " ".join(f.read_text().split())) for d, f in found]
+    return texts[0][1] if len(dirs) == 1 and texts else " ".join(f"{name}: {text}" for name, text in texts)
+
+
 def file_commits(results: Path, extra_dirs: list[str] | None = None) -> dict[str, list[str]]:
     """commit -> the kinds of result file produced at it, over every file the report reads (not only the
     evaluations): a study completed later with sweeps, re-timings or backend files shows each commit."""
     out: dict[str, set[str]] = {}
-    for folder in [results, *map(Path, extra_dirs or [])]:
+    for folder in dict.fromkeys([results, *study_dirs(results), *map(Path, extra_dirs or [])]):
         for pattern, kind in _KINDS:
             for f in folder.rglob(pattern):
                 if ("report" in f.relative_to(folder).parts or f.name.startswith(".")
@@ -178,14 +226,13 @@ def load_rows(results: str | Path, extra_dirs: list[str] | None = None, margin: 
     results = Path(results)
     if not results.is_dir():
         raise BCBenchError(f"results directory {results} not found")
-    files = sorted(results.rglob("eval-*.json")) + sorted(results.rglob("eval.json"))
-    for d in extra_dirs or []:
-        files += sorted(Path(d).rglob("eval*.json"))
+    files = [(f, study_roles(d)) for d in study_dirs(results)
+             for f in sorted(d.rglob("eval-*.json")) + sorted(d.rglob("eval.json"))]
+    files += [(f, {}) for d in extra_dirs or [] for f in sorted(Path(d).rglob("eval*.json"))]
     rows: dict[str, Row] = {}
-    roles = study_roles(results)
-    for f in files:
+    for f, roles in files:
         try:
-            row = _row_from_eval(f, margin, roles.get(f.parent.name) if f.is_relative_to(results) else None)
+            row = _row_from_eval(f, margin, roles.get(f.parent.name))
         except (KeyError, ValueError, BCBenchError):
             continue  # not an evaluation file of ours
         rows[row.key] = row
@@ -196,9 +243,12 @@ def load_rows(results: str | Path, extra_dirs: list[str] | None = None, margin: 
 
 def load_check_rows(results: str | Path) -> list[Row]:
     """A confirm study's twice-the-steps checks (runs/*/check-*.json, on validation episodes), one row each."""
-    roles = study_roles(Path(results))
-    return [_row_from_eval(f, role=roles.get(f.parent.name)) for f in sorted(Path(results).rglob("check-*.json"))
-            if "report" not in f.relative_to(results).parts]
+    out = []
+    for d in study_dirs(Path(results)):
+        roles = study_roles(d)
+        out += [_row_from_eval(f, role=roles.get(f.parent.name)) for f in sorted(d.rglob("check-*.json"))
+                if "report" not in f.relative_to(d).parts]
+    return out
 
 
 def load_latency_files(dirs: list[str | Path]) -> list[dict[str, Any]]:
@@ -215,7 +265,7 @@ def load_latency_files(dirs: list[str | Path]) -> list[dict[str, Any]]:
 
 def realtime_records(results: str | Path) -> list[tuple[Path, dict[str, Any]]]:
     """Every real-time sweep record under `results` (runs/*/realtime-*.json of type realtime), with its file."""
-    found = ((f, read_json(f)) for f in sorted(Path(results).rglob("realtime-*.json")))
+    found = ((f, read_json(f)) for d in study_dirs(Path(results)) for f in sorted(d.rglob("realtime-*.json")))
     return [(f, data) for f, data in found if data.get("type") == "realtime"]
 
 
@@ -246,22 +296,25 @@ def study_time(results: str | Path) -> dict[str, float]:
     of a resumed run) and learning-curve rollouts (metrics.jsonl's eval_wall_s); the other stages count their
     recorded seconds. A stopped and resumed study has no single wall time: this is the sum of its work.
     """
-    results = Path(results)
-    index = results / "index.jsonl"
     out = {"training": 0.0, "curve rollouts": 0.0, "evaluation": 0.0, "timing": 0.0, "real-time sweep": 0.0}
-    if not index.exists():
-        return out
     kinds = {"eval": "evaluation", "check": "evaluation", "latency": "timing", "realtime": "real-time sweep"}
-    for rec in read_jsonl(index):
-        if rec["stage"] in kinds:
-            out[kinds[rec["stage"]]] += float(rec["seconds"])
-        elif rec["stage"] == "train":
-            run = (results / rec["file"]).parent
-            out["training"] += float(read_json(run / "train_summary.json").get("train_time_s", 0.0))
-            metrics = run / "metrics.jsonl"
-            if metrics.exists():
-                out["curve rollouts"] += sum(float(m.get("eval_wall_s", 0.0)) for m in read_jsonl(metrics))
+    for study in study_dirs(Path(results)):
+        index = study / "index.jsonl"
+        for rec in read_jsonl(index) if index.exists() else []:
+            _add_stage(out, kinds, study, rec)
     return out
+
+
+def _add_stage(out: dict[str, float], kinds: dict[str, str], results: Path, rec: dict[str, Any]) -> None:
+    """One index.jsonl line's recorded work, added to `out` by kind (training from the run's own records)."""
+    if rec["stage"] in kinds:
+        out[kinds[rec["stage"]]] += float(rec["seconds"])
+    elif rec["stage"] == "train":
+        run = (results / rec["file"]).parent
+        out["training"] += float(read_json(run / "train_summary.json").get("train_time_s", 0.0))
+        metrics = run / "metrics.jsonl"
+        if metrics.exists():
+            out["curve rollouts"] += sum(float(m.get("eval_wall_s", 0.0)) for m in read_jsonl(metrics))
 
 
 def cpu_text(h: dict[str, Any]) -> str:
@@ -284,7 +337,7 @@ def study_machines(results: str | Path) -> list[str]:
     """The CPUs (model and ISA flags) a study's training sessions, evaluations, timings and real-time sweeps ran on,
     from its records."""
     found: list[dict[str, Any]] = []
-    for f in Path(results).rglob("*.json"):
+    for f in (f for d in study_dirs(Path(results)) for f in d.rglob("*.json")):
         if f.name != "train_summary.json" and not f.name.startswith(("eval", "check", "latency", "realtime")):
             continue
         rec = read_json(f)

@@ -1,0 +1,71 @@
+"""A combined report (combine.json): one report over several study folders, e.g. issue 30's confirm stages, each run
+playing the part its own study's spec gives it, its checks read from its own folder."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bcbench.analysis.report import write_report
+from bcbench.analysis.results import load_check_rows, load_rows, study_dirs
+from bcbench.errors import BCBenchError
+from bcbench.utils.io import write_json
+from tests.test_seeds import _eval
+
+EPISODES = 100
+
+
+def _stage(root: Path, name: str, policies: dict[str, tuple[str, float]], commit: str, margin: float = 0.05) -> Path:
+    """One confirm study folder: each label trained with 3 seeds (test seeds) and seed 0 checked against a
+    doubling run on 60 validation episodes that scores the same."""
+    d = root / name
+    rng = np.random.default_rng(len(name))
+    write_json(d / "spec.json", {"purpose": "confirm", "margin": margin, "runs": []})
+    for label, (policy, mean) in policies.items():
+        for s in range(3):
+            rec = _eval(policy, label, np.clip(mean + rng.normal(0, 0.1, EPISODES), 0, 1), s, f"{label}-s{s}")
+            write_json(d / "runs" / f"{label}-s{s}" / "eval-default.json", {**rec, "git_commit": commit})
+        val = np.clip(mean + rng.uniform(-0.2, 0.2, 60), 0, 1)
+        for run, lab, doubles in ((f"{label}-s0", label, None), (f"{label}-2x", f"{label} 2x", label)):
+            rec = _eval(policy, lab, val, 0, run, start=200_000)
+            rec["study"].update({"check": True, **({"doubles": doubles} if doubles else {})})
+            write_json(d / "runs" / run / "check-default.json", {**rec, "git_commit": commit})
+    (d / "mixing-reason.txt").write_text(f"why {name}\n")
+    return d
+
+
+def _combined(tmp_path: Path, margin: float = 0.05) -> Path:
+    _stage(tmp_path, "stage-a", {"ResNet-50": ("resnet50", 0.6)}, "a" * 40)
+    _stage(tmp_path, "stage-b", {"BCT": ("bct", 0.45), "CNN-MLP": ("cnn_mlp", 0.2)}, "b" * 40, margin)
+    write_json(tmp_path / "all" / "combine.json", {"studies": ["../stage-a", "../stage-b"], "why": "one report"})
+    return tmp_path / "all"
+
+
+def test_a_combined_report_reads_every_study_and_its_checks(tmp_path):
+    out = _combined(tmp_path)
+    assert [d.name for d in study_dirs(out)] == ["stage-a", "stage-b"]
+    assert sorted({r.label for r in load_rows(out)}) == ["BCT", "CNN-MLP", "ResNet-50"]
+    assert len(load_check_rows(out)) == 6  # each label's seed 0 and its doubling run, from its own folder
+    md = Path(write_report(out)["markdown"]).read_text()
+    assert md.startswith("# bcbench report\n\nStudy `all (combines stage-a, stage-b)`")
+    for label in ("ResNet-50", "BCT", "CNN-MLP"):  # every label judged by its own study's check
+        assert f"| {label} | DEFAULT (of 1) | +0.000 [+0.000, +0.000] | 60 | **converged** |" in md, label
+    provenance = md.split("## Provenance")[1]
+    assert "aaaaaaaaaaaa" in provenance and "bbbbbbbbbbbb" in provenance  # both studies' commits, with the warning
+    assert "stage-a: why stage-a stage-b: why stage-b" in provenance
+
+
+def test_a_combined_report_refuses_a_missing_study_or_two_margins(tmp_path):
+    out = _combined(tmp_path)
+    write_json(out / "combine.json", {"studies": ["../stage-a", "../nowhere"]})
+    with pytest.raises(BCBenchError, match="names ../nowhere, which is not a study folder"):
+        write_report(out)
+    (out / "combine.json").write_text(json.dumps({"studies": []}))
+    with pytest.raises(BCBenchError, match="must list the study folders"):
+        write_report(out)
+    out2 = _combined(tmp_path / "m", margin=0.1)
+    with pytest.raises(BCBenchError, match="differ in margin"):
+        write_report(out2)
