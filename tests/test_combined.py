@@ -4,6 +4,7 @@ playing the part its own study's spec gives it, its checks read from its own fol
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -61,10 +62,13 @@ def test_a_combined_report_reads_every_study_and_its_checks(tmp_path):
 def test_a_combined_report_refuses_a_missing_study_or_two_margins(tmp_path):
     out = _combined(tmp_path)
     write_json(out / "combine.json", {"studies": ["../stage-a", "../nowhere"]})
-    with pytest.raises(BCBenchError, match="names ../nowhere, which is not a study folder"):
+    with pytest.raises(BCBenchError, match=re.escape("names ../nowhere, which is not a study folder")):
         write_report(out)
     (out / "combine.json").write_text(json.dumps({"studies": []}))
     with pytest.raises(BCBenchError, match="must list the study folders"):
+        write_report(out)
+    write_json(out / "combine.json", {"studies": ["../stage-a", "../stage-a"]})
+    with pytest.raises(BCBenchError, match=re.escape("is in both ../stage-a and ../stage-a")):
         write_report(out)
     out2 = _combined(tmp_path / "m", margin=0.1)
     with pytest.raises(BCBenchError, match="differ in margin"):

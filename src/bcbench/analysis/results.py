@@ -39,9 +39,15 @@ def combined(results: Path) -> dict[str, Any] | None:
     names = spec.get("studies") if isinstance(spec, dict) else None
     if not isinstance(names, list) or not names or not all(isinstance(n, str) and n for n in names):
         raise BCBenchError(f"{f}: 'studies' must list the study folders it combines (paths relative to it)")
+    seen: dict[str, str] = {}
     for n in names:
         if not (Path(results) / n / "spec.json").is_file():
             raise BCBenchError(f"{f} names {n}, which is not a study folder (no spec.json there)")
+        for run in (Path(results) / n).glob("runs/*/"):
+            if run.name in seen:  # one model in two studies (a carried-over run) would be read twice
+                raise BCBenchError(f"{f}: run {run.name} is in both {seen[run.name]} and {n}; combine studies "
+                                   "that share no run")
+            seen[run.name] = n
     return spec
 
 
