@@ -57,6 +57,9 @@ def test_a_combined_report_reads_every_study_and_its_checks(tmp_path):
     provenance = md.split("## Provenance")[1]
     assert "aaaaaaaaaaaa" in provenance and "bbbbbbbbbbbb" in provenance  # both studies' commits, with the warning
     assert "stage-a: why stage-a stage-b: why stage-b" in provenance
+    # a study's own interleaved timing is not read by the combined report, so its commit is not named
+    write_json(tmp_path / "stage-a" / "latency-paired.json", {"type": "latency-paired", "git_commit": "c" * 40})
+    assert "cccccccccccc" not in Path(write_report(out)["markdown"]).read_text()
 
 
 def test_a_combined_report_refuses_a_missing_study_or_two_margins(tmp_path):

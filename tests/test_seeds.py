@@ -281,3 +281,14 @@ def test_a_carried_run_plays_the_part_the_studys_spec_gives_it(tmp_path):
          "doubles": "flow"}]})
     (check,) = doubling_checks(load_check_rows(tmp_path), 0.05)
     assert check.run == "flow" and check.n == 60 and check.est == pytest.approx(0.0)
+
+
+def test_a_trained_setting_with_one_seed_beside_several_counts_as_one(tmp_path):
+    """A stage still running (BCT with one seed) beside settings with three: the lead says 1/3, not 3; a baseline is
+    not a trained setting."""
+    from bcbench.analysis.seeds import episodes_and_seeds
+
+    _study(tmp_path, {"ResNet-50": [0.55, 0.60, 0.65], "BCT": [0.45], "CNN-MLP": [0.2, 0.2, 0.2]})
+    assert episodes_and_seeds(merge_training_seeds(load_rows(tmp_path)))[2] == [3]  # no training record: not trained
+    write_json(tmp_path / "runs" / "BCT-s0" / "train_summary.json", {"steps": 10})
+    assert episodes_and_seeds(merge_training_seeds(load_rows(tmp_path)))[2] == [1, 3]

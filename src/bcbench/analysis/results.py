@@ -84,6 +84,8 @@ def file_commits(results: Path, extra_dirs: list[str] | None = None) -> dict[str
     out: dict[str, set[str]] = {}
     for folder in dict.fromkeys([results, *study_dirs(results), *map(Path, extra_dirs or [])]):
         for pattern, kind in _KINDS:
+            if kind == "interleaved latency" and folder != results:
+                continue  # a combined report reads its own interleaved timings, not its studies'
             for f in folder.rglob(pattern):
                 if ("report" in f.relative_to(folder).parts or f.name.startswith(".")
                         or (kind == "timing" and f.name.startswith("latency-paired"))):

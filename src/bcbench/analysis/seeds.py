@@ -67,5 +67,7 @@ def episodes_and_seeds(rows: list[Row]) -> tuple[list[int], list[int], list[int]
     """Episode counts per run, the episode seeds, and the training-seed counts per setting, over `rows` (merged or
     not)."""
     per_run = [sc for r in rows for sc in (r.seed_scores or ([r.scores] if r.scores else []))]
-    return (sorted({len(sc) for sc in per_run}), sorted({s for sc in per_run for s in sc}),
-            sorted({len(r.seed_scores) for r in rows if r.seed_scores}))
+    several = {len(r.seed_scores) for r in rows if r.seed_scores}
+    # beside settings with several seeds, a trained setting with one (a stage still running) counts as 1
+    one = {1 for r in rows if not r.seed_scores and r.converged is not None} if several else set()
+    return (sorted({len(sc) for sc in per_run}), sorted({s for sc in per_run for s in sc}), sorted(several | one))
