@@ -76,3 +76,15 @@ def test_a_combined_report_refuses_a_missing_study_or_two_margins(tmp_path):
     out2 = _combined(tmp_path / "m", margin=0.1)
     with pytest.raises(BCBenchError, match="differ in margin"):
         write_report(out2)
+
+
+def test_a_combined_report_is_not_exported(tmp_path, capsys):
+    """Its studies are exported one by one (each can be restored and resumed); the CLI says so in one line."""
+    from bcbench.cli.main import main
+
+    out = _combined(tmp_path)
+    assert main(["report", str(out), "--export", str(tmp_path / "exp")]) != 0
+    assert not (tmp_path / "exp").exists()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is a combined report (combine.json): export each study it names" in err[0]
+

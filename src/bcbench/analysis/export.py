@@ -6,6 +6,8 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+from bcbench.analysis.results import COMBINE_FILE
+from bcbench.errors import BCBenchError
 from bcbench.protocol import DROPPED_RUNS, training_done
 from bcbench.utils.io import read_json, read_jsonl
 
@@ -31,6 +33,8 @@ def export_results(results: str | Path, dest: str | Path) -> tuple[int, list[Pat
     `dest` the runs the study dropped (DROPPED_RUNS); returns the number of files and the run folders left out as
     unfinished."""
     results, dest = Path(results), Path(dest)
+    if (results / COMBINE_FILE).exists():
+        raise BCBenchError(f"{results} is a combined report ({COMBINE_FILE}): export each study it names instead")
     left_out = unfinished_trainings(results)
     if (results / DROPPED_RUNS).is_file():  # a model that is gone: its files leave the export (its run trains again)
         for rec in read_jsonl(results / DROPPED_RUNS):
