@@ -234,8 +234,8 @@ def load_rows(results: str | Path, extra_dirs: list[str] | None = None, margin: 
     results = Path(results)
     if not results.is_dir():
         raise BCBenchError(f"results directory {results} not found")
-    files = [(f, study_roles(d)) for d in study_dirs(results)
-             for f in sorted(d.rglob("eval-*.json")) + sorted(d.rglob("eval.json"))]
+    roles = {d: study_roles(d) for d in study_dirs(results)}  # once per study, not once per file
+    files = [(f, roles[d]) for d in roles for f in sorted(d.rglob("eval-*.json")) + sorted(d.rglob("eval.json"))]
     files += [(f, {}) for d in extra_dirs or [] for f in sorted(Path(d).rglob("eval*.json"))]
     rows: dict[str, Row] = {}
     for f, roles in files:
