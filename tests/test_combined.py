@@ -88,3 +88,25 @@ def test_a_combined_report_is_not_exported(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "is a combined report (combine.json): export each study it names" in err[0]
 
+
+
+def test_figure_5_of_a_combined_report_stands_on_its_interleaved_times(tmp_path):
+    """Each stage timed its own settings, hours apart; where the combined folder holds an interleaved timing in
+    Figure 5's mode, the settings it timed stand at its medians, the rest at their own times, and the axis says so."""
+    from bcbench.analysis.figures import figure5_times
+    from bcbench.analysis.seeds import merge_training_seeds
+
+    out = _combined(tmp_path)
+    for label, ms in (("BCT", 9.0), ("CNN-MLP", 4.0)):  # the stages' own timings of seed 0
+        write_json(tmp_path / "stage-b" / "runs" / f"{label}-s0" / "latency-default.json",
+                   {"modes": {"reference": {"median_ms": ms}, "fast": {"median_ms": ms / 2}}})
+    settings = merge_training_seeds(load_rows(out))
+    by_label = {r.label: r.key for r in settings}
+    own = figure5_times(settings)
+    assert own == {by_label["BCT"]: 9.0, by_label["CNN-MLP"]: 4.0}  # ResNet-50 has no time: not on the figure
+    timing = {"mode": "reference", "rounds": 10, "median_ms": {"bct": 6.0, "resnet50": 3.0},
+              "file": "latency-paired.json"}
+    assert figure5_times(settings, timing=timing) == {by_label["BCT"]: 6.0, by_label["CNN-MLP"]: 4.0,
+                                                     by_label["ResNet-50"]: 3.0}
+    write_json(out / "latency-paired.json", {"type": "latency-paired", "git_commit": "c" * 40, **timing})
+    assert (Path(write_report(out)["dir"]) / "fig5_accuracy_vs_latency.png").exists()

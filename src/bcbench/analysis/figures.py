@@ -12,6 +12,7 @@ import matplotlib
 matplotlib.use("Agg")  # files only, no display
 import matplotlib.pyplot as plt
 
+from bcbench.analysis.findings import interleaved_key
 from bcbench.analysis.realtime import delay_curve
 from bcbench.reference import STUDY_REFERENCE
 from bcbench.utils.io import atomic_path
@@ -52,11 +53,22 @@ def _budget_lines(ax: Any, vertical: bool = True) -> None:
                     transform=ax.get_xaxis_transform())
 
 
-def figure5(rows: list[Any], path: Path, mode: str = "reference") -> Path | None:
-    """Mean score vs latency per call (log x), marker area by parameters, labels in millions, CI error bars."""
-    pts = [r for r in rows if r.latency_ms(mode) is not None]
+def figure5(rows: list[Any], path: Path, mode: str = "reference", timing: dict[str, Any] | None = None
+            ) -> Path | None:
+    """Mean score vs latency per call (log x), marker area by parameters, labels in millions, CI error bars.
+
+    `timing` (a `latency-paired*.json` in `mode`, benchmarks/paired_latency.py) puts the settings it timed at its
+    interleaved medians rather than at their own studies' timings: a report over several studies otherwise places
+    side by side times taken hours apart, and this VM's speed moves by tens of percent between hours."""
+    interleaved = (timing or {}).get("median_ms", {})
+    times = figure5_times(rows, mode, timing)
+    pts = [r for r in rows if r.key in times]
     if not pts:
         return None
+
+    def x(r: Any) -> float:
+        return times[r.key]
+
     fig, ax = plt.subplots(figsize=(9, 5.5))
     legend: dict[str, Any] = {}
     labels: list[tuple[float, float, str]] = []
@@ -65,21 +77,23 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference") -> Path | None
     for r in pts:
         lo, hi = r.est("mean_score")["ci95"]
         size = 30 + 400 * (r.params / 1e8) ** 0.5
-        ax.errorbar(r.latency_ms(mode), r.score, yerr=[[r.score - lo], [hi - r.score]], fmt="none",
+        ax.errorbar(x(r), r.score, yerr=[[r.score - lo], [hi - r.score]], fmt="none",
                     ecolor=COLOURS.get(r.policy, "k"), alpha=0.6, capsize=3)
-        dot = ax.scatter(r.latency_ms(mode), r.score, s=size, color=COLOURS.get(r.policy, "k"), alpha=0.8,
+        dot = ax.scatter(x(r), r.score, s=size, color=COLOURS.get(r.policy, "k"), alpha=0.8,
                          edgecolor="k", lw=0.5, marker=MARKERS[nth[r.label] % len(MARKERS)])
         legend.setdefault(f"{r.label}, {r.params / 1e6:.2f} M", dot)
         for v in r.summary.get("per_seed", []):  # several training seeds: each seed's score, faint, beside the mean
-            ax.scatter(r.latency_ms(mode), v, s=14, color=COLOURS.get(r.policy, "k"), alpha=0.35, lw=0,
+            ax.scatter(x(r), v, s=14, color=COLOURS.get(r.policy, "k"), alpha=0.35, lw=0,
                        marker=MARKERS[nth[r.label] % len(MARKERS)])
-        markers.append((r.latency_ms(mode), r.score, size ** 0.5 / 2))
+        markers.append((x(r), r.score, size ** 0.5 / 2))
         deployed = r.deployed_ms() if mode == "reference" else None
-        if deployed and deployed[1] < 0.95 * r.latency_ms(mode):  # an arrow to the deployed (exact) time
-            ax.annotate("", (deployed[1], r.score), xytext=(r.latency_ms(mode), r.score),
+        if deployed and r.latency_ms(mode):  # the ratio within the row's own record, applied to where the point stands
+            deployed = (deployed[0], deployed[1] * x(r) / r.latency_ms(mode))
+        if deployed and deployed[1] < 0.95 * x(r):  # an arrow to the deployed (exact) time
+            ax.annotate("", (deployed[1], r.score), xytext=(x(r), r.score),
                         arrowprops={"arrowstyle": "->", "color": COLOURS.get(r.policy, "k"), "alpha": 0.6, "lw": 1})
         if r.variant != "default":  # a generative policy's settings: name the setting, the legend names it
-            labels.append((r.latency_ms(mode), r.score, r.variant.upper().replace("-LEADING", "-L")))
+            labels.append((x(r), r.score, r.variant.upper().replace("-LEADING", "-L")))
     ax.legend(legend.values(), legend.keys(), fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0),
               markerscale=0.5)  # outside the data
     fig.set_size_inches(12, 6.5)  # room for the labels of Diffusion Policy's many settings
@@ -93,7 +107,10 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference") -> Path | None
                         textcoords="offset points", alpha=0.7)
     ax.set_xscale("log")
     _budget_lines(ax)
-    ax.set_xlabel(f"inference time per call, batch 1 ({mode} mode, median, ms, log scale); arrows: to the "
+    source = (f"; {sum(interleaved_key(r.policy, r.variant) in interleaved for r in pts)} of {len(pts)} settings "
+              f"timed in {timing['rounds']} interleaved rounds ({timing.get('file', 'latency-paired')})"
+              if interleaved else "")
+    ax.set_xlabel(f"inference time per call, batch 1 ({mode} mode, median, ms, log scale{source})\narrows: to the "
                   "fastest exact deployed mode; hollow diamonds: the study's numbers")
     ax.set_ylabel("mean score (max coverage / 0.95), 95% CI")
     ax.set_ylim(-0.05, 1.05)
@@ -102,6 +119,14 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference") -> Path | None
     fig.tight_layout()
     place_labels(ax, labels, markers=markers)
     return _save(fig, path)
+
+
+def figure5_times(rows: list[Any], mode: str = "reference", timing: dict[str, Any] | None = None
+                  ) -> dict[str, float]:
+    """Row key -> Figure 5's x: the interleaved median where `timing` timed the setting, else the row's own."""
+    interleaved = (timing or {}).get("median_ms", {})
+    times = {r.key: interleaved.get(interleaved_key(r.policy, r.variant)) or r.latency_ms(mode) for r in rows}
+    return {k: float(v) for k, v in times.items() if v is not None}
 
 
 DY = (-3, 4, -10, 11, -17, 18, -24, 25, -31)  # label rows above and below a point, nearest first (points)

@@ -220,11 +220,14 @@ def with_interleaved(points: list[Point], timing: dict[str, Any] | None) -> list
     if not timing:
         return points
     ms, source = timing["median_ms"], f"{timing['rounds']} interleaved rounds ({timing.get('file', 'latency-paired')})"
+    keys = [interleaved_key(p.policy, p.variant) for p in points]
+    return [replace(p, latency_ms=ms[k], timed=source) if k in ms else p for p, k in zip(points, keys, strict=True)]
 
-    def key(p: Point) -> str:
-        return p.variant if p.policy in ("diffusion", "flow") else p.policy if p.variant == "default" else ""
 
-    return [replace(p, latency_ms=ms[key(p)], timed=source) if key(p) in ms else p for p in points]
+def interleaved_key(policy: str, variant: str) -> str:
+    """A setting's name in an interleaved timing's `median_ms`: DP and flow by sampler ("ddpm100"), another policy's
+    default setting by the policy ("bct"); "" for a setting such a file does not time."""
+    return variant if policy in ("diffusion", "flow") else policy if variant == "default" else ""
 
 
 def finding_2(points: list[Point], m: float) -> Finding:

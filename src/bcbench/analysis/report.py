@@ -293,7 +293,10 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     settings = merge_training_seeds(rows)
     out = results / "report"
     out.mkdir(parents=True, exist_ok=True)
-    figs = {FIG5: figure5(settings, out / "fig5_accuracy_vs_latency.png"),
+    # latency timed in interleaved rounds, per inference mode, where the study's folder has it: the findings' times
+    # and Figure 5's axis (reference mode), and finding 3's DDIM/DDPM ratios (any mode's where reference has none)
+    paired = load_paired(results)
+    figs = {FIG5: figure5(settings, out / "fig5_accuracy_vs_latency.png", timing=paired.get("reference")),
             "Figure 3: generative policies against sampling steps": figure3(settings, out / "fig3_denoising_steps.png"),
             "Figure 4: DDPM-cosine, DDIM-cosine, DDIM-linear": figure4(settings, out / "fig4_samplers.png"),
             "Learning curves": learning_curves(rows, out / "learning_curves.png")}
@@ -302,9 +305,6 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
         figs["Score under real-time execution"] = realtime_figure(realtime, out / "realtime.png")
         figs["Figure 5, real time"] = figure5_realtime(realtime, out / "fig5_realtime.png")
         figs["Execution strategies: score against delay"] = strategy_figure(strategies, out / "strategies.png")
-    # latency timed in interleaved rounds, per inference mode, where the study's folder has it: the findings' times
-    # (reference mode, Figure 5's axis) and finding 3's DDIM/DDPM ratios (any mode's where reference has none)
-    paired = load_paired(results)
     ratio_file = paired.get("reference") or next(iter(paired.values()), {})
     findings = judge(with_interleaved(points_from_rows(settings), paired.get("reference")), margin,
                      ratio_file.get("ratios"))
