@@ -209,6 +209,32 @@ def test_finding_1_takes_interleaved_times_in_its_mode_and_says_so(tmp_path):
         load_paired(tmp_path)
 
 
+def test_paired_latency_times_several_modes_in_one_run(tmp_path):
+    """benchmarks/paired_latency.py with several --mode: one file per mode, named as the report looks them up, all
+    stamped with one run_id (the control-loop table compares modes only within one run), each a loadable timing."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from bcbench.analysis.choose import one_interleaved_run
+    from bcbench.analysis.fewstep import load_paired
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "paired_latency.py"
+    proc = subprocess.run([sys.executable, str(script), "--config", "quick", "--steps", "1", "--flow-steps", "1",
+                           "--rounds", "2", "--calls", "1", "--threads", "1", "--mode", "reference", "fast",
+                           "--out", str(tmp_path)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    files = sorted(p.name for p in tmp_path.glob("*.json"))
+    assert files == ["latency-paired-fast.json", "latency-paired.json"]
+    ref, fast = (json.loads((tmp_path / f).read_text()) for f in ("latency-paired.json", "latency-paired-fast.json"))
+    assert ref["mode"] == "reference" and fast["mode"] == "fast" and ref["run_id"] == fast["run_id"]
+    assert ref["interleaved_modes"] == ["reference", "fast"]
+    assert sorted(ref["median_ms"]) == ["ddim1", "ddpm1", "euler1"] and all(v > 0 for v in ref["median_ms"].values())
+    assert [len(r) for r in ref["samples_ms"]["ddpm1"]] == [1, 1]  # 2 rounds x 1 call
+    assert sorted(one_interleaved_run(load_paired(tmp_path))) == ["fast", "reference"]
+
+
 def test_finding_1_compares_the_fixed_slow_setting_not_the_slowest():
     """DP cosine DDPM-100 is fixed in advance: an even slower setting (DP linear DDIM-100) does not replace it."""
     fast = [pt("cnn", "cnn_mlp", BASE, ms=2.0)]

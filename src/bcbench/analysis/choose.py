@@ -3,15 +3,16 @@
 Per policy (a run of the study): its setting (the one the study swept in real time, fixed in the study file,
 else its preset's default: never the best score on the evaluation episodes, which would be a selection on
 them), its score with the 95% interval, its median call at batch 1 in the fastest exact mode timed on this
-machine, and the highest control rate at which it keeps its sync score under real-time execution (from the
-delay sweep and that call time; see bcbench.analysis.realtime.highest_safe_rate). Reads rows and sweep
-records only.
+machine (from one interleaved run of every policy and mode where the folder has one: `one_interleaved_run`),
+and the highest control rate at which it keeps its sync score under real-time execution (from the delay sweep
+and that call time; see bcbench.analysis.realtime.highest_safe_rate). Reads rows and sweep records only.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+from bcbench.analysis.findings import interleaved_key
 from bcbench.analysis.realtime import highest_safe_rate, largest_safe_delay
 from bcbench.analysis.results import Row
 from bcbench.modes import EXACT_MODES
@@ -21,10 +22,24 @@ HEADER = ["policy", "setting", "score [95% CI]", "median ms, batch 1 (fastest ex
           "highest control rate keeping its score"]
 
 
-def fastest_exact(row: Row) -> tuple[str, float] | None:
-    """(mode, median ms) of the fastest exact mode this row was timed in."""
-    timed = [(m, float(row.latency[m]["median_ms"])) for m in EXACT_MODES if m in row.latency]
+def fastest_exact(row: Row, interleaved: dict[str, dict[str, Any]] | None = None) -> tuple[str, float] | None:
+    """(mode, median ms) of the fastest exact mode this row was timed in: in `interleaved` (one_interleaved_run)
+    where that run timed its setting, else in the row's own timing record (mode "openvino-fp32, interleaved"
+    names the source)."""
+    key = interleaved_key(row.policy, row.variant)
+    timed = [(f"{m}, interleaved", float(t["median_ms"][key])) for m, t in (interleaved or {}).items()
+             if m in EXACT_MODES and key in t.get("median_ms", {})]
+    timed = timed or [(m, float(row.latency[m]["median_ms"])) for m in EXACT_MODES if m in row.latency]
     return min(timed, key=lambda t: t[1]) if timed else None
+
+
+def one_interleaved_run(paired: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Mode -> timing, of the folder's interleaved timings (latency-paired*.json) that were taken in the same rounds
+    (one `run_id`, benchmarks/paired_latency.py with several --mode): comparing modes' times across runs would let a
+    drifting machine pick the fastest. Files without a run_id (single-mode runs) are not used here."""
+    ids = [t["run_id"] for t in paired.values() if t.get("run_id")]
+    anchor = (paired.get("reference") or {}).get("run_id") or (ids[-1] if ids else None)
+    return {m: t for m, t in paired.items() if anchor and t.get("run_id") == anchor}
 
 
 def _sweep_of(run_label: str, realtime: dict[str, dict[str, Any]]) -> tuple[str, dict[str, Any]] | None:
@@ -64,8 +79,11 @@ def _rate_cell(settings: dict[str, Any] | None, ms: float | None, margin: float)
     return (f"{rate:.1f}" if rate < 100 else f"{rate:.0f}") + f" Hz ({mode}, up to d = {d})"
 
 
-def control_loop_rows(rows: list[Row], realtime: dict[str, dict[str, Any]], margin: float) -> list[list[str]]:
-    """The table's rows, in the report's row order (one per run)."""
+def control_loop_rows(rows: list[Row], realtime: dict[str, dict[str, Any]], margin: float,
+                      paired: dict[str, dict[str, Any]] | None = None) -> list[list[str]]:
+    """The table's rows, in the report's row order (one per run); `paired`: the folder's interleaved timings by
+    mode (bcbench.analysis.fewstep.load_paired)."""
+    interleaved = one_interleaved_run(paired or {})
     runs: dict[str, list[Row]] = {}
     for r in rows:
         runs.setdefault(r.run_label or r.label, []).append(r)
@@ -73,7 +91,7 @@ def control_loop_rows(rows: list[Row], realtime: dict[str, dict[str, Any]], marg
     for run_label, group in runs.items():
         sweep = _sweep_of(run_label, realtime)
         row = _setting_row(group, sweep[0] if sweep else None, run_label)
-        fast = fastest_exact(row)
+        fast = fastest_exact(row, interleaved)
         setting = row.variant.upper() if row.variant != "default" else (row.preset or "-")
         out.append([run_label, setting, fmt_estimate(row.summary["mean_score"]),
                     f"{fast[1]:.1f} ({fast[0]})" if fast else "-",
@@ -81,14 +99,20 @@ def control_loop_rows(rows: list[Row], realtime: dict[str, dict[str, Any]], marg
     return out
 
 
-def control_loop_lines(rows: list[Row], realtime: dict[str, dict[str, Any]], margin: float) -> list[str]:
-    table = control_loop_rows(rows, realtime, margin)
+def control_loop_lines(rows: list[Row], realtime: dict[str, dict[str, Any]], margin: float,
+                       paired: dict[str, dict[str, Any]] | None = None) -> list[str]:
+    table = control_loop_rows(rows, realtime, margin, paired)
+    run = one_interleaved_run(paired or {})
+    source = (f" Times marked 'interleaved' come from one run that timed every policy and mode in turn, "
+              f"{next(iter(run.values()))['rounds']} rounds (latency-paired*.json), so that neither a drifting "
+              "machine nor the hours between a study's stages favour one of them; the others from each run's own "
+              "timing stage." if run else "")
     return ["## Which policy for my control loop", "",
             "One row per policy: its setting (the one swept in real time, fixed in the study file; else its preset's "
             "default, or DDIM-10 / Euler-10 for a sampler sweep), its score, its median call at batch 1 in the "
             "fastest exact mode timed on this machine, and "
             f"the highest control rate at which its score stays within {margin} of sync under real-time execution "
             "(the larger safe delay of async and blocking, divided by that call time). The machine is named once, "
-            "at the top; each run's training under 'Training: converged?'.", "",
+            "at the top; each run's training under 'Training: converged?'." + source, "",
             "| " + " | ".join(HEADER) + " |", "|---" * len(HEADER) + "|",
             *("| " + " | ".join(r) + " |" for r in table), ""]

@@ -323,7 +323,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     name = results.name + (f" (combines {', '.join(sources)})" if sources else "")
     lead = lead_line(name, settings, mixed=any("mix several commits" in n for n in notes), runs=rows)
     md = ["# bcbench report", "", lead, "",
-          *([f"![{FIG5}]({fig5.name})", ""] if fig5 else []), *control_loop_lines(settings, realtime, margin),
+          *([f"![{FIG5}]({fig5.name})", ""] if fig5 else []), *control_loop_lines(settings, realtime, margin, paired),
           "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
     md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
     md += ["", "## Results", "", _md_table(columns, table), "", "## Training: converged?", "",
@@ -342,7 +342,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     html_path = out / "report.html"
     with atomic_path(html_path) as tmp:
         top = (_img(FIG5, fig5, "lead") if fig5 else "") + "<h2>Which policy for my control loop</h2>" + _html_table(
-            CHOOSE_HEADER, control_loop_rows(settings, realtime, margin))
+            CHOOSE_HEADER, control_loop_rows(settings, realtime, margin, paired))
         tail = (f"<h2>How to read the numbers</h2><p>{html.escape(intro)}</p><h2>Provenance</h2><ul>"
                 + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
         tmp.write_text(_html(lead.replace("`", ""), findings, (columns, table), figs, FINDINGS_INTRO.format(m=margin),
