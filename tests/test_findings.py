@@ -188,18 +188,18 @@ def test_finding_1_takes_interleaved_times_in_its_mode_and_says_so(tmp_path):
     by_blocks = judge([dp100, flow10, cnn])[0]
     assert by_blocks.verdict == SUPPORTED and "best of 2 settings" in by_blocks.evidence
     assert "interleaved" not in by_blocks.evidence
-    timing = {"mode": "reference", "rounds": 10, "median_ms": {"ddpm100": 900.0, "euler10": 95.0},
+    timing = {"mode": "reference", "rounds": 10, "median_ms": {"ddpm100": 900.0, "euler10": 120.0},
               "file": "latency-paired.json"}
     points = with_interleaved([dp100, flow10, cnn], timing)
-    assert [p.latency_ms for p in points] == [900.0, 95.0, 2.0]
-    f1 = judge(points)[0]  # flow's 95 ms is no longer a tenth of DDPM-100's 900: only the weaker CNN is compared
+    assert [p.latency_ms for p in points] == [900.0, 120.0, 2.0]
+    f1 = judge(points)[0]  # flow's 120 ms is no longer a tenth of DDPM-100's 900: only the weaker CNN is compared
     assert f1.verdict == CONTRADICTED and "best of 1 settings" in f1.evidence
     assert f1.evidence.endswith("; 1 of 2 times (the others: the study's blocks) from 10 interleaved rounds "
                                 "(latency-paired.json)")
     assert with_interleaved([dp100], None) == [dp100]
     both = {**timing, "median_ms": {"ddpm100": 900.0, "cnn_mlp": 3.0}}
     every = judge(with_interleaved([dp100, flow10, cnn], both))[0]
-    assert every.evidence.endswith("; every time from 10 interleaved rounds (latency-paired.json)")  # by policy name
+    assert "; every time from 10 interleaved rounds (latency-paired.json)" in every.evidence  # by policy name
     for name, mode in (("latency-paired.json", "reference"), ("latency-paired-fast.json", "fast")):
         (tmp_path / name).write_text(json.dumps({**timing, "mode": mode}))
     loaded = load_paired(tmp_path)
@@ -207,6 +207,24 @@ def test_finding_1_takes_interleaved_times_in_its_mode_and_says_so(tmp_path):
     (tmp_path / "latency-paired-again.json").write_text(json.dumps(timing))
     with pytest.raises(BCBenchError, match="a second interleaved timing in mode 'reference'"):
         load_paired(tmp_path)
+
+
+def test_finding_1_shows_the_verdict_with_a_setting_on_the_10x_line_counted_the_other_way():
+    """A setting within 10% of the 10x line is moved across it by a timing fluctuation of that size: the evidence
+    names it and gives the verdict it would take counted on the other side, while the rule's verdict stands."""
+    dp100 = pt("dp100", "diffusion", BASE, 1000.0, "ddpm100")
+    cnn = pt("cnn", "cnn_mlp", BASE - FAR, 2.0)  # alone, DDPM-100 beats it: contradicted
+    flow_out = pt("flow", "flow", BASE, 106.0, "euler10")
+    flow_in = pt("flow", "flow", BASE, 96.0, "euler10")
+    out = judge([dp100, cnn, flow_out])[0]  # 9.4x: not compared by the rule
+    assert out.verdict == CONTRADICTED
+    assert "on the 10x line (within 10%): flow at 9.4x; counted on the other side, the verdict would be supported" \
+        in out.evidence
+    inside = judge([dp100, cnn, flow_in])[0]  # 10.4x: compared, and as good as the slow setting
+    assert inside.verdict == SUPPORTED
+    assert "flow at 10.4x; counted on the other side, the verdict would be contradicted" in inside.evidence
+    far = judge([dp100, cnn, pt("flow", "flow", BASE, 300.0, "euler10")])[0]  # 3.3x: not near the line
+    assert far.verdict == CONTRADICTED and "10x line" not in far.evidence
 
 
 def test_paired_latency_times_several_modes_in_one_run(tmp_path):
