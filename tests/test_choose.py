@@ -26,7 +26,7 @@ def test_one_row_per_run_with_its_swept_setting_and_safe_rate():
 def test_times_of_one_interleaved_run_replace_each_runs_own():
     """Where the folder holds interleaved timings of several modes taken in the same rounds (one run_id), a policy's
     fastest exact mode and its control rate come from them; single-mode files of separate runs are not mixed."""
-    from bcbench.analysis.choose import one_interleaved_run
+    from bcbench.analysis.fewstep import one_interleaved_run
 
     rows = load_rows(CPU, None, 0.05)
     run = {"rounds": 10, "run_id": "r1"}

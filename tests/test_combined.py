@@ -110,3 +110,11 @@ def test_figure_5_of_a_combined_report_stands_on_its_interleaved_times(tmp_path)
                                                      by_label["ResNet-50"]: 3.0}
     write_json(out / "latency-paired.json", {"type": "latency-paired", "git_commit": "c" * 40, **timing})
     assert (Path(write_report(out)["dir"]) / "fig5_accuracy_vs_latency.png").exists()
+    # the arrow to the fastest exact deployed mode: from the interleaved run where it timed the setting, else the
+    # row's own ratio (fast / reference = 1/2) applied where the point stands
+    from bcbench.analysis.figures import _deployed
+
+    bct = next(r for r in settings if r.label == "BCT")
+    run = {"reference": timing, "openvino-fp32": {**timing, "median_ms": {"bct": 2.0}}}
+    assert _deployed(bct, 6.0, "reference", run) == ("openvino-fp32", 2.0)
+    assert _deployed(bct, 6.0, "reference", None) == ("fast", 3.0)

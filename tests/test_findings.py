@@ -235,8 +235,7 @@ def test_paired_latency_times_several_modes_in_one_run(tmp_path):
     import sys
     from pathlib import Path
 
-    from bcbench.analysis.choose import one_interleaved_run
-    from bcbench.analysis.fewstep import load_paired
+    from bcbench.analysis.fewstep import load_paired, one_interleaved_run
 
     script = Path(__file__).resolve().parents[1] / "benchmarks" / "paired_latency.py"
     proc = subprocess.run([sys.executable, str(script), "--config", "quick", "--steps", "1", "--flow-steps", "1",

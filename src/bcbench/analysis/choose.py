@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from bcbench.analysis.fewstep import one_interleaved_run
 from bcbench.analysis.findings import interleaved_key
 from bcbench.analysis.realtime import highest_safe_rate, largest_safe_delay
 from bcbench.analysis.results import Row
@@ -31,15 +32,6 @@ def fastest_exact(row: Row, interleaved: dict[str, dict[str, Any]] | None = None
              if m in EXACT_MODES and key in t.get("median_ms", {})]
     timed = timed or [(m, float(row.latency[m]["median_ms"])) for m in EXACT_MODES if m in row.latency]
     return min(timed, key=lambda t: t[1]) if timed else None
-
-
-def one_interleaved_run(paired: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
-    """Mode -> timing, of the folder's interleaved timings (latency-paired*.json) that were taken in the same rounds
-    (one `run_id`, benchmarks/paired_latency.py with several --mode): comparing modes' times across runs would let a
-    drifting machine pick the fastest. Files without a run_id (single-mode runs) are not used here."""
-    ids = [t["run_id"] for t in paired.values() if t.get("run_id")]
-    anchor = (paired.get("reference") or {}).get("run_id") or (ids[-1] if ids else None)
-    return {m: t for m, t in paired.items() if anchor and t.get("run_id") == anchor}
 
 
 def _sweep_of(run_label: str, realtime: dict[str, dict[str, Any]]) -> tuple[str, dict[str, Any]] | None:

@@ -108,3 +108,12 @@ def fewstep_lines(points: list[Point], margin: float, mode: str = "fast",
     out += ["", f"Goal (K <= {GOAL_STEPS} no worse than DDPM-100 by more than the margin, at <= 1/{GOAL_SPEEDUP:.0f} "
             f"of DDIM-10's latency): **{goal}**.", ""]
     return out
+
+
+def one_interleaved_run(paired: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Mode -> timing, of the folder's interleaved timings (latency-paired*.json) that were taken in the same rounds
+    (one `run_id`, benchmarks/paired_latency.py with several --mode): comparing modes' times across runs would let a
+    drifting machine pick the fastest. Files without a run_id (single-mode runs) are not used here."""
+    ids = [t["run_id"] for t in paired.values() if t.get("run_id")]
+    anchor = (paired.get("reference") or {}).get("run_id") or (ids[-1] if ids else None)
+    return {m: t for m, t in paired.items() if anchor and t.get("run_id") == anchor}

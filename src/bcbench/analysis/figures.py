@@ -14,6 +14,7 @@ import matplotlib.pyplot as plt
 
 from bcbench.analysis.findings import interleaved_key
 from bcbench.analysis.realtime import delay_curve
+from bcbench.modes import EXACT_MODES
 from bcbench.reference import STUDY_REFERENCE
 from bcbench.utils.io import atomic_path
 
@@ -53,13 +54,14 @@ def _budget_lines(ax: Any, vertical: bool = True) -> None:
                     transform=ax.get_xaxis_transform())
 
 
-def figure5(rows: list[Any], path: Path, mode: str = "reference", timing: dict[str, Any] | None = None
-            ) -> Path | None:
+def figure5(rows: list[Any], path: Path, mode: str = "reference", timing: dict[str, Any] | None = None,
+            run: dict[str, dict[str, Any]] | None = None) -> Path | None:
     """Mean score vs latency per call (log x), marker area by parameters, labels in millions, CI error bars.
 
     `timing` (a `latency-paired*.json` in `mode`, benchmarks/paired_latency.py) puts the settings it timed at its
     interleaved medians rather than at their own studies' timings: a report over several studies otherwise places
-    side by side times taken hours apart, and this VM's speed moves by tens of percent between hours."""
+    side by side times taken hours apart, and this VM's speed moves by tens of percent between hours. `run` (mode ->
+    timing, fewstep.one_interleaved_run) gives the arrows' deployed times where it timed the setting."""
     interleaved = (timing or {}).get("median_ms", {})
     times = figure5_times(rows, mode, timing)
     pts = [r for r in rows if r.key in times]
@@ -86,12 +88,11 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference", timing: dict[s
             ax.scatter(x(r), v, s=14, color=COLOURS.get(r.policy, "k"), alpha=0.35, lw=0,
                        marker=MARKERS[nth[r.label] % len(MARKERS)])
         markers.append((x(r), r.score, size ** 0.5 / 2))
-        deployed = r.deployed_ms() if mode == "reference" else None
-        if deployed and r.latency_ms(mode):  # the ratio within the row's own record, applied to where the point stands
-            deployed = (deployed[0], deployed[1] * x(r) / r.latency_ms(mode))
+        deployed = _deployed(r, x(r), mode, run) if mode == "reference" else None
         if deployed and deployed[1] < 0.95 * x(r):  # an arrow to the deployed (exact) time
             ax.annotate("", (deployed[1], r.score), xytext=(x(r), r.score),
                         arrowprops={"arrowstyle": "->", "color": COLOURS.get(r.policy, "k"), "alpha": 0.6, "lw": 1})
+            ax.scatter(deployed[1], r.score, s=0)  # the axis reaches the arrow's tip (annotations do not widen it)
         if r.variant != "default":  # a generative policy's settings: name the setting, the legend names it
             labels.append((x(r), r.score, r.variant.upper().replace("-LEADING", "-L")))
     ax.legend(legend.values(), legend.keys(), fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0),
@@ -119,6 +120,18 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference", timing: dict[s
     fig.tight_layout()
     place_labels(ax, labels, markers=markers)
     return _save(fig, path)
+
+
+def _deployed(r: Any, at: float, mode: str, run: dict[str, dict[str, Any]] | None) -> tuple[str, float] | None:
+    """(mode, ms) of a row's fastest exact deployed mode: from the interleaved run where it timed the setting, else
+    its own record's ratio to `mode` applied to where the point stands (`at`)."""
+    key = interleaved_key(r.policy, r.variant)
+    timed = [(m, float(t["median_ms"][key])) for m, t in (run or {}).items()
+             if m in EXACT_MODES[1:] and key in t.get("median_ms", {})]
+    if timed:
+        return min(timed, key=lambda t: t[1])
+    own = r.deployed_ms()
+    return (own[0], own[1] * at / r.latency_ms(mode)) if own and r.latency_ms(mode) else None
 
 
 def figure5_times(rows: list[Any], mode: str = "reference", timing: dict[str, Any] | None = None

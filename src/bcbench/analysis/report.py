@@ -17,7 +17,7 @@ from typing import Any
 from bcbench.analysis.choose import HEADER as CHOOSE_HEADER
 from bcbench.analysis.choose import control_loop_lines, control_loop_rows
 from bcbench.analysis.convergence import apply_checks, check_lines, doubling_checks
-from bcbench.analysis.fewstep import fewstep_lines, load_paired
+from bcbench.analysis.fewstep import fewstep_lines, load_paired, one_interleaved_run
 from bcbench.analysis.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
 from bcbench.analysis.findings import DEFAULT_MARGIN, judge, points_from_rows, with_interleaved
 from bcbench.analysis.provenance import lead_line, paired_conditions, provenance_notes
@@ -296,7 +296,8 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     # latency timed in interleaved rounds, per inference mode, where the study's folder has it: the findings' times
     # and Figure 5's axis (reference mode), and finding 3's DDIM/DDPM ratios (any mode's where reference has none)
     paired = load_paired(results)
-    figs = {FIG5: figure5(settings, out / "fig5_accuracy_vs_latency.png", timing=paired.get("reference")),
+    figs = {FIG5: figure5(settings, out / "fig5_accuracy_vs_latency.png", timing=paired.get("reference"),
+                          run=one_interleaved_run(paired)),
             "Figure 3: generative policies against sampling steps": figure3(settings, out / "fig3_denoising_steps.png"),
             "Figure 4: DDPM-cosine, DDIM-cosine, DDIM-linear": figure4(settings, out / "fig4_samplers.png"),
             "Learning curves": learning_curves(rows, out / "learning_curves.png")}
