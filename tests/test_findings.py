@@ -218,11 +218,11 @@ def test_finding_1_shows_the_verdict_with_a_setting_on_the_10x_line_counted_the_
     flow_in = pt("flow", "flow", BASE, 96.0, "euler10")
     out = judge([dp100, cnn, flow_out])[0]  # 9.4x: not compared by the rule
     assert out.verdict == CONTRADICTED
-    assert "on the 10x line (within 10%): flow at 9.4x; counted on the other side, the verdict would be supported" \
-        in out.evidence
+    assert ("on the 10x line (within 10%): flow at 9.4x; counted on the other side, the comparison would read "
+            "supported") in out.evidence
     inside = judge([dp100, cnn, flow_in])[0]  # 10.4x: compared, and as good as the slow setting
     assert inside.verdict == SUPPORTED
-    assert "flow at 10.4x; counted on the other side, the verdict would be contradicted" in inside.evidence
+    assert "flow at 10.4x; counted on the other side, the comparison would read contradicted" in inside.evidence
     far = judge([dp100, cnn, pt("flow", "flow", BASE, 300.0, "euler10")])[0]  # 3.3x: not near the line
     assert far.verdict == CONTRADICTED and "10x line" not in far.evidence
 

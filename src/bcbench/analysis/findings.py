@@ -219,8 +219,9 @@ def _border_note(slow: Point, timed: list[Point], fast: list[Point], verdict: st
     d = paired_interval(slow, other)
     alt = _at_most(d.lo, d.hi, m)
     same = "the same" if alt == verdict else alt
-    return (f"; on the {SLOWER:g}x line (within {BORDER:.0%}): {names}; counted on the other side, the verdict "
-            f"would be {same} ({_fmt_diff(d)})")
+    # the paired comparison alone: the convergence rule (undertrained) is not applied to it
+    return (f"; on the {SLOWER:g}x line (within {BORDER:.0%}): {names}; counted on the other side, the comparison "
+            f"would read {same} ({_fmt_diff(d)})")
 
 
 def _timing_note(compared: list[Point]) -> str:
