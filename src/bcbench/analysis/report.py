@@ -342,8 +342,9 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
         tmp.write_text("\n".join(md) + "\n")
     html_path = out / "report.html"
     with atomic_path(html_path) as tmp:
-        top = (_img(FIG5, fig5, "lead") if fig5 else "") + "<h2>Which policy for my control loop</h2>" + _html_table(
-            CHOOSE_HEADER, control_loop_rows(settings, realtime, margin, paired))
+        choose = control_loop_rows(settings, realtime, margin, paired)
+        top = ((_img(FIG5, fig5, "lead", _lead_height(lead, len(choose))) if fig5 else "")
+               + "<h2>Which policy for my control loop</h2>" + _html_table(CHOOSE_HEADER, choose))
         tail = (f"<h2>How to read the numbers</h2><p>{html.escape(intro)}</p><h2>Provenance</h2><ul>"
                 + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
         tmp.write_text(_html(lead.replace("`", ""), findings, (columns, table), figs, FINDINGS_INTRO.format(m=margin),
@@ -351,10 +352,18 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     return {"markdown": str(md_path), "html": str(html_path), "dir": str(out)}
 
 
-def _img(title: str, path: Path, cls: str = "") -> str:
+def _img(title: str, path: Path, cls: str = "", style: str = "") -> str:
     t = html.escape(title)
-    return (f"<h2>{t}</h2><img alt='{t}'{f' class={cls!r}' if cls else ''} "
+    return (f"<h2>{t}</h2><img alt='{t}'{f' class={cls!r}' if cls else ''}{f' style={style!r}' if style else ''} "
             f"src='data:image/png;base64,{base64.b64encode(path.read_bytes()).decode()}'>")
+
+
+def _lead_height(intro: str, table_rows: int) -> str:
+    """Figure 5's height cap, so that it and the choice table fit the first screen: 46% of the window less what a
+    table of more than 5 rows (about 24 px each) and an introduction of more than 3 lines (about 22 px per 170
+    characters at a laptop's width) take, never below a quarter of the window."""
+    extra = 24 * max(0, table_rows - 5) + 22 * max(0, -(-len(intro) // 170) - 3)
+    return f"max-height:max(25vh, calc(46vh - {extra}px))" if extra else ""
 
 
 def _html(intro: str, findings: list[Any], table: tuple[list[str], list[list[str]]], figs: dict[str, Path | None],
