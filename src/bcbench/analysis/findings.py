@@ -22,8 +22,8 @@ SUPPORTED, CONTRADICTED, INCONCLUSIVE, UNDERTRAINED = "supported", "contradicted
 DEFAULT_MARGIN = 0.05
 SLOWER = 10.0  # finding 1 compares the slowest setting with the settings at least this many times faster
 # a setting whose speed-up lies within this fraction of SLOWER is on the line: two interleaved runs an hour apart on
-# one VM put flow Euler-10 at 10.0x and 9.4x DDPM-100 (results/cpu-confirm); the verdict with it on the other side
-# is shown beside the rule's (not instead of it)
+# one VM put flow Euler-10 at 10.0x and 9.4x DDPM-100 (results/cpu-confirm); what the paired comparison reads with
+# it on the other side is shown beside the rule's verdict (not instead of it)
 BORDER = 0.1
 
 
@@ -207,8 +207,9 @@ def finding_1(points: list[Point], m: float) -> Finding:
 
 
 def _border_note(slow: Point, timed: list[Point], fast: list[Point], verdict: str, m: float) -> str:
-    """The settings within BORDER of the 10x line, and the verdict had they fallen on its other side (a timing
-    fluctuation of that size moves them), when it differs: a sensitivity statement, not a second rule."""
+    """The settings within BORDER of the 10x line, and what the paired comparison reads had they fallen on its
+    other side (a timing fluctuation of that size moves them), "the same" where it agrees: a sensitivity statement,
+    not a second rule."""
     border = [p for p in timed if p is not slow and abs(slow.latency_ms / p.latency_ms / SLOWER - 1) <= BORDER]
     if not border:
         return ""
