@@ -12,8 +12,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from bcbench.analysis.fewstep import one_interleaved_run
-from bcbench.analysis.findings import interleaved_key
+from bcbench.analysis.fewstep import interleaved_medians, one_interleaved_run
 from bcbench.analysis.realtime import highest_safe_rate, largest_safe_delay
 from bcbench.analysis.results import Row
 from bcbench.modes import EXACT_MODES
@@ -27,9 +26,7 @@ def fastest_exact(row: Row, interleaved: dict[str, dict[str, Any]] | None = None
     """(mode, median ms) of the fastest exact mode this row was timed in: in `interleaved` (one_interleaved_run)
     where that run timed its setting, else in the row's own timing record (mode "openvino-fp32, interleaved"
     names the source)."""
-    key = interleaved_key(row.policy, row.variant)
-    timed = [(f"{m}, interleaved", float(t["median_ms"][key])) for m, t in (interleaved or {}).items()
-             if m in EXACT_MODES and key in t.get("median_ms", {})]
+    timed = [(f"{m}, interleaved", ms) for m, ms in interleaved_medians(interleaved, row.policy, row.variant).items()]
     timed = timed or [(m, float(row.latency[m]["median_ms"])) for m in EXACT_MODES if m in row.latency]
     return min(timed, key=lambda t: t[1]) if timed else None
 

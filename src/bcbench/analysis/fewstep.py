@@ -17,8 +17,16 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from bcbench.analysis.findings import Point, dp_point, held_fixed, paired_interval, with_interleaved
+from bcbench.analysis.findings import (
+    Point,
+    dp_point,
+    held_fixed,
+    interleaved_key,
+    paired_interval,
+    with_interleaved,
+)
 from bcbench.errors import BCBenchError
+from bcbench.modes import EXACT_MODES
 from bcbench.stats import seeds_to_decide
 from bcbench.utils.io import read_json
 
@@ -117,3 +125,11 @@ def one_interleaved_run(paired: dict[str, dict[str, Any]]) -> dict[str, dict[str
     ids = [t["run_id"] for t in paired.values() if t.get("run_id")]
     anchor = (paired.get("reference") or {}).get("run_id") or (ids[-1] if ids else None)
     return {m: t for m, t in paired.items() if anchor and t.get("run_id") == anchor}
+
+
+def interleaved_medians(run: dict[str, dict[str, Any]] | None, policy: str, variant: str) -> dict[str, float]:
+    """Mode -> the median ms that an interleaved run (one_interleaved_run) timed for this setting, in the exact
+    modes it timed it in."""
+    key = interleaved_key(policy, variant)
+    return {m: float(t["median_ms"][key]) for m, t in (run or {}).items()
+            if m in EXACT_MODES and key in t.get("median_ms", {})}

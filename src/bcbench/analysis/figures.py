@@ -12,6 +12,7 @@ import matplotlib
 matplotlib.use("Agg")  # files only, no display
 import matplotlib.pyplot as plt
 
+from bcbench.analysis.fewstep import interleaved_medians
 from bcbench.analysis.findings import interleaved_key
 from bcbench.analysis.realtime import delay_curve
 from bcbench.modes import EXACT_MODES
@@ -125,9 +126,7 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference", timing: dict[s
 def _deployed(r: Any, at: float, mode: str, run: dict[str, dict[str, Any]] | None) -> tuple[str, float] | None:
     """(mode, ms) of a row's fastest exact deployed mode: from the interleaved run where it timed the setting, else
     its own record's ratio to `mode` applied to where the point stands (`at`)."""
-    key = interleaved_key(r.policy, r.variant)
-    timed = [(m, float(t["median_ms"][key])) for m, t in (run or {}).items()
-             if m in EXACT_MODES[1:] and key in t.get("median_ms", {})]
+    timed = [(m, ms) for m, ms in interleaved_medians(run, r.policy, r.variant).items() if m != EXACT_MODES[0]]
     if timed:
         return min(timed, key=lambda t: t[1])
     own = r.deployed_ms()
