@@ -43,3 +43,41 @@ def test_times_of_one_interleaved_run_replace_each_runs_own():
     assert table["CNN-MLP"][3] == own["CNN-MLP"][3]  # not timed in the run: its own record
     legacy = {m: {k: v for k, v in t.items() if k != "run_id"} for m, t in paired.items()}
     assert one_interleaved_run(legacy) == {}  # single-mode files without a run id: each run's own record
+
+
+def _scored(label, policy, variant, scores, **kw):
+    from bcbench.analysis.results import Row
+
+    mean = sum(scores.values()) / len(scores)
+    return Row(key=f"{label}:{variant}", label=label, policy=policy, preset="cpu", variant=variant, sampler=None,
+               steps=None, spacing=None, beta_schedule=None, params=kw.pop("params", 490_000),
+               summary={"mean_score": {"value": mean, "ci95": [mean - 0.05, mean + 0.05]}}, scores=scores,
+               run_label=label, **kw)
+
+
+def test_each_learned_policy_against_the_scripted_baseline_at_its_fixed_setting():
+    """Above, below, or not told apart, on the paired difference at the setting fixed by the study file (not the
+    best-scoring one), and where a policy is not above, its convergence and its size against the study's."""
+    from bcbench.analysis.baseline import ABOVE, APART, BELOW, baseline_lines, baseline_rows
+
+    eps = range(100000, 100040)
+    scripted = _scored("scripted", "scripted", "default", {s: 0.5 + 0.01 * (s % 3) for s in eps})
+    good = _scored("CNN-MLP", "cnn_mlp", "default", {s: 0.8 + 0.01 * (s % 5) for s in eps}, converged=True)
+    bad = _scored("ResNet-50 CNN", "resnet50", "default", {s: 0.3 + 0.01 * (s % 7) for s in eps}, converged=True,
+                  convergence="twice the steps: -0.010 [-0.040, +0.020], converged")
+    # flow: the 10-step setting is the fixed one; its 2-step setting scores far above the baseline and is ignored
+    flow = [_scored("Flow", "flow", "euler10", {s: 0.5 + 0.01 * (s % 3) + (0.2 if s % 2 else -0.2) for s in eps},
+                    converged=False, convergence="no twice-the-steps check yet"),
+            _scored("Flow", "flow", "euler2", {s: 0.95 for s in eps}, converged=False)]
+    table = {r[0]: r for r in baseline_rows([scripted, good, bad, *flow], {})}
+    assert sorted(table) == ["CNN-MLP", "Flow", "ResNet-50 CNN"]  # the baseline itself is not compared
+    assert table["CNN-MLP"][4] == ABOVE and table["CNN-MLP"][5] == "-"
+    assert table["ResNet-50 CNN"][4] == BELOW and table["ResNet-50 CNN"][3].startswith("-0.18")
+    assert table["ResNet-50 CNN"][5].startswith("converged: twice the steps: -0.010")
+    curve = _scored("BCT", "bct", "default", {s: 0.1 for s in eps}, converged=True, convergence="fitted rise -0.01")
+    assert baseline_rows([scripted, curve], {})[0][5].startswith("curve flattened (no twice-the-steps check)")
+    assert "0.49 M parameters (the study's network: 34.5 M)" in table["ResNet-50 CNN"][5]
+    assert table["Flow"][1] == "EULER10" and table["Flow"][4] == APART
+    assert table["Flow"][5].startswith("not shown converged: no twice-the-steps check yet")
+    assert "1 of 3 learned policies are above it" in " ".join(baseline_lines([scripted, good, bad, *flow], {}))
+    assert baseline_rows([good, bad], {}) == [] and baseline_lines([good], {}) == []  # no baseline, no section

@@ -54,6 +54,20 @@ def _setting_row(rows: list[Row], sweep_label: str | None, run_label: str) -> Ro
     return rows[0]
 
 
+def chosen_settings(rows: list[Row], realtime: dict[str, dict[str, Any]]) -> dict[str, Row]:
+    """Each run's one setting, by run label in the rows' order: the one its real-time sweep names, else its preset's
+    default (or DDIM-10 / Euler-10 for a sampler sweep). Fixed by the study file, never by the scores, so a
+    comparison made on it (this table, bcbench.analysis.baseline) selects nothing on the evaluation episodes."""
+    runs: dict[str, list[Row]] = {}
+    for r in rows:
+        runs.setdefault(r.run_label or r.label, []).append(r)
+    out = {}
+    for run_label, group in runs.items():
+        sweep = _sweep_of(run_label, realtime)
+        out[run_label] = _setting_row(group, sweep[0] if sweep else None, run_label)
+    return out
+
+
 def _rate_cell(settings: dict[str, Any] | None, ms: float | None, margin: float) -> str:
     if settings is None or ms is None:
         return "not swept"
@@ -73,13 +87,9 @@ def control_loop_rows(rows: list[Row], realtime: dict[str, dict[str, Any]], marg
     """The table's rows, in the report's row order (one per run); `paired`: the folder's interleaved timings by
     mode (bcbench.analysis.fewstep.load_paired)."""
     interleaved = one_interleaved_run(paired or {})
-    runs: dict[str, list[Row]] = {}
-    for r in rows:
-        runs.setdefault(r.run_label or r.label, []).append(r)
     out = []
-    for run_label, group in runs.items():
+    for run_label, row in chosen_settings(rows, realtime).items():
         sweep = _sweep_of(run_label, realtime)
-        row = _setting_row(group, sweep[0] if sweep else None, run_label)
         fast = fastest_exact(row, interleaved)
         setting = row.variant.upper() if row.variant != "default" else (row.preset or "-")
         out.append([run_label, setting, fmt_estimate(row.summary["mean_score"]),

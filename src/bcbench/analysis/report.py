@@ -14,6 +14,8 @@ import html
 from pathlib import Path
 from typing import Any
 
+from bcbench.analysis.baseline import HEADER as BASELINE_HEADER
+from bcbench.analysis.baseline import baseline_lines, baseline_rows
 from bcbench.analysis.choose import HEADER as CHOOSE_HEADER
 from bcbench.analysis.choose import control_loop_lines, control_loop_rows
 from bcbench.analysis.convergence import apply_checks, check_lines, doubling_checks
@@ -327,8 +329,9 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
           *([f"![{FIG5}]({fig5.name})", ""] if fig5 else []), *control_loop_lines(settings, realtime, margin, paired),
           "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
     md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
-    md += ["", "## Results", "", _md_table(columns, table), "", "## Training: converged?", "",
-           *convergence_lines(rows), "", *check_lines(verdicts, strict, margin, validation=bool(check_rows)),
+    md += ["", *baseline_lines(settings, realtime), "## Results", "", _md_table(columns, table), "",
+           "## Training: converged?", "", *convergence_lines(rows), "",
+           *check_lines(verdicts, strict, margin, validation=bool(check_rows)),
            *deviation_lines(rows),
            *fewstep_lines(points_from_rows(settings, "fast"), margin, paired=paired.get("fast")),
            *time_lines(results),
@@ -347,8 +350,11 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
                + "<h2>Which policy for my control loop</h2>" + _html_table(CHOOSE_HEADER, choose))
         tail = (f"<h2>How to read the numbers</h2><p>{html.escape(intro)}</p><h2>Provenance</h2><ul>"
                 + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
-        tmp.write_text(_html(lead.replace("`", ""), findings, (columns, table), figs, FINDINGS_INTRO.format(m=margin),
-                             convergence_lines(rows), top, tail))
+        versus = baseline_rows(settings, realtime)
+        findings_html = _findings_html(findings, FINDINGS_INTRO.format(m=margin)) + (
+            "<h2>Against the scripted baseline</h2>" + _html_table(BASELINE_HEADER, versus) if versus else "")
+        tmp.write_text(_html(lead.replace("`", ""), findings_html, (columns, table), figs, convergence_lines(rows),
+                             top, tail))
     return {"markdown": str(md_path), "html": str(html_path), "dir": str(out)}
 
 
@@ -366,8 +372,15 @@ def _lead_height(intro: str, table_rows: int) -> str:
     return f"max-height:max(25vh, calc(46vh - {extra}px))" if extra else ""
 
 
-def _html(intro: str, findings: list[Any], table: tuple[list[str], list[list[str]]], figs: dict[str, Path | None],
-          rules_intro: str, training: list[str], lead: str, tail: str) -> str:
+def _findings_html(findings: list[Any], rules_intro: str) -> str:
+    items = "".join(
+        f"<li><b>{html.escape(f.claim)}</b>: <span class='{f.verdict.split()[0]}'>{html.escape(f.verdict)}</span>. "
+        f"{html.escape(f.evidence)}<br><i>Rule: {html.escape(f.rule)}</i></li>" for f in findings)
+    return f"<h2>The study's findings on this evidence</h2><p>{html.escape(rules_intro)}</p><ol>{items}</ol>"
+
+
+def _html(intro: str, findings: str, table: tuple[list[str], list[list[str]]], figs: dict[str, Path | None],
+          training: list[str], lead: str, tail: str) -> str:
     # the first screen holds Figure 5 and the table under it (.lead: the figure's height capped for that)
     css = ("body{font-family:system-ui,sans-serif;max-width:1400px;margin:0 auto 2em;padding:0 1em;color:#222}"
            "h1{font-size:1.6em;margin:.4em 0 .2em}h2{font-size:1.25em;margin:.5em 0 .3em}"
@@ -376,13 +389,9 @@ def _html(intro: str, findings: list[Any], table: tuple[list[str], list[list[str
            "th{background:#f3f3f3}.supported{color:#176b2c}.contradicted{color:#a11}.inconclusive{color:#8a6d00}"
            ".undertrained{color:#666}"
            "img{max-width:100%;border:1px solid #eee}")
-    items = "".join(
-        f"<li><b>{html.escape(f.claim)}</b>: <span class='{f.verdict.split()[0]}'>{html.escape(f.verdict)}</span>. "
-        f"{html.escape(f.evidence)}<br><i>Rule: {html.escape(f.rule)}</i></li>" for f in findings)
     train_items = "".join(f"<li>{html.escape(t[2:].replace('**', ''))}</li>" for t in training)
     images = "".join(_img(title, path) for title, path in figs.items() if path)
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>bcbench report</title><style>{css}</style>"
-            f"</head><body><h1>bcbench report</h1><p>{html.escape(intro)}</p>{lead}<h2>The study's findings on this "
-            f"evidence</h2><p>{html.escape(rules_intro)}</p><ol>{items}</ol><h2>Results</h2>"
+            f"</head><body><h1>bcbench report</h1><p>{html.escape(intro)}</p>{lead}{findings}<h2>Results</h2>"
             f"{_html_table(*table)}<h2>Training: converged?</h2><ul>{train_items}</ul>{images}{tail}"
             "</body></html>\n")
