@@ -488,6 +488,11 @@ def test_twice_the_steps_decides_convergence():
     assert lone[0].converged is True  # an older study: the curve rule stands (the report says what it is worth)
     apply_checks(lone, [], strict=True, margin=0.05)
     assert lone[0].converged is False and "no twice-the-steps check" in lone[0].convergence
+    # the report tells a run awaiting its check from one that failed it
+    from bcbench.analysis.report import convergence_lines
+
+    assert convergence_lines(lone)[0].startswith("- BCT: **not shown converged**: no twice-the-steps check yet")
+    assert convergence_lines(better[:1])[0].startswith("- DP: **not converged**: twice the steps")
 
 
 def test_a_run_is_judged_on_its_settings_pooled():

@@ -29,6 +29,7 @@ from bcbench.analysis.results import Row
 from bcbench.stats import bootstrap_ci, paired_bootstrap
 
 CONVERGED, NOT_CONVERGED, INCONCLUSIVE = "converged", "not converged", "inconclusive"
+NO_CHECK = "no twice-the-steps check yet"  # a run of a study under the seed protocol awaiting its check
 # A setting where both runs score below this is left out of a run's pooled difference: a sampler that does not work
 # (Diffusion Policy with one denoising step scores about 0.1 either way) says nothing about training, and its zero
 # difference would pull the pool towards "converged". Decided by the runs' scores, not by their difference.
@@ -132,7 +133,7 @@ def apply_checks(rows: list[Row], checks: list[Check], strict: bool, margin: flo
             r.converged = all(v.verdict == CONVERGED for v in mine)
             r.convergence = "; ".join(_verdict_text(v) for v in mine)
         elif strict:
-            r.converged, r.convergence = False, "no twice-the-steps check yet (" + r.convergence + ")"
+            r.converged, r.convergence = False, f"{NO_CHECK} (" + r.convergence + ")"
     return verdicts
 
 
