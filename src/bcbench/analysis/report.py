@@ -21,7 +21,7 @@ from bcbench.analysis.choose import control_loop_lines, control_loop_rows
 from bcbench.analysis.convergence import NO_CHECK, apply_checks, check_lines, doubling_checks
 from bcbench.analysis.fewstep import fewstep_lines, load_paired, one_interleaved_run
 from bcbench.analysis.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
-from bcbench.analysis.findings import DEFAULT_MARGIN, judge, points_from_rows, with_interleaved
+from bcbench.analysis.findings import DEFAULT_MARGIN, Finding, judge, points_from_rows, with_interleaved
 from bcbench.analysis.provenance import lead_line, paired_conditions, provenance_notes
 from bcbench.analysis.realtime import margin_power_sentence, pooled_sentence, safe_delay_sentence
 from bcbench.analysis.results import (
@@ -374,7 +374,7 @@ def _lead_height(intro: str, table_rows: int) -> str:
     return f"max-height:max(25vh, calc(46vh - {extra}px))" if extra else ""
 
 
-def _findings_html(findings: list[Any], rules_intro: str) -> str:
+def _findings_html(findings: list[Finding], rules_intro: str) -> str:
     items = "".join(
         f"<li><b>{html.escape(f.claim)}</b>: <span class='{f.verdict.split()[0]}'>{html.escape(f.verdict)}</span>. "
         f"{html.escape(f.evidence)}<br><i>Rule: {html.escape(f.rule)}</i></li>" for f in findings)
