@@ -75,9 +75,8 @@ def baseline_rows(rows: list[Row], realtime: dict[str, dict[str, Any]]) -> list[
     return out
 
 
-def baseline_lines(rows: list[Row], realtime: dict[str, dict[str, Any]]) -> list[str]:
-    """The report's section (Markdown lines); [] without a scripted baseline."""
-    table = baseline_rows(rows, realtime)
+def baseline_lines(rows: list[Row], table: list[list[str]]) -> list[str]:
+    """The report's section (Markdown lines) around `table` (baseline_rows of `rows`); [] when it is empty."""
     if not table:
         return []
     scripted = next(r for r in rows if r.policy == "scripted" and r.scores)

@@ -331,7 +331,8 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
           *([f"![{FIG5}]({fig5.name})", ""] if fig5 else []), *control_loop_lines(settings, realtime, margin, paired),
           "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
     md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
-    md += ["", *baseline_lines(settings, realtime), "## Results", "", _md_table(columns, table), "",
+    versus = baseline_rows(settings, realtime)  # each learned policy against the scripted baseline
+    md += ["", *baseline_lines(settings, versus), "## Results", "", _md_table(columns, table), "",
            "## Training: converged?", "", *convergence_lines(rows), "",
            *check_lines(verdicts, strict, margin, validation=bool(check_rows)),
            *deviation_lines(rows),
@@ -352,7 +353,6 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
                + "<h2>Which policy for my control loop</h2>" + _html_table(CHOOSE_HEADER, choose))
         tail = (f"<h2>How to read the numbers</h2><p>{html.escape(intro)}</p><h2>Provenance</h2><ul>"
                 + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
-        versus = baseline_rows(settings, realtime)
         findings_html = _findings_html(findings, FINDINGS_INTRO.format(m=margin)) + (
             "<h2>Against the scripted baseline</h2>" + _html_table(BASELINE_HEADER, versus) if versus else "")
         tmp.write_text(_html(lead.replace("`", ""), findings_html, (columns, table), figs, convergence_lines(rows),
