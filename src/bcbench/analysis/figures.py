@@ -15,7 +15,6 @@ import matplotlib.pyplot as plt
 from bcbench.analysis.fewstep import interleaved_medians
 from bcbench.analysis.findings import interleaved_key
 from bcbench.analysis.realtime import delay_curve
-from bcbench.modes import EXACT_MODES
 from bcbench.reference import STUDY_REFERENCE
 from bcbench.utils.io import atomic_path
 
@@ -126,7 +125,7 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference", timing: dict[s
 def _deployed(r: Any, at: float, mode: str, run: dict[str, dict[str, Any]] | None) -> tuple[str, float] | None:
     """(mode, ms) of a row's fastest exact deployed mode: from the interleaved run where it timed the setting, else
     its own record's ratio to `mode` applied to where the point stands (`at`)."""
-    timed = [(m, ms) for m, ms in interleaved_medians(run, r.policy, r.variant).items() if m != EXACT_MODES[0]]
+    timed = [(m, ms) for m, ms in interleaved_medians(run, r.policy, r.variant).items() if m != mode]  # not the axis'
     if timed:
         return min(timed, key=lambda t: t[1])
     own = r.deployed_ms()
