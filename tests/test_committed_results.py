@@ -31,3 +31,21 @@ def test_committed_report_regenerates_identically(study, tmp_path):
     assert Path(paths["markdown"]).read_text() == (study / "report" / "report.md").read_text()
     for png in (study / "report").glob("*.png"):
         assert (copy / "report" / png.name).stat().st_size > 1000  # every committed figure is redrawn
+
+
+DOCS = [RESULTS.parent / "README.md", *sorted((RESULTS.parent / "docs").glob("*.md")),
+        *sorted(RESULTS.glob("**/README.md")), *sorted((RESULTS.parent / "models").glob("*/README.md"))]
+
+
+def test_every_relative_link_in_the_docs_points_to_a_committed_file():
+    """A README figure or link that names a moved or never-committed file is a number without its file."""
+    import re
+
+    broken = []
+    for doc in DOCS:
+        for target in re.findall(r"\]\(([^)\s]+)\)", doc.read_text()):
+            if re.match(r"[a-z]+:", target) or target.startswith("#"):  # web addresses and anchors
+                continue
+            if not (doc.parent / target.split("#")[0]).exists():
+                broken.append(f"{doc.relative_to(RESULTS.parent)}: {target}")
+    assert len(DOCS) > 10 and not broken, broken
