@@ -18,6 +18,7 @@ from pathlib import Path
 from bcbench.analysis.realtime import seed_scores
 from bcbench.stats import paired_bootstrap
 from bcbench.utils.io import write_json
+from bcbench.utils.system import git_commit
 
 
 def scores(path: Path) -> dict[int, float]:
@@ -45,8 +46,9 @@ def main(argv: list[str] | None = None) -> int:
            "same_score_episodes": sum(a[s] == b[s] for s in shared)}
     print(f"B - A = {diff:+.3f} [{lo:+.3f}, {hi:+.3f}] over {n} shared episodes "
           f"(A {out['mean_a']:.3f}, B {out['mean_b']:.3f}; {out['same_score_episodes']} scored the same)")
-    if args.out:
-        write_json(args.out, out)
+    if args.out:  # stamped with the commit that computed it and those of the files it read
+        inputs = {str(f): json.loads(f.read_text()).get("git_commit") for f in (args.a, args.b)}
+        write_json(args.out, {**out, "git_commit": git_commit(), "input_commits": inputs})
     return 0
 
 
