@@ -549,6 +549,9 @@ def test_a_run_is_judged_on_its_settings_pooled():
     rows = study([0.05] * 2)
     v = apply_checks(rows, doubling_checks(rows, 0.05), strict=True, margin=0.05)["flow", None]
     assert v.verdict == INCONCLUSIVE and rows[0].converged is False
+    from bcbench.analysis.report import convergence_lines  # and the report says so, not "not converged"
+
+    assert convergence_lines(rows[:1])[0].startswith("- flow: **not shown converged**: twice the steps")
     # two checked training seeds are pooled apart; a seed without its own check takes both verdicts
     same, gain = study([0.0] * 4), study([0.2] * 4, noise=0.05)
     rows = [dataclasses.replace(r, train_seed=0) for r in same] + [dataclasses.replace(r, train_seed=1) for r in gain]

@@ -131,6 +131,8 @@ def apply_checks(rows: list[Row], checks: list[Check], strict: bool, margin: flo
         mine = [own] if own else [v for (run, _), v in verdicts.items() if run == r.run_label]
         if mine:
             r.converged = all(v.verdict == CONVERGED for v in mine)
+            r.check_verdict = (CONVERGED if r.converged else NOT_CONVERGED
+                               if any(v.verdict == NOT_CONVERGED for v in mine) else INCONCLUSIVE)
             r.convergence = "; ".join(_verdict_text(v) for v in mine)
         elif strict:
             r.converged, r.convergence = False, f"{NO_CHECK} (" + r.convergence + ")"

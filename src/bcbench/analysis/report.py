@@ -18,7 +18,7 @@ from bcbench.analysis.baseline import HEADER as BASELINE_HEADER
 from bcbench.analysis.baseline import baseline_lines, baseline_rows
 from bcbench.analysis.choose import HEADER as CHOOSE_HEADER
 from bcbench.analysis.choose import control_loop_lines, control_loop_rows
-from bcbench.analysis.convergence import NO_CHECK, apply_checks, check_lines, doubling_checks
+from bcbench.analysis.convergence import NO_CHECK, NOT_CONVERGED, apply_checks, check_lines, doubling_checks
 from bcbench.analysis.fewstep import fewstep_lines, load_paired, one_interleaved_run
 from bcbench.analysis.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
 from bcbench.analysis.findings import DEFAULT_MARGIN, Finding, judge, points_from_rows, with_interleaved
@@ -265,9 +265,11 @@ def convergence_lines(rows: list[Row]) -> list[str]:
         if r.converged is None or run in seen:
             continue
         seen.add(run)
-        # a confirm study's run awaiting its check is not shown converged, which is not the same as failing it
-        state = ("converged" if r.converged else "**not shown converged**" if r.convergence.startswith(NO_CHECK)
-                 else "**not converged**")
+        # a run awaiting its check, or whose check is inconclusive, is not shown converged, which is not the same
+        # as failing it (a check's interval wholly above the margin; in older studies, the curve rule)
+        curve_rule = r.check_verdict is None and not r.convergence.startswith(NO_CHECK)
+        failed = r.check_verdict == NOT_CONVERGED or curve_rule
+        state = "converged" if r.converged else "**not converged**" if failed else "**not shown converged**"
         seed = f" (training seed {r.train_seed})" if len(seeds.get(r.label, ())) > 1 else ""
         out.append(f"- {r.label}{seed}: {state}: {r.convergence}; {_train_cell(r)}")
     return out or ["- no trained runs"]

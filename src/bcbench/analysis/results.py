@@ -115,6 +115,7 @@ class Row:
     curve: Curve | None = None  # learned policies: rollout scores and validation loss while training
     converged: bool | None = None  # None: not trained here (baselines)
     convergence: str = ""  # why (see bcbench.analysis.curves.plateau)
+    check_verdict: str | None = None  # its twice-the-steps check's verdict, where it had one (analysis.convergence)
     latency: dict[str, Any] = field(default_factory=dict)  # mode -> stats
     train: dict[str, Any] = field(default_factory=dict)
     hardware: dict[str, Any] = field(default_factory=dict)
