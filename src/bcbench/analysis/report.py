@@ -253,8 +253,9 @@ def preset_change_lines(rows: list[Row]) -> list[str]:
 
 
 def convergence_lines(rows: list[Row]) -> list[str]:
-    """One line per trained run: whether its learning curve reached its plateau, and why. A label trained with
-    several seeds names each line's training seed (one seed per label needs no name)."""
+    """One line per trained run: converged, not converged, or not shown converged (its twice-the-steps check; in
+    older studies its learning curve), and why. A label trained with several seeds names each line's training seed
+    (one seed per label needs no name)."""
     seeds: dict[str, set[int]] = {}
     for r in rows:
         if r.train_seed is not None:
