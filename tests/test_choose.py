@@ -64,7 +64,7 @@ def test_each_learned_policy_against_the_scripted_baseline_at_its_fixed_setting(
     scripted = _scored("scripted", "scripted", "default", {s: 0.5 + 0.01 * (s % 3) for s in eps})
     good = _scored("CNN-MLP", "cnn_mlp", "default", {s: 0.8 + 0.01 * (s % 5) for s in eps}, converged=True)
     bad = _scored("ResNet-50 CNN", "resnet50", "default", {s: 0.3 + 0.01 * (s % 7) for s in eps}, converged=True,
-                  convergence="twice the steps: -0.010 [-0.040, +0.020], converged")
+                  convergence="twice the steps: -0.010 [-0.040, +0.020], converged", check_verdict="converged")
     # flow: the 10-step setting is the fixed one; its 2-step setting scores far above the baseline and is ignored
     flow = [_scored("Flow", "flow", "euler10", {s: 0.5 + 0.01 * (s % 3) + (0.2 if s % 2 else -0.2) for s in eps},
                     converged=False, convergence="no twice-the-steps check yet"),

@@ -21,6 +21,7 @@ from __future__ import annotations
 from typing import Any
 
 from bcbench.analysis.choose import chosen_settings
+from bcbench.analysis.convergence import CONVERGED
 from bcbench.analysis.findings import paired_interval, points_from_rows
 from bcbench.analysis.results import Row
 from bcbench.reference import STUDY_PARAMETERS, STUDY_REFERENCE
@@ -37,7 +38,7 @@ def _verdict(lo: float, hi: float) -> str:
 
 def _why_not(r: Row) -> str:
     """The evidence beside a policy that is not above the baseline: convergence, then size against the study's."""
-    if r.converged is True and "twice the steps" in r.convergence:
+    if r.converged is True and r.check_verdict == CONVERGED:
         train = "converged: " + r.convergence
     elif r.converged is True:  # an older study without the check: the curve rule, which a cosine schedule passes
         train = "curve flattened (no twice-the-steps check): " + r.convergence
