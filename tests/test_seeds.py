@@ -292,3 +292,30 @@ def test_a_trained_setting_with_one_seed_beside_several_counts_as_one(tmp_path):
     assert episodes_and_seeds(merge_training_seeds(load_rows(tmp_path)))[2] == [3]  # no training record: not trained
     write_json(tmp_path / "runs" / "BCT-s0" / "train_summary.json", {"steps": 10})
     assert episodes_and_seeds(merge_training_seeds(load_rows(tmp_path)))[2] == [1, 3]
+
+
+def test_the_realtime_section_names_a_sweep_on_another_machine_and_its_one_training_seed():
+    """A study resumed on a new machine whose real-time stages ran there, on training seed 0 of a policy evaluated
+    with three: the section says where the sweep ran and that its scores are one model's; a sweep on the machine
+    that evaluated the rows, pooled over its seeds, needs neither sentence."""
+    from bcbench.analysis.provenance import sweep_provenance
+    from bcbench.analysis.results import Row
+
+    def row(seed, cpu):
+        return Row(key=f"bct-s{seed}:default", label="BCT", policy="bct", preset="cpu", variant="default",
+                   sampler=None, steps=None, spacing=None, beta_schedule=None, params=1, summary={}, train_seed=seed,
+                   hardware={"cpu_model": cpu, "cpu_flags": ["avx2"], "torch_threads": 1})
+
+    def setting(cpu, seed, pooled=False):
+        summary = {"training_seeds": [0, 1, 2]} if pooled else {}
+        return {"hardware": {"cpu_model": cpu, "cpu_flags": ["avx2"], "torch_threads": 2}, "summary": summary,
+                "policy": {"config": {"seed": seed}}, "episodes": []}
+
+    rows = [row(s, "Xeon") for s in (0, 1, 2)]
+    text = sweep_provenance({"BCT": {"realtime-sync": setting("EPYC", 0)},
+                             "BCT + ensemble": {"realtime-sync": setting("EPYC", 0)}}, rows)
+    assert text.startswith("Swept on EPYC (avx2), 2 threads (BCT), a machine that evaluated none of the rows "
+                           "above (Xeon (avx2)):")
+    assert "Swept on training seed 0 only (of the 3 evaluated): BCT; those sweeps' scores are that model's" in text
+    assert sweep_provenance({"BCT": {"realtime-sync": setting("Xeon", 0, pooled=True)}}, rows) == ""
+    assert sweep_provenance({"BCT": {"realtime-sync": setting("Xeon", 0)}}, rows[:1]) == ""  # one seed, one machine

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from bcbench.analysis.realtime import training_seed
 from bcbench.analysis.results import Row, cpu_text
 from bcbench.analysis.seeds import episodes_and_seeds
 from bcbench.utils.system import CONTENDED_CPUS
@@ -150,3 +151,39 @@ def paired_conditions(paired: dict[str, dict[str, Any]]) -> list[str]:
                    f"{c['steal_cpus']:.2f} stolen, over {c['seconds']:.0f} s)"
                    + (": its times are not quiet-machine times." if busy else "."))
     return out
+
+
+def sweep_provenance(realtime: dict[str, dict[str, Any]], rows: list[Row]) -> str:
+    """What the real-time sweeps ran on, where the rows do not say it: the machines, when a sweep ran on a CPU that
+    evaluated none of the rows (a study resumed on a new machine: a closed loop's episodes differ between CPUs in
+    their last bits, so a sweep is read against its own sync, not the evaluation), and the training seed, where a
+    sweep ran one model of a policy evaluated with several (its scores are that model's, not a mean over seeds)."""
+    evaluated = {cpu_text(r.hardware) for r in rows if r.hardware}
+    where: dict[str, list[str]] = {}  # "CPU, N threads" -> the policies swept there
+    single: dict[tuple[int, int], list[str]] = {}  # (its training seed, of how many) -> the policies swept so
+    for label, settings in realtime.items():
+        base = label.split(" + ")[0]  # a strategy's sweep of a policy ("BCT + ensemble"), a sampler's ("DP DDIM10")
+        policy = next((r.label for r in rows if r.label == base or base.startswith(r.label + " ")), base)
+        hw = next((r["hardware"] for r in settings.values() if r.get("hardware")), {})
+        there = where.setdefault(f"{cpu_text(hw)}, {_threads(hw.get('torch_threads', '?'))}", []) if hw else []
+        if hw and policy not in there:
+            there.append(policy)
+        first = next(iter(settings.values()), {})
+        if "training_seeds" in first.get("summary", {}):
+            continue  # pooled over seeds: pooled_sentence names them
+        seeds = {r.train_seed for r in rows if r.label == policy and r.train_seed is not None}
+        if len(seeds) > 1:
+            named = single.setdefault((training_seed(first), len(seeds)), [])
+            if policy not in named:
+                named.append(policy)
+    out = []
+    elsewhere = sorted((cpu, policies) for cpu, policies in where.items() if cpu.rsplit(", ", 1)[0] not in evaluated)
+    if elsewhere:
+        out.append("Swept on " + "; ".join(f"{cpu} ({', '.join(policies)})" for cpu, policies in elsewhere)
+                   + f", {'machines' if len(elsewhere) > 1 else 'a machine'} that evaluated none of the rows above "
+                   f"({'; '.join(sorted(evaluated))}): a closed loop's episodes differ between CPUs in their last "
+                   "bits, so each sweep is read against its own sync.")
+    for (seed, n), policies in sorted(single.items()):
+        out.append(f"Swept on training seed {seed} only (of the {n} evaluated): {', '.join(policies)}; those sweeps' "
+                   "scores are that model's, not the mean over training seeds in the tables above.")
+    return " ".join(out)

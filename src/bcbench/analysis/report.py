@@ -22,7 +22,7 @@ from bcbench.analysis.convergence import NO_CHECK, NOT_CONVERGED, apply_checks, 
 from bcbench.analysis.fewstep import fewstep_lines, load_paired, one_interleaved_run
 from bcbench.analysis.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
 from bcbench.analysis.findings import DEFAULT_MARGIN, Finding, judge, points_from_rows, with_interleaved
-from bcbench.analysis.provenance import lead_line, paired_conditions, provenance_notes
+from bcbench.analysis.provenance import lead_line, paired_conditions, provenance_notes, sweep_provenance
 from bcbench.analysis.realtime import margin_power_sentence, pooled_sentence, safe_delay_sentence
 from bcbench.analysis.results import (
     Row,
@@ -184,8 +184,9 @@ def realtime_table(realtime: dict[str, dict[str, Any]]) -> list[str]:
     return [head, "|---" * (len(REALTIME_COLUMNS) + 1) + "|", *rows]
 
 
-def realtime_lines(realtime: dict[str, dict[str, Any]], margin: float) -> list[str]:
-    """Per swept policy: sync, each delay, measured and profile scores, the largest safe delay and rate."""
+def realtime_lines(realtime: dict[str, dict[str, Any]], margin: float, rows: list[Row] | None = None) -> list[str]:
+    """Per swept policy: sync, each delay, measured and profile scores, the largest safe delay and rate; `rows` (one
+    per run): what the sweeps ran on where it differs from them (`provenance.sweep_provenance`)."""
     if not realtime:
         return []
     intro = (f"Largest safe delay, per execution mode: the largest d up to which every score stays within the margin "
@@ -195,7 +196,8 @@ def realtime_lines(realtime: dict[str, dict[str, Any]], margin: float) -> list[s
              "(median; slowest timed call) still takes at most that many steps (d / L), reading the delay curve "
              "as holding in steps at other rates.")
     out = ["## Under real-time execution (10 Hz control)", "",
-           " ".join(filter(None, [intro, pooled_sentence(realtime), margin_power_sentence(realtime, margin)])), ""]
+           " ".join(filter(None, [intro, pooled_sentence(realtime), sweep_provenance(realtime, rows or []),
+                                 margin_power_sentence(realtime, margin)])), ""]
     out += [*realtime_table(realtime), "", "Every setting with its 95% interval, and what the sweep says (a measured "
             "or profile setting whose calls all took the same d repeats that fixed-delay setting and is marked so):",
             ""]
@@ -341,7 +343,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
            *deviation_lines(rows),
            *fewstep_lines(points_from_rows(settings, "fast"), margin, paired=paired.get("fast")),
            *time_lines(results),
-           *realtime_lines(realtime, margin), *strategy_lines(strategies, margin)]
+           *realtime_lines(realtime, margin, rows), *strategy_lines(strategies, margin)]
     for title, path in figs.items():
         if path:
             md += [f"## {title}", "", f"![{title}]({path.name})", ""]
