@@ -159,25 +159,22 @@ def sweep_provenance(realtime: dict[str, dict[str, Any]], rows: list[Row]) -> st
     their last bits, so a sweep is read against its own sync, not the evaluation), and the training seed, where a
     sweep ran one model of a policy evaluated with several (its scores are that model's, not a mean over seeds)."""
     evaluated = {cpu_text(r.hardware) for r in rows if r.hardware}
-    where: dict[str, list[str]] = {}  # "CPU, N threads" -> the policies swept there
-    single: dict[tuple[int, int], list[str]] = {}  # (its training seed, of how many) -> the policies swept so
+    where: dict[str, dict[str, None]] = {}  # "CPU, N threads" -> the policies swept there (an ordered set)
+    single: dict[tuple[int, int], dict[str, None]] = {}  # (its training seed, of how many) -> the policies swept so
     for label, settings in realtime.items():
         base = label.split(" + ")[0]  # a strategy's sweep of a policy ("BCT + ensemble"), a sampler's ("DP DDIM10")
         policy = next((r.label for r in rows if r.label == base or base.startswith(r.label + " ")), base)
         hw = next((r["hardware"] for r in settings.values() if r.get("hardware")), {})
-        there = where.setdefault(f"{cpu_text(hw)}, {_threads(hw.get('torch_threads', '?'))}", []) if hw else []
-        if hw and policy not in there:
-            there.append(policy)
+        if hw:
+            where.setdefault(f"{cpu_text(hw)}, {_threads(hw.get('torch_threads', '?'))}", {})[policy] = None
         first = next(iter(settings.values()), {})
         if "training_seeds" in first.get("summary", {}):
             continue  # pooled over seeds: pooled_sentence names them
         seeds = {r.train_seed for r in rows if r.label == policy and r.train_seed is not None}
         if len(seeds) > 1:
-            named = single.setdefault((training_seed(first), len(seeds)), [])
-            if policy not in named:
-                named.append(policy)
+            single.setdefault((training_seed(first), len(seeds)), {})[policy] = None
     out = []
-    elsewhere = sorted((cpu, policies) for cpu, policies in where.items() if cpu.rsplit(", ", 1)[0] not in evaluated)
+    elsewhere = sorted((cpu, list(ps)) for cpu, ps in where.items() if cpu.rsplit(", ", 1)[0] not in evaluated)
     if elsewhere:
         out.append("Swept on " + "; ".join(f"{cpu} ({', '.join(policies)})" for cpu, policies in elsewhere)
                    + f", {'machines' if len(elsewhere) > 1 else 'a machine'} that evaluated none of the rows above "
