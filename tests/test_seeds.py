@@ -319,3 +319,8 @@ def test_the_realtime_section_names_a_sweep_on_another_machine_and_its_one_train
     assert "Swept on training seed 0 only (of the 3 evaluated): BCT; those sweeps' scores are that model's" in text
     assert sweep_provenance({"BCT": {"realtime-sync": setting("Xeon", 0, pooled=True)}}, rows) == ""
     assert sweep_provenance({"BCT": {"realtime-sync": setting("Xeon", 0)}}, rows[:1]) == ""  # one seed, one machine
+    # a sweep is the longest label's it starts with: "BCT long" (one seed) is not "BCT" (three)
+    long = Row(key="bct-long:default", label="BCT long", policy="bct", preset="cpu", variant="default", sampler=None,
+               steps=None, spacing=None, beta_schedule=None, params=1, summary={}, train_seed=0,
+               hardware={"cpu_model": "Xeon", "cpu_flags": ["avx2"], "torch_threads": 1})
+    assert sweep_provenance({"BCT long + ensemble": {"realtime-sync": setting("Xeon", 0)}}, [*rows, long]) == ""

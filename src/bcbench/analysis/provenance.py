@@ -163,7 +163,9 @@ def sweep_provenance(realtime: dict[str, dict[str, Any]], rows: list[Row]) -> st
     single: dict[tuple[int, int], dict[str, None]] = {}  # (its training seed, of how many) -> the policies swept so
     for label, settings in realtime.items():
         base = label.split(" + ")[0]  # a strategy's sweep of a policy ("BCT + ensemble"), a sampler's ("DP DDIM10")
-        policy = next((r.label for r in rows if r.label == base or base.startswith(r.label + " ")), base)
+        # the longest row label it starts with: "BeT (chunked)" before "BeT" when a study has both
+        policy = max((r.label for r in rows if r.label == base or base.startswith(r.label + " ")), key=len,
+                     default=base)
         hw = next((r["hardware"] for r in settings.values() if r.get("hardware")), {})
         if hw:
             where.setdefault(f"{cpu_text(hw)}, {_threads(hw.get('torch_threads', '?'))}", {})[policy] = None
