@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from bcbench.analysis.report import write_report
-from bcbench.analysis.results import load_check_rows, load_rows, study_dirs
+from bcbench.analysis.results import load_check_rows, load_rows
+from bcbench.analysis.studies import study_dirs
 from bcbench.errors import BCBenchError
 from bcbench.utils.io import write_json
 from tests.test_seeds import _eval
@@ -76,6 +77,40 @@ def test_a_combined_report_refuses_a_missing_study_or_two_margins(tmp_path):
     out2 = _combined(tmp_path / "m", margin=0.1)
     with pytest.raises(BCBenchError, match="differ in margin"):
         write_report(out2)
+
+
+def test_a_combined_report_leaves_out_a_replaced_round(tmp_path):
+    """A policy's second round, a study of its own, replaces its first: the rounds share a run folder (the first
+    round's doubling run is the second's seed 0) and a label. `leave_out` drops the first round's runs of that label
+    from every reader (rows, checks, commits, recorded time), so nothing is counted twice; a label no run has is
+    refused, not ignored."""
+    from bcbench.analysis.results import file_commits, study_time
+
+    out = _combined(tmp_path)
+    _stage(tmp_path, "stage-c", {"ResNet-50": ("resnet50", 0.7)}, "c" * 40)
+    assert (tmp_path / "stage-c" / "runs" / "ResNet-50-2x").is_dir()  # a run folder both rounds have
+    (tmp_path / "stage-a" / "index.jsonl").write_text(
+        json.dumps({"stage": "check", "file": "runs/ResNet-50-s0/check-default.json", "seconds": 60.0}) + "\n"
+        + json.dumps({"stage": "check", "file": "runs/BCT/x.json", "seconds": 1.0}) + "\n")
+    write_json(out / "combine.json", {"studies": ["../stage-a", "../stage-b", "../stage-c"], "why": "rounds"})
+    with pytest.raises(BCBenchError, match=re.escape("run ResNet-50-2x is in both ../stage-a and ../stage-c")):
+        load_rows(out)
+    write_json(out / "combine.json", {"studies": ["../stage-a", "../stage-b", "../stage-c"], "why": "rounds",
+                                      "leave_out": {"../stage-a": ["ResNet-50", "ResNet-50 2x"]}})
+    rows = load_rows(out)
+    assert sorted({r.label for r in rows}) == ["BCT", "CNN-MLP", "ResNet-50"]
+    assert {r.git_commit for r in rows if r.label == "ResNet-50"} == {"c" * 40}  # the second round's only
+    assert "a" * 40 not in file_commits(out)
+    assert study_time(out)["evaluation"] == 1.0  # stage-a's left-out check is not recorded time
+    md = Path(write_report(out)["markdown"]).read_text()
+    assert "combines stage-a, stage-b, stage-c; leaves out ResNet-50, ResNet-50 2x of stage-a)" in md
+    write_json(out / "combine.json", {"studies": ["../stage-a", "../stage-b", "../stage-c"],
+                                      "leave_out": {"../stage-a": ["ResNet50"]}})
+    with pytest.raises(BCBenchError, match=re.escape("../stage-a has no run labelled 'ResNet50' to leave out")):
+        load_rows(out)
+    write_json(out / "combine.json", {"studies": ["../stage-a"], "leave_out": {"../stage-z": ["BCT"]}})
+    with pytest.raises(BCBenchError, match=re.escape("'leave_out' names ../stage-z, which is not one of its")):
+        load_rows(out)
 
 
 def test_a_combined_report_is_not_exported(tmp_path, capsys):

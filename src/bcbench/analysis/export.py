@@ -6,7 +6,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-from bcbench.analysis.results import COMBINE_FILE
+from bcbench.analysis.studies import COMBINE_FILE
 from bcbench.errors import BCBenchError
 from bcbench.protocol import DROPPED_RUNS, training_done
 from bcbench.utils.io import read_json, read_jsonl

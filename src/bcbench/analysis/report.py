@@ -31,15 +31,13 @@ from bcbench.analysis.results import (
     load_check_rows,
     load_realtime,
     load_rows,
-    mixing_reason,
     same_cpu_once,
-    study_dirs,
     study_machines,
-    study_spec,
     study_time,
 )
 from bcbench.analysis.seeds import merge_training_seeds, per_seed_cell
 from bcbench.analysis.strategies import load_strategy_sweeps, strategy_figure, strategy_lines
+from bcbench.analysis.studies import left_out, mixing_reason, study_dirs, study_spec
 from bcbench.reference import CPU_DEVIATIONS, STUDY_REFERENCE
 from bcbench.stats import fmt_estimate, fmt_share
 from bcbench.utils.io import atomic_path
@@ -330,7 +328,8 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     notes += paired_conditions(paired)
     fig5 = figs.pop(FIG5)  # the report opens with it, and with which policy suits which control loop
     sources = [d.name for d in study_dirs(results) if d != results]
-    name = results.name + (f" (combines {', '.join(sources)})" if sources else "")
+    leaving = [f"; leaves out {', '.join(labels)} of {study}" for study, labels in left_out(results).items()]
+    name = results.name + (f" (combines {', '.join(sources)}{''.join(leaving)})" if sources else "")
     lead = lead_line(name, settings, mixed=any("mix several commits" in n for n in notes), runs=rows)
     md = ["# bcbench report", "", lead, "",
           *([f"![{FIG5}]({fig5.name})", ""] if fig5 else []), *control_loop_lines(settings, realtime, margin, paired),

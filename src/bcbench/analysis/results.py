@@ -1,9 +1,8 @@
 """Reading result files back: evaluations, latencies, training summaries, as flat rows for the report.
 
 Only files are read (never a model): a results directory from `bcbench study`, plus any extra folders of
-result JSON (e.g. `results/` brought back from a GPU machine). A combined report's folder holds `combine.json`, which
-names the study folders it reads (e.g. issue 30's confirm stages, one study per stage); each keeps its own spec, so
-each run plays the part its own study gave it.
+result JSON (e.g. `results/` brought back from a GPU machine), or the studies a combined report names
+(`bcbench.analysis.studies`).
 """
 
 from __future__ import annotations
@@ -15,9 +14,9 @@ from typing import Any
 
 from bcbench.analysis.curves import Curve, load_curve, plateau
 from bcbench.analysis.realtime import pool_training_seeds
+from bcbench.analysis.studies import left_out_runs, study_dirs, study_files, study_roles
 from bcbench.errors import BCBenchError
 from bcbench.modes import EXACT_MODES
-from bcbench.protocol import MIXING_REASON
 from bcbench.utils.io import read_json, read_jsonl
 
 # Result files the report reads, by kind: every one records the commit its process ran.
@@ -27,67 +26,17 @@ _KINDS = (("eval-*.json", "evaluations"), ("eval.json", "evaluations"), ("check-
           ("latency-paired*.json", "interleaved latency"))
 
 
-COMBINE_FILE = "combine.json"  # {"studies": ["../cpu-confirm-dpflow-long", ...], "why": "..."}
-
-
-def combined(results: Path) -> dict[str, Any] | None:
-    """A combined report's combine.json (validated), or None for a study's own folder."""
-    f = Path(results) / COMBINE_FILE
-    if not f.exists():
-        return None
-    spec = read_json(f)
-    names = spec.get("studies") if isinstance(spec, dict) else None
-    if not isinstance(names, list) or not names or not all(isinstance(n, str) and n for n in names):
-        raise BCBenchError(f"{f}: 'studies' must list the study folders it combines (paths relative to it)")
-    seen: dict[str, str] = {}
-    for n in names:
-        if not (Path(results) / n / "spec.json").is_file():
-            raise BCBenchError(f"{f} names {n}, which is not a study folder (no spec.json there)")
-        for run in (Path(results) / n).glob("runs/*/"):
-            if run.name in seen:  # one model in two studies (a carried-over run) would be read twice
-                raise BCBenchError(f"{f}: run {run.name} is in both {seen[run.name]} and {n}; combine studies "
-                                   "that share no run")
-            seen[run.name] = n
-    return spec
-
-
-def study_dirs(results: Path) -> list[Path]:
-    """The study folders a report reads: the folder itself, or each folder a combined report names."""
-    spec = combined(Path(results))
-    return [Path(results) / n for n in spec["studies"]] if spec else [Path(results)]
-
-
-def study_spec(results: Path) -> dict[str, Any]:
-    """The study's spec.json; for a combined report, the margin and purpose its studies share (they must: one rule
-    judges every finding)."""
-    specs = [read_json(d / "spec.json") if (d / "spec.json").exists() else {} for d in study_dirs(results)]
-    if len(specs) == 1:
-        return specs[0]
-    for key in ("margin", "purpose"):
-        if len({str(s.get(key)) for s in specs}) > 1:
-            raise BCBenchError(f"{results}: its studies differ in {key} ({', '.join(str(s.get(key)) for s in specs)}); "
-                               "a combined report needs one")
-    return {"margin": specs[0].get("margin"), "purpose": specs[0].get("purpose")}
-
-
-def mixing_reason(results: Path) -> str:
-    """Why the result files carry several commits, as each study folder (and a combined report's own) records it."""
-    dirs = dict.fromkeys([results, *study_dirs(results)])
-    found = [(d, d / MIXING_REASON) for d in dirs if (d / MIXING_REASON).exists()]
-    texts = [(d.name, " ".join(f.read_text().split())) for d, f in found]
-    return texts[0][1] if len(dirs) == 1 and texts else " ".join(f"{name}: {text}" for name, text in texts)
-
-
 def file_commits(results: Path, extra_dirs: list[str] | None = None) -> dict[str, list[str]]:
     """commit -> the kinds of result file produced at it, over every file the report reads (not only the
     evaluations): a study completed later with sweeps, re-timings or backend files shows each commit."""
     out: dict[str, set[str]] = {}
+    skip = left_out_runs(results)
     for folder in dict.fromkeys([results, *study_dirs(results), *map(Path, extra_dirs or [])]):
         for pattern, kind in _KINDS:
             if kind == "interleaved latency" and folder != results:
                 continue  # a combined report reads its own interleaved timings, not its studies'
             for f in folder.rglob(pattern):
-                if ("report" in f.relative_to(folder).parts or f.name.startswith(".")
+                if ("report" in f.relative_to(folder).parts or f.name.startswith(".") or skip.intersection(f.parents)
                         or (kind == "timing" and f.name.startswith("latency-paired"))):
                     continue
                 commit = read_json(f).get("git_commit") or "unknown"
@@ -154,27 +103,6 @@ class Row:
         return f"{self.policy}:{self.variant}" if self.sampler else self.policy
 
 
-def study_roles(results: Path) -> dict[str, dict[str, Any]]:
-    """Run folder -> {label, doubles} as the study's own spec.json names the run.
-
-    A run carried over from another study (the same run key: policy, preset, seed and overrides, so the same model)
-    keeps that study's label in its evaluation files; here it plays the part this study's spec gives it, e.g. the
-    first round's twice-the-steps run as the second round's seed 0, the base of the next check. A folder that
-    matches no spec run, or several, keeps its files' own label."""
-    spec_file = results / "spec.json"
-    if not spec_file.exists():
-        return {}
-    runs = read_json(spec_file).get("runs", [])
-    roles = {}
-    for run_json in results.glob("runs/*/run.json"):
-        meta = read_json(run_json)
-        same = [r for r in runs if r.get("policy") == meta.get("policy") and r.get("config") == meta.get("preset")
-                and {**(r.get("overrides") or {}), "seed": r.get("seed")} == (meta.get("overrides") or {})]
-        if len(same) == 1:
-            roles[run_json.parent.name] = {"label": same[0]["label"], "doubles": same[0].get("doubles")}
-    return roles
-
-
 def _row_from_eval(path: Path, margin: float = 0.05, role: dict[str, Any] | None = None) -> Row:
     ev = read_json(path)
     if ev.get("type") != "evaluation":
@@ -236,7 +164,7 @@ def load_rows(results: str | Path, extra_dirs: list[str] | None = None, margin: 
     if not results.is_dir():
         raise BCBenchError(f"results directory {results} not found")
     roles = {d: study_roles(d) for d in study_dirs(results)}  # once per study, not once per file
-    files = [(f, roles[d]) for d in roles for f in sorted(d.rglob("eval-*.json")) + sorted(d.rglob("eval.json"))]
+    files = [(f, roles[d]) for pattern in ("eval-*.json", "eval.json") for d, f in study_files(results, pattern)]
     files += [(f, {}) for d in extra_dirs or [] for f in sorted(Path(d).rglob("eval*.json"))]
     rows: dict[str, Row] = {}
     for f, roles in files:
@@ -252,12 +180,9 @@ def load_rows(results: str | Path, extra_dirs: list[str] | None = None, margin: 
 
 def load_check_rows(results: str | Path) -> list[Row]:
     """A confirm study's twice-the-steps checks (runs/*/check-*.json, on validation episodes), one row each."""
-    out = []
-    for d in study_dirs(Path(results)):
-        roles = study_roles(d)
-        out += [_row_from_eval(f, role=roles.get(f.parent.name)) for f in sorted(d.rglob("check-*.json"))
-                if "report" not in f.relative_to(d).parts]
-    return out
+    roles = {d: study_roles(d) for d in study_dirs(Path(results))}
+    return [_row_from_eval(f, role=roles[d].get(f.parent.name)) for d, f in study_files(results, "check-*.json")
+            if "report" not in f.relative_to(d).parts]
 
 
 def load_latency_files(dirs: list[str | Path]) -> list[dict[str, Any]]:
@@ -274,7 +199,7 @@ def load_latency_files(dirs: list[str | Path]) -> list[dict[str, Any]]:
 
 def realtime_records(results: str | Path) -> list[tuple[Path, dict[str, Any]]]:
     """Every real-time sweep record under `results` (runs/*/realtime-*.json of type realtime), with its file."""
-    found = ((f, read_json(f)) for d in study_dirs(Path(results)) for f in sorted(d.rglob("realtime-*.json")))
+    found = ((f, read_json(f)) for _, f in study_files(results, "realtime-*.json"))
     return [(f, data) for f, data in found if data.get("type") == "realtime"]
 
 
@@ -307,10 +232,12 @@ def study_time(results: str | Path) -> dict[str, float]:
     """
     out = {"training": 0.0, "curve rollouts": 0.0, "evaluation": 0.0, "timing": 0.0, "real-time sweep": 0.0}
     kinds = {"eval": "evaluation", "check": "evaluation", "latency": "timing", "realtime": "real-time sweep"}
+    skip = left_out_runs(Path(results))
     for study in study_dirs(Path(results)):
         index = study / "index.jsonl"
         for rec in read_jsonl(index) if index.exists() else []:
-            _add_stage(out, kinds, study, rec)
+            if not skip.intersection((study / rec.get("file", "")).parents):
+                _add_stage(out, kinds, study, rec)
     return out
 
 
@@ -346,7 +273,7 @@ def study_machines(results: str | Path) -> list[str]:
     """The CPUs (model and ISA flags) a study's training sessions, evaluations, timings and real-time sweeps ran on,
     from its records."""
     found: list[dict[str, Any]] = []
-    for f in (f for d in study_dirs(Path(results)) for f in d.rglob("*.json")):
+    for _, f in study_files(results, "*.json"):
         if f.name != "train_summary.json" and not f.name.startswith(("eval", "check", "latency", "realtime")):
             continue
         rec = read_json(f)

@@ -1,0 +1,145 @@
+"""Which study folders and runs a report reads: a study's own folder, or the folders a combined report names.
+
+A combined report's folder holds `combine.json`, which names the study folders it reads (e.g. issue 30's confirm
+stages, one study per stage); each keeps its own spec, so each run plays the part its own study gave it. It may leave
+some runs of a study out (`leave_out`, by their labels), e.g. a policy whose second round, a study of its own,
+replaces its first: the rounds share a run key (the first round's twice-the-steps run is the second's seed 0) and a
+label, so reading both would count one model twice and pool two recipes as one setting.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from bcbench.errors import BCBenchError
+from bcbench.protocol import MIXING_REASON
+from bcbench.utils.io import read_json
+
+COMBINE_FILE = "combine.json"  # {"studies": ["../a", "../b"], "why": "...", "leave_out": {"../a": ["label"]}}
+
+
+def combined(results: Path) -> dict[str, Any] | None:
+    """A combined report's combine.json (validated), or None for a study's own folder."""
+    f = Path(results) / COMBINE_FILE
+    if not f.exists():
+        return None
+    spec = read_json(f)
+    names = spec.get("studies") if isinstance(spec, dict) else None
+    if not isinstance(names, list) or not names or not all(isinstance(n, str) and n for n in names):
+        raise BCBenchError(f"{f}: 'studies' must list the study folders it combines (paths relative to it)")
+    for n in names:
+        if not (Path(results) / n / "spec.json").is_file():
+            raise BCBenchError(f"{f} names {n}, which is not a study folder (no spec.json there)")
+    left = _left_out_runs(Path(results), spec)
+    seen: dict[str, str] = {}
+    for n in names:
+        for run in sorted((Path(results) / n).glob("runs/*/")):
+            if run in left:
+                continue
+            if run.name in seen:  # one model in two studies (a carried-over run) would be read twice
+                raise BCBenchError(f"{f}: run {run.name} is in both {seen[run.name]} and {n}; combine studies "
+                                   "that share no run, or leave it out of one ('leave_out')")
+            seen[run.name] = n
+    return spec
+
+
+def _left_out_runs(results: Path, spec: dict[str, Any]) -> set[Path]:
+    """The run folders a combined report's `leave_out` names, each by the label its study gives it."""
+    f = results / COMBINE_FILE
+    leave = spec.get("leave_out", {})
+    if not isinstance(leave, dict) or not all(isinstance(v, list) and v and all(isinstance(x, str) for x in v)
+                                              for v in leave.values()):
+        raise BCBenchError(f"{f}: 'leave_out' must map a study folder it names to a list of run labels")
+    out: set[Path] = set()
+    for study, labels in leave.items():
+        if study not in spec["studies"]:
+            raise BCBenchError(f"{f}: 'leave_out' names {study}, which is not one of its studies")
+        found = {run: label for run, label in run_labels(results / study).items() if label in labels}
+        missing = sorted(set(labels) - set(found.values()))
+        if missing:  # a typo would otherwise leave everything in, silently
+            raise BCBenchError(f"{f}: {study} has no run labelled {', '.join(map(repr, missing))} to leave out")
+        out |= set(found)
+    return out
+
+
+def run_labels(study: Path) -> dict[Path, str]:
+    """Run folder -> its label: the part its study's spec gives it, else the label its own result files record."""
+    roles = study_roles(study)
+    out = {}
+    for run in sorted(study.glob("runs/*/")):
+        if run.name in roles:
+            out[run] = roles[run.name]["label"]
+            continue
+        rec = next((read_json(f) for f in sorted(run.glob("*.json")) if f.name.startswith(("eval", "check"))), {})
+        if rec.get("study", {}).get("label"):
+            out[run] = rec["study"]["label"]
+    return out
+
+
+def study_dirs(results: Path) -> list[Path]:
+    """The study folders a report reads: the folder itself, or each folder a combined report names."""
+    spec = combined(Path(results))
+    return [Path(results) / n for n in spec["studies"]] if spec else [Path(results)]
+
+
+def left_out(results: Path) -> dict[str, list[str]]:
+    """A combined report's `leave_out` (study folder name -> run labels); empty for a study's own folder."""
+    spec = combined(Path(results))
+    return {Path(k).name: v for k, v in (spec or {}).get("leave_out", {}).items()}
+
+
+def left_out_runs(results: Path) -> set[Path]:
+    """The run folders a combined report leaves out; empty for a study's own folder."""
+    spec = combined(Path(results))
+    return _left_out_runs(Path(results), spec) if spec else set()
+
+
+def study_files(results: str | Path, pattern: str) -> list[tuple[Path, Path]]:
+    """(study folder, file) for each file matching `pattern` under the studies a report reads, less the runs a
+    combined report leaves out; sorted within each study."""
+    skip = left_out_runs(Path(results))
+    return [(d, f) for d in study_dirs(results) for f in sorted(d.rglob(pattern))
+            if not skip.intersection(f.parents)]
+
+
+def study_spec(results: Path) -> dict[str, Any]:
+    """The study's spec.json; for a combined report, the margin and purpose its studies share (they must: one rule
+    judges every finding)."""
+    specs = [read_json(d / "spec.json") if (d / "spec.json").exists() else {} for d in study_dirs(results)]
+    if len(specs) == 1:
+        return specs[0]
+    for key in ("margin", "purpose"):
+        if len({str(s.get(key)) for s in specs}) > 1:
+            raise BCBenchError(f"{results}: its studies differ in {key} ({', '.join(str(s.get(key)) for s in specs)}); "
+                               "a combined report needs one")
+    return {"margin": specs[0].get("margin"), "purpose": specs[0].get("purpose")}
+
+
+def mixing_reason(results: Path) -> str:
+    """Why the result files carry several commits, as each study folder (and a combined report's own) records it."""
+    dirs = dict.fromkeys([results, *study_dirs(results)])
+    found = [(d, d / MIXING_REASON) for d in dirs if (d / MIXING_REASON).exists()]
+    texts = [(d.name, " ".join(f.read_text().split())) for d, f in found]
+    return texts[0][1] if len(dirs) == 1 and texts else " ".join(f"{name}: {text}" for name, text in texts)
+
+
+def study_roles(results: Path) -> dict[str, dict[str, Any]]:
+    """Run folder -> {label, doubles} as the study's own spec.json names the run.
+
+    A run carried over from another study (the same run key: policy, preset, seed and overrides, so the same model)
+    keeps that study's label in its evaluation files; here it plays the part this study's spec gives it, e.g. the
+    first round's twice-the-steps run as the second round's seed 0, the base of the next check. A folder that
+    matches no spec run, or several, keeps its files' own label."""
+    spec_file = results / "spec.json"
+    if not spec_file.exists():
+        return {}
+    runs = read_json(spec_file).get("runs", [])
+    roles = {}
+    for run_json in results.glob("runs/*/run.json"):
+        meta = read_json(run_json)
+        same = [r for r in runs if r.get("policy") == meta.get("policy") and r.get("config") == meta.get("preset")
+                and {**(r.get("overrides") or {}), "seed": r.get("seed")} == (meta.get("overrides") or {})]
+        if len(same) == 1:
+            roles[run_json.parent.name] = {"label": same[0]["label"], "doubles": same[0].get("doubles")}
+    return roles
