@@ -317,3 +317,31 @@ def test_an_undecided_comparison_over_seeds_says_how_many_seeds_would_decide_it(
                                       "3 seeds held (a projection, not a result)")
     assert seeds_note(d._replace(lo=-0.04), [-0.05]) == ""  # decided already
     assert seeds_note(Diff(0.017, -0.106, 0.140, 100), [-0.05]) == ""  # one training seed: nothing to project
+
+
+def test_finding_1_says_what_it_reads_without_the_faster_settings_of_one_training_seed():
+    """A single trained run among the faster settings is paired with every seed of the slow one, so the seed-to-seed
+    spread of the slow setting no longer cancels: the interval widens and the rule's verdict can change. The evidence
+    then says what the comparison reads without such runs (a sensitivity statement; the verdict stays the rule's)."""
+    rng = np.random.default_rng(3)
+    level = [0.88, 0.78, 0.89]  # the slow setting's training seeds differ by 0.1, as Diffusion Policy's do
+    slow_seeds = [{100_000 + i: float(v) for i, v in enumerate(np.clip(lv + rng.normal(0, .05, 100), 0, 1))}
+                  for lv in level]
+    fast_seeds = [{k: v - 0.005 for k, v in s.items()} for s in slow_seeds]  # the same model 10x faster, per seed
+
+    def multi(name: str, variant: str, seeds: list[dict[int, float]], ms: float) -> Point:
+        pooled = [v for s in seeds for v in s.values()]
+        return Point(name, "diffusion", variant, float(np.mean(pooled)), (0.0, 1.0), ms, "squaredcos_cap_v2",
+                     converged=True, run=name, seeds=seeds, seed_ids=[0, 1, 2])
+
+    slow = multi("DP DDPM100", "ddpm100", slow_seeds, 600.0)
+    fast = multi("DP DDPM5", "ddpm5", fast_seeds, 30.0)
+    single = pt("DP linear DDPM5", "diffusion", np.full(100, 0.86), ms=30.0, variant="ddpm5", beta="linear",
+                converged=True)
+    single.train_seed = 0
+    alone = judge([slow, fast])[0]
+    assert alone.verdict == "supported" and "held fixed" not in alone.evidence
+    both = judge([slow, fast, single])[0]
+    assert both.verdict == "inconclusive"  # the single run's level against seed 1's 0.78 widens the interval
+    assert "without the 1 faster settings of one training seed (held fixed), the comparison would read supported" in (
+        both.evidence)

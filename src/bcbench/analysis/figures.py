@@ -243,7 +243,7 @@ def figure4(rows: list[Any], path: Path) -> Path | None:
     series = [(n, s) for n, s in series if s]
     if len(series) < 2:
         return None
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, ax = plt.subplots(figsize=(8.5, 4))
     width = 0.8 / len(series)
     all_steps = sorted({r.steps for _, s in series for r in s})
     for i, (name, s) in enumerate(series):
@@ -251,12 +251,14 @@ def figure4(rows: list[Any], path: Path) -> Path | None:
         vals = [r.score for r in s]
         err = [[r.score - r.est("mean_score")["ci95"][0] for r in s],
                [r.est("mean_score")["ci95"][1] - r.score for r in s]]
-        ax.bar(xs, vals, width, yerr=err, capsize=3, label=name, alpha=0.8)
+        k = max(len(r.seed_scores) or 1 for r in s)  # a line of one run next to means over seeds: say which
+        ax.bar(xs, vals, width, yerr=err, capsize=3, alpha=0.8,
+               label=f"{name}\n({'mean of ' + str(k) + ' training seeds' if k > 1 else 'one training seed'})")
     ax.set_xticks(range(len(all_steps)), [str(k) for k in all_steps])
     ax.set_xlabel("denoising iterations")
     ax.set_ylabel("mean score (95% CI)")
     ax.set_ylim(0, 1.05)
-    ax.legend()
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)  # outside the data
     ax.set_title("Samplers and beta schedules (the study's Fig. 4)")
     return _save(fig, path)
 
