@@ -252,8 +252,8 @@ def figure4(rows: list[Any], path: Path) -> Path | None:
         err = [[r.score - r.est("mean_score")["ci95"][0] for r in s],
                [r.est("mean_score")["ci95"][1] - r.score for r in s]]
         k = max(len(r.seed_scores) or 1 for r in s)  # a line of one run next to means over seeds: say which
-        ax.bar(xs, vals, width, yerr=err, capsize=3, alpha=0.8,
-               label=f"{name}\n({'mean of ' + str(k) + ' training seeds' if k > 1 else 'one training seed'})")
+        seeds = f"mean of {k} training seeds" if k > 1 else "one training seed"
+        ax.bar(xs, vals, width, yerr=err, capsize=3, alpha=0.8, label=f"{name}\n({seeds})")
     ax.set_xticks(range(len(all_steps)), [str(k) for k in all_steps])
     ax.set_xlabel("denoising iterations")
     ax.set_ylabel("mean score (95% CI)")

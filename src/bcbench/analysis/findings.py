@@ -218,11 +218,15 @@ def _border_note(slow: Point, timed: list[Point], fast: list[Point], verdict: st
     if not other:
         return f"; on the {SLOWER:g}x line (within {BORDER:.0%}): {names}; without them no setting is compared"
     d = paired_interval(slow, other)
-    alt = _at_most(d.lo, d.hi, m)
-    same = "the same" if alt == verdict else alt
     # the paired comparison alone: the convergence rule (undertrained) is not applied to it
     return (f"; on the {SLOWER:g}x line (within {BORDER:.0%}): {names}; counted on the other side, the comparison "
-            f"would read {same} ({_fmt_diff(d)})")
+            f"would read {_would_read(d, verdict, m)} ({_fmt_diff(d)})")
+
+
+def _would_read(d: Diff, verdict: str, m: float) -> str:
+    """A sensitivity comparison's reading by finding 1's rule: "the same" where it agrees with the verdict."""
+    alt = _at_most(d.lo, d.hi, m)
+    return "the same" if alt == verdict else alt
 
 
 def _without_fixed_note(slow: Point, fast: list[Point], d: Diff, verdict: str, m: float) -> str:
@@ -234,9 +238,8 @@ def _without_fixed_note(slow: Point, fast: list[Point], d: Diff, verdict: str, m
     if not d.fixed or not slow.seeds or not rest or len(rest) == len(fast):
         return ""
     alt = paired_interval(slow, rest)
-    same = "the same" if _at_most(alt.lo, alt.hi, m) == verdict else _at_most(alt.lo, alt.hi, m)
     return (f"; without the {len(fast) - len(rest)} faster settings of one training seed (held fixed), the "
-            f"comparison would read {same} ({_fmt_diff(alt)})")
+            f"comparison would read {_would_read(alt, verdict, m)} ({_fmt_diff(alt)})")
 
 
 def _timing_note(compared: list[Point]) -> str:

@@ -21,27 +21,32 @@ COMBINE_FILE = "combine.json"  # {"studies": ["../a", "../b"], "why": "...", "le
 
 def combined(results: Path) -> dict[str, Any] | None:
     """A combined report's combine.json (validated), or None for a study's own folder."""
-    f = Path(results) / COMBINE_FILE
+    return _combination(Path(results))[0]
+
+
+def _combination(results: Path) -> tuple[dict[str, Any] | None, set[Path]]:
+    """combine.json validated, with the run folders it leaves out; (None, empty) for a study's own folder."""
+    f = results / COMBINE_FILE
     if not f.exists():
-        return None
+        return None, set()
     spec = read_json(f)
     names = spec.get("studies") if isinstance(spec, dict) else None
     if not isinstance(names, list) or not names or not all(isinstance(n, str) and n for n in names):
         raise BCBenchError(f"{f}: 'studies' must list the study folders it combines (paths relative to it)")
     for n in names:
-        if not (Path(results) / n / "spec.json").is_file():
+        if not (results / n / "spec.json").is_file():
             raise BCBenchError(f"{f} names {n}, which is not a study folder (no spec.json there)")
-    left = _left_out_runs(Path(results), spec)
+    left = _left_out_runs(results, spec)
     seen: dict[str, str] = {}
     for n in names:
-        for run in sorted((Path(results) / n).glob("runs/*/")):
+        for run in sorted((results / n).glob("runs/*/")):
             if run in left:
                 continue
             if run.name in seen:  # one model in two studies (a carried-over run) would be read twice
                 raise BCBenchError(f"{f}: run {run.name} is in both {seen[run.name]} and {n}; combine studies "
                                    "that share no run, or leave it out of one ('leave_out')")
             seen[run.name] = n
-    return spec
+    return spec, left
 
 
 def _left_out_runs(results: Path, spec: dict[str, Any]) -> set[Path]:
@@ -79,8 +84,11 @@ def run_labels(study: Path) -> dict[Path, str]:
 
 def study_dirs(results: Path) -> list[Path]:
     """The study folders a report reads: the folder itself, or each folder a combined report names."""
-    spec = combined(Path(results))
-    return [Path(results) / n for n in spec["studies"]] if spec else [Path(results)]
+    return _dirs(Path(results), combined(results))
+
+
+def _dirs(results: Path, spec: dict[str, Any] | None) -> list[Path]:
+    return [results / n for n in spec["studies"]] if spec else [results]
 
 
 def left_out(results: Path) -> dict[str, list[str]]:
@@ -91,15 +99,14 @@ def left_out(results: Path) -> dict[str, list[str]]:
 
 def left_out_runs(results: Path) -> set[Path]:
     """The run folders a combined report leaves out; empty for a study's own folder."""
-    spec = combined(Path(results))
-    return _left_out_runs(Path(results), spec) if spec else set()
+    return _combination(Path(results))[1]
 
 
 def study_files(results: str | Path, pattern: str) -> list[tuple[Path, Path]]:
     """(study folder, file) for each file matching `pattern` under the studies a report reads, less the runs a
     combined report leaves out; sorted within each study."""
-    skip = left_out_runs(Path(results))
-    return [(d, f) for d in study_dirs(results) for f in sorted(d.rglob(pattern))
+    spec, skip = _combination(Path(results))  # read once: it globs and reads every run's files
+    return [(d, f) for d in _dirs(Path(results), spec) for f in sorted(d.rglob(pattern))
             if not skip.intersection(f.parents)]
 
 
