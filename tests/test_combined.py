@@ -128,7 +128,7 @@ def test_a_combined_report_is_not_exported(tmp_path, capsys):
 def test_figure_5_of_a_combined_report_stands_on_its_interleaved_times(tmp_path):
     """Each stage timed its own settings, hours apart; where the combined folder holds an interleaved timing in
     Figure 5's mode, the settings it timed stand at its medians, the rest at their own times, and the axis says so."""
-    from bcbench.analysis.figures import figure5_times
+    from bcbench.analysis.accuracy_latency import figure5_times
     from bcbench.analysis.seeds import merge_training_seeds
 
     out = _combined(tmp_path)
@@ -147,7 +147,7 @@ def test_figure_5_of_a_combined_report_stands_on_its_interleaved_times(tmp_path)
     assert (Path(write_report(out)["dir"]) / "fig5_accuracy_vs_latency.png").exists()
     # the arrow to the fastest exact deployed mode: from the interleaved run where it timed the setting, else the
     # row's own ratio (fast / reference = 1/2) applied where the point stands
-    from bcbench.analysis.figures import _deployed
+    from bcbench.analysis.accuracy_latency import _deployed
 
     bct = next(r for r in settings if r.label == "BCT")
     run = {"reference": timing, "openvino-fp32": {**timing, "median_ms": {"bct": 2.0}}}

@@ -45,7 +45,7 @@ def test_figure3_says_when_nothing_is_timed_rather_than_draw_empty_axes(study, u
     from bcbench.analysis.seeds import merge_training_seeds
 
     drawn = []
-    monkeypatch.setattr(figures, "_save", lambda fig, path: drawn.append(fig) or path)
+    monkeypatch.setattr(figures, "save_png", lambda fig, path: drawn.append(fig) or path)
     root = Path(__file__).resolve().parents[1] / "results" / study
     assert figures.figure3(merge_training_seeds(load_rows(root)), tmp_path / "f.png") is not None
     latency_panel = drawn[0].axes[1]

@@ -271,6 +271,24 @@ def interleaved_key(policy: str, variant: str) -> str:
     return variant if policy in ("diffusion", "flow") else policy if variant == "default" else ""
 
 
+def shared_timing(rows: list[Any], timing: dict[str, Any] | None) -> list[str]:
+    """Labels that take one interleaved median per setting: configurations of one policy that differ in no call
+    (Diffusion Policy with linear betas beside cosine: the same network, sampler and step count; the schedule
+    changes constants only). An interleaved timing times each setting once, on random weights, so they share it;
+    the report says so rather than count both as timed in those rounds."""
+    medians = (timing or {}).get("median_ms", {})
+    labels: dict[tuple[str, str], dict[str, None]] = {}
+    for r in rows:
+        key = interleaved_key(r.policy, r.variant)
+        if key in medians:
+            labels.setdefault((r.policy, key), {})[r.label] = None
+    out: dict[str, None] = {}
+    for names in labels.values():
+        if len(names) > 1:
+            out.update(names)
+    return list(out)
+
+
 def finding_2(points: list[Point], m: float) -> Finding:
     claim = "10 denoising steps score as well as 100"
     rule = f"DDPM-10 minus DDPM-100 (cosine model): supported if the interval lies above -{m}, contradicted if below."

@@ -137,10 +137,13 @@ def timing_conditions(rows: list[Row]) -> str:
     return ""
 
 
-def paired_conditions(paired: dict[str, dict[str, Any]]) -> list[str]:
+def paired_conditions(paired: dict[str, dict[str, Any]], shared: list[str] | None = None) -> list[str]:
     """The same for the interleaved timings (`latency-paired*.json`, by mode): one line per file that recorded what
-    else ran (files from before it was recorded say nothing)."""
-    out = []
+    else ran (files from before it was recorded say nothing); and which labels share its medians
+    (`findings.shared_timing`)."""
+    out = [f"{' and '.join(shared)} take the same interleaved medians per setting: the interleaved timing times each "
+           "setting once, on random weights, and their settings run the same calls (the same network, sampler and "
+           "step count; the beta schedule changes constants only)."] if shared else []
     for timing in paired.values():
         c = timing.get("contention")
         if not c:

@@ -14,14 +14,15 @@ import html
 from pathlib import Path
 from typing import Any
 
+from bcbench.analysis.accuracy_latency import figure5
 from bcbench.analysis.baseline import HEADER as BASELINE_HEADER
 from bcbench.analysis.baseline import baseline_lines, baseline_rows
 from bcbench.analysis.choose import HEADER as CHOOSE_HEADER
 from bcbench.analysis.choose import control_loop_lines, control_loop_rows
 from bcbench.analysis.convergence import NO_CHECK, NOT_CONVERGED, apply_checks, check_lines, doubling_checks
 from bcbench.analysis.fewstep import fewstep_lines, load_paired, one_interleaved_run
-from bcbench.analysis.figures import figure3, figure4, figure5, figure5_realtime, learning_curves, realtime_figure
-from bcbench.analysis.findings import DEFAULT_MARGIN, Finding, judge, points_from_rows, with_interleaved
+from bcbench.analysis.figures import figure3, figure4, figure5_realtime, learning_curves, realtime_figure
+from bcbench.analysis.findings import DEFAULT_MARGIN, Finding, judge, points_from_rows, shared_timing, with_interleaved
 from bcbench.analysis.provenance import lead_line, paired_conditions, provenance_notes, sweep_provenance
 from bcbench.analysis.realtime import margin_power_sentence, pooled_sentence, safe_delay_sentence
 from bcbench.analysis.results import (
@@ -43,6 +44,7 @@ from bcbench.stats import fmt_estimate, fmt_share
 from bcbench.utils.io import atomic_path
 
 FIG5 = "Figure 5: accuracy against inference time"
+FIG5_ZOOM = "Figure 5, zoomed: the generative settings (the dashed box)"
 COLUMNS = ["policy", "params", "mean score [95% CI]", "> 0.5 [Wilson 95%]", "> 0.9 [Wilson 95%]",
            "success [Wilson 95%]",
            "latency ref. median / tail (ms; tail = p99 from >= 100 calls, else max of N)",
@@ -303,8 +305,10 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     # latency timed in interleaved rounds, per inference mode, where the study's folder has it: the findings' times
     # and Figure 5's axis (reference mode), and finding 3's DDIM/DDPM ratios (any mode's where reference has none)
     paired = load_paired(results)
-    figs = {FIG5: figure5(settings, out / "fig5_accuracy_vs_latency.png", timing=paired.get("reference"),
-                          run=one_interleaved_run(paired)),
+    # the report opens with Figure 5 (and which policy suits which control loop); its zoom leads the other figures
+    fig5, zoom = figure5(settings, out / "fig5_accuracy_vs_latency.png", timing=paired.get("reference"),
+                         run=one_interleaved_run(paired), zoom_path=out / "fig5_zoom.png")
+    figs = {FIG5_ZOOM: zoom,
             "Figure 3: generative policies against sampling steps": figure3(settings, out / "fig3_denoising_steps.png"),
             "Figure 4: DDPM-cosine, DDIM-cosine, DDIM-linear": figure4(settings, out / "fig4_samplers.png"),
             "Learning curves": learning_curves(rows, out / "learning_curves.png")}
@@ -325,8 +329,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
              "least 100 calls or else the maximum, labelled 'max of N'). The study's numbers were measured by the "
              "study on an A100; ours on the hardware named at the top. " + _spacing_note(rows))
     notes = provenance_notes(rows, file_commits(results, extra_dirs), mixing_reason(results))
-    notes += paired_conditions(paired)
-    fig5 = figs.pop(FIG5)  # the report opens with it, and with which policy suits which control loop
+    notes += paired_conditions(paired, shared_timing(settings, paired.get("reference")))
     sources = [d.name for d in study_dirs(results) if d != results]
     leaving = [f"; leaves out {', '.join(labels)} of {study}" for study, labels in left_out(results).items()]
     name = results.name + (f" (combines {', '.join(sources)}{''.join(leaving)})" if sources else "")

@@ -1,0 +1,98 @@
+"""Figure 5 where the generative settings crowd: a zoom that names them, labels that overlap nothing, one colour per
+configuration, and the settings that share an interleaved timing named."""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+
+import matplotlib.pyplot as plt
+import pytest
+
+from bcbench.analysis.accuracy_latency import Panel, figure5, place_labels, zoom_box
+from bcbench.analysis.findings import shared_timing
+
+
+@dataclass
+class _Row:
+    """What Figure 5 reads of a result row."""
+
+    label: str
+    policy: str
+    variant: str
+    score: float
+    ms: float
+    params: int = 5_330_000
+    summary: dict = field(default_factory=dict)
+
+    @property
+    def key(self) -> str:
+        return f"{self.label}:{self.variant}"
+
+    @property
+    def reference_key(self) -> str:
+        return self.policy
+
+    def est(self, name: str) -> dict:
+        return {"value": self.score, "ci95": [self.score - 0.05, self.score + 0.05]}
+
+    def latency_ms(self, mode: str) -> float:
+        return self.ms
+
+    def deployed_ms(self) -> tuple[str, float]:
+        return ("openvino-fp32", self.ms / 2.4)
+
+
+def _crowd() -> list[_Row]:
+    """Two DP configurations at 15 settings each and flow at 5, within 0.2 of score and a decade of time, like the
+    confirm report's; one DP setting far below (DDIM-1 of the cosine model), and two small policies."""
+    rows = []
+    for label, shift in (("DP cosine", 0.0), ("DP linear", -0.02)):
+        for i, (sampler, steps) in enumerate(itertools.product(("ddpm", "ddim"), (1, 2, 5, 10, 20, 50, 100, 4))):
+            if (sampler, steps) == ("ddpm", 4):
+                continue
+            score = 0.09 if (label, steps) == ("DP cosine", 1) else 0.70 + 0.15 * (i % 7) / 6 + shift
+            rows.append(_Row(label, "diffusion", f"{sampler}{steps}", score, 6.0 * steps + 5))
+    rows += [_Row("flow", "flow", f"euler{k}", 0.82 + 0.01 * k, 6.0 * k + 4) for k in (1, 2, 4, 10)]
+    return [*rows, _Row("BCT", "bct", "default", 0.56, 6.1), _Row("scripted", "scripted", "default", 0.56, 0.4)]
+
+
+def test_crowded_generative_settings_get_a_zoom_and_its_labels_overlap_nothing(tmp_path):
+    rows = _crowd()
+    panel = Panel(rows, {r.key: r.ms for r in rows}, "reference", None)
+    inside, (x0, x1, y0, y1) = zoom_box(panel)
+    assert "DP cosine:ddim1" not in {r.key for r in inside} and len(inside) == 32  # far below the best: not zoomed
+    assert not any(r.variant == "default" for r in inside)  # the small policies are not named
+    assert x0 <= min(r.ms / 2.4 for r in inside) and x1 > max(r.ms for r in inside)  # the arrows' tips fit
+    fig, ax = plt.subplots(figsize=(12, 6.5))
+    _, markers = panel.draw(ax)
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
+    labels = place_labels(ax, [panel.label(r) for r in inside], fontsize=7, markers=markers)
+    renderer = fig.canvas.get_renderer()
+    boxes = [t.get_window_extent(renderer).expanded(1, 1).padded(-0.5) for t in labels]  # touching is not over
+    assert len(boxes) == 32
+    pairs = itertools.combinations(zip(labels, boxes, strict=True), 2)
+    clashes = [(a.get_text(), b.get_text()) for (a, p), (b, q) in pairs if p.overlaps(q)]
+    assert not clashes
+    # a label takes its point's colour: the linear model's DDPM5 is told from the cosine model's
+    tints = {(t.get_text(), t.get_color()) for t in labels}
+    assert ("DDPM5", "tab:red") in tints and ("DDPM5", "tab:cyan") in tints
+    plt.close(fig)
+    main, zoom = figure5(rows, tmp_path / "fig5.png", zoom_path=tmp_path / "zoom.png")
+    assert main.stat().st_size > 1000 and zoom.stat().st_size > 1000
+
+
+def test_few_generative_settings_stay_in_one_panel(tmp_path):
+    rows = [r for r in _crowd() if r.label != "DP linear" and r.variant in ("default", "ddim10", "ddpm100", "euler2")]
+    assert zoom_box(Panel(rows, {r.key: r.ms for r in rows}, "reference", None)) is None
+    main, zoom = figure5(rows, tmp_path / "fig5.png", zoom_path=tmp_path / "zoom.png")
+    assert main.exists() and zoom is None and not (tmp_path / "zoom.png").exists()
+
+
+@pytest.mark.parametrize("timed", [{"ddim10": 25.9, "ddpm100": 256.7}, {"ddim10": 25.9}])
+def test_configurations_that_share_an_interleaved_timing_are_named(timed):
+    rows = _crowd()
+    assert shared_timing(rows, {"median_ms": timed}) == ["DP cosine", "DP linear"]
+    assert shared_timing(rows, {"median_ms": {"euler2": 9.0}}) == []  # one flow configuration: nothing shared
+    assert shared_timing(rows, None) == []
