@@ -330,3 +330,27 @@ def test_the_report_says_how_many_episodes_the_margin_needs():
     assert "needs about 199 paired episodes" in text
     far = {"realtime-sync": sweep["realtime-sync"], "realtime-async-d8": sweep["realtime-async-d8"]}
     assert "What the margin asks" not in "\n".join(realtime_lines({"P": far}, 0.05))  # no setting near sync
+
+
+def test_real_time_figures_stay_readable_with_many_policies_and_strategies(tmp_path, monkeypatch):
+    """The real-time figure draws each policy's plain sweep (async, blocking) and leaves strategy sweeps
+    ("P + ensemble") to the strategies' figure, which lays seven policies out in a grid (four panels a row at most),
+    not in one row."""
+    from bcbench.analysis import figures, strategies
+
+    drawn = []
+    monkeypatch.setattr(figures, "save_png", lambda fig, path: drawn.append(fig) or path)
+    base = np.random.default_rng(0).uniform(0.3, 0.9, 100)
+    sweep = {"realtime-sync": _setting(base), "realtime-async-d2": _setting(base - 0.1),
+             "realtime-blocking-d2": _setting(base)}
+    by_label = {f"P{i}": sweep for i in range(7)} | {f"P{i} + ensemble": sweep for i in range(7)}
+    figures.realtime_figure(by_label, tmp_path / "realtime.png")
+    ax = drawn[0].axes[0]
+    assert len(ax.get_legend().get_texts()) == 14  # 7 policies x (async, blocking), no strategy sweep
+    assert "7 strategy sweeps in the strategies' figure" in ax.get_title()
+    per_policy = {f"P{i}": {"naive": sweep, "ensemble": sweep} for i in range(7)}
+    monkeypatch.setattr(strategies.plt, "close", lambda fig: drawn.append(fig))
+    strategies.strategy_figure(per_policy, tmp_path / "strategies.png")
+    visible = [a for a in drawn[-1].axes if a.get_visible()]
+    assert len(visible) == 7 and len({round(a.get_position().y0, 3) for a in visible}) == 2  # two rows
+    assert (tmp_path / "strategies.png").stat().st_size > 1000

@@ -98,8 +98,12 @@ def strategy_figure(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path,
     """Score against delay, one panel per policy, one line per strategy (95% intervals); None: nothing to draw."""
     if not by_policy:
         return None
-    fig, axes = plt.subplots(1, len(by_policy), figsize=(5.5 * len(by_policy) + 2.5, 4.2), squeeze=False)
-    for ax, (label, sweeps) in zip(axes[0], by_policy.items(), strict=True):
+    cols = min(4, len(by_policy))  # a grid, not one row: seven policies in a row are too wide to read
+    rows = -(-len(by_policy) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.4 * cols + 2, 3.6 * rows), squeeze=False, sharey=True)
+    for ax in axes.flat[len(by_policy):]:
+        ax.set_visible(False)
+    for ax, (label, sweeps) in zip(axes.flat, by_policy.items(), strict=False):
         for kind, settings in sweeps.items():
             pts = delay_curve(settings, execution)
             colour, marker, ls = STYLE.get(kind.split(" ")[0], ("C7", "x", "-"))
@@ -110,8 +114,11 @@ def strategy_figure(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path,
         ax.set_xlabel(f"delay d ({execution}; control steps of 0.1 s)")
         ax.set_ylim(0, 1)
         ax.grid(alpha=0.3)
-    axes[0][0].set_ylabel("mean score (95% interval)")
-    axes[0][-1].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, title="strategy")
+    for row in axes:
+        row[0].set_ylabel("mean score (95% interval)")
+    handles = {h_l[1]: h_l[0] for ax in axes.flat for h_l in zip(*ax.get_legend_handles_labels(), strict=True)}
+    axes[0][-1].legend(handles.values(), handles.keys(), loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8,
+                       title="strategy")  # every strategy of every panel, once, outside the data
     fig.suptitle("Execution strategies under latency: score against delay", fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
