@@ -343,11 +343,15 @@ def test_real_time_figures_stay_readable_with_many_policies_and_strategies(tmp_p
     base = np.random.default_rng(0).uniform(0.3, 0.9, 100)
     sweep = {"realtime-sync": _setting(base), "realtime-async-d2": _setting(base - 0.1),
              "realtime-blocking-d2": _setting(base)}
-    by_label = {f"P{i}": sweep for i in range(7)} | {f"P{i} + ensemble": sweep for i in range(7)}
+    # a sweep's strategy is read from its records, not its label: "P + MLP" below is a naive sweep
+    ensembled = {k: {**v, "summary": {**v["summary"], "strategy": {"strategy": "ensemble"}}} for k, v in sweep.items()}
+    by_label = {f"P{i}": sweep for i in range(7)} | {f"P{i} + ensemble": ensembled for i in range(7)}
     figures.realtime_figure(by_label, tmp_path / "realtime.png")
     ax = drawn[0].axes[0]
     assert len(ax.get_legend().get_texts()) == 14  # 7 policies x (async, blocking), no strategy sweep
     assert "7 strategy sweeps in the strategies' figure" in ax.get_title()
+    figures.realtime_figure({"P + MLP": sweep, "P + MLP + ensemble": ensembled}, tmp_path / "realtime.png")
+    assert [t.get_text() for t in drawn[-1].axes[0].get_legend().get_texts()] == ["P + MLP, async", "P + MLP, blocking"]
     per_policy = {f"P{i}": {"naive": sweep, "ensemble": sweep} for i in range(7)}
     monkeypatch.setattr(strategies.plt, "close", lambda fig: drawn.append(fig))
     strategies.strategy_figure(per_policy, tmp_path / "strategies.png")

@@ -33,15 +33,18 @@ class Panel:
 
     def __post_init__(self) -> None:
         self.nth = nth_of_policy(self.pts)
+        # row key -> (mode, ms) of its fastest exact deployed mode, where an arrow points (both panels, the box)
+        self.tips = {r.key: t for r in self.pts if (t := _deployed(r, self.times[r.key], self.mode, self.run))}
 
     def style(self, r: Any) -> tuple[str, str]:
         n = self.nth[r.label]
         return colour(r.policy, n), MARKERS[n % len(MARKERS)]
 
-    def draw(self, ax: Any) -> tuple[dict[str, Any], list[tuple[float, float, float]]]:
+    def draw(self, ax: Any) -> tuple[dict[str, tuple[str, Any]], list[tuple[float, float, float]]]:
         """Every point with its interval, its training seeds (faint) and its arrow to the fastest exact mode.
-        Returns the legend handles and each marker's (x, y, radius in points), which labels keep clear of."""
-        legend: dict[str, Any] = {}
+        Returns label -> (legend text, handle) and each marker's (x, y, radius in points), which labels keep clear
+        of."""
+        legend: dict[str, tuple[str, Any]] = {}
         markers: list[tuple[float, float, float]] = []
         for r in self.pts:
             x, (c, m) = self.times[r.key], self.style(r)
@@ -50,11 +53,11 @@ class Panel:
             ax.errorbar(x, r.score, yerr=[[r.score - lo], [hi - r.score]], fmt="none", ecolor=c, alpha=0.6,
                         capsize=3)
             dot = ax.scatter(x, r.score, s=size, color=c, alpha=0.8, edgecolor="k", lw=0.5, marker=m)
-            legend.setdefault(f"{r.label}, {r.params / 1e6:.2f} M", dot)
+            legend.setdefault(r.label, (f"{r.label}, {r.params / 1e6:.2f} M", dot))
             for v in r.summary.get("per_seed", []):  # several training seeds: each seed's score, faint
                 ax.scatter(x, v, s=14, color=c, alpha=0.35, lw=0, marker=m)
             markers.append((x, r.score, size ** 0.5 / 2))
-            deployed = _deployed(r, x, self.mode, self.run) if self.mode == "reference" else None
+            deployed = self.tips.get(r.key) if self.mode == "reference" else None
             if deployed and deployed[1] < 0.95 * x:  # an arrow to the deployed (exact) time
                 ax.annotate("", (deployed[1], r.score), xytext=(x, r.score),
                             arrowprops={"arrowstyle": "->", "color": c, "alpha": 0.6, "lw": 1})
@@ -77,7 +80,7 @@ def zoom_box(panel: Panel) -> tuple[list[Any], tuple[float, float, float, float]
     if len(inside) < ZOOM_MIN:
         return None
     xs = [panel.times[r.key] for r in inside]
-    tips = [d[1] for r in inside if (d := _deployed(r, panel.times[r.key], panel.mode, panel.run))]
+    tips = [panel.tips[r.key][1] for r in inside if r.key in panel.tips]
     ys = [r.score for r in inside]
     return inside, (min(xs + tips) / 1.25, max(xs) * 1.6, min(ys) - 0.04, max(ys) + 0.04)
 
@@ -100,8 +103,7 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference", timing: dict[s
     inside = {r.key for r in zoom[0]} if zoom else set()
     fig, ax = plt.subplots(figsize=(12, 6.5))  # room for the labels of Diffusion Policy's many settings
     legend, markers = panel.draw(ax)
-    ax.legend(legend.values(), legend.keys(), fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0),
-              markerscale=0.5)  # outside the data
+    _legend(ax, legend.values())
     _study_points(ax, {r.reference_key for r in panel.pts})
     interleaved = (timing or {}).get("median_ms", {})
     shared, file = shared_timing(panel.pts, timing), (timing or {}).get("file", "latency-paired")
@@ -120,7 +122,7 @@ def figure5(rows: list[Any], path: Path, mode: str = "reference", timing: dict[s
     fig.tight_layout()
     place_labels(ax, [panel.label(r) for r in panel.pts if r.variant != "default" and r.key not in inside],
                  markers=markers)
-    return save_png(fig, path), (_zoom_figure(panel, zoom, zoom_path) if zoom and zoom_path else None)
+    return save_png(fig, path), (_zoom_figure(panel, zoom, zoom_path) if zoom else None)
 
 
 def _zoom_figure(panel: Panel, zoom: tuple[list[Any], tuple[float, float, float, float]], path: Path) -> Path:
@@ -129,9 +131,7 @@ def _zoom_figure(panel: Panel, zoom: tuple[list[Any], tuple[float, float, float,
     fig, ax = plt.subplots(figsize=(12, 6.5))
     legend, markers = panel.draw(ax)
     seen = {r.label for r in panel.pts if x0 <= panel.times[r.key] <= x1 and y0 <= r.score <= y1}
-    shown = {k: v for k, v in legend.items() if k.rsplit(", ", 1)[0] in seen}  # what the box holds
-    ax.legend(shown.values(), shown.keys(), fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0),
-              markerscale=0.5)
+    _legend(ax, [entry for label, entry in legend.items() if label in seen])  # what the box holds
     ax.set_xlim(x0, x1)
     ax.set_ylim(y0, y1)
     ax.set_xlabel(f"inference time per call, batch 1 ({panel.mode} mode, median, ms, log scale), as in Figure 5\n"
@@ -142,6 +142,12 @@ def _zoom_figure(panel: Panel, zoom: tuple[list[Any], tuple[float, float, float,
     fig.tight_layout()
     place_labels(ax, [panel.label(r) for r in inside], fontsize=7, markers=markers)
     return save_png(fig, path)
+
+
+def _legend(ax: Any, entries: Any) -> None:
+    """(text, handle) pairs as a legend outside the data."""
+    texts, handles = zip(*entries, strict=True) if entries else ((), ())
+    ax.legend(handles, texts, fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), markerscale=0.5)
 
 
 def _study_points(ax: Any, shown: set[str]) -> None:

@@ -12,7 +12,7 @@ import matplotlib
 matplotlib.use("Agg")  # files only, no display
 import matplotlib.pyplot as plt
 
-from bcbench.analysis.realtime import delay_curve
+from bcbench.analysis.realtime import delay_curve, strategy_of
 from bcbench.utils.io import atomic_path
 
 BUDGETS_MS = ((100.0, "10 Hz, re-plan every step (100 ms)"), (800.0, "10 Hz, re-plan every 8 steps (800 ms)"))
@@ -227,12 +227,11 @@ def _sweep_colours(by_policy: dict[str, dict[str, dict[str, Any]]]) -> dict[str,
 
 def realtime_figure(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path) -> Path:
     """Score against delay d (control steps of 0.1 s), one colour per policy: async solid, blocking dashed. Sweeps
-    of an execution strategy ("BCT + ensemble") are left to the strategies' figure, one panel per policy, where
-    they stand beside naive async: here they would double the lines, all in their policy's colour."""
+    of an execution strategy other than naive (their records say which) are left to the strategies' figure, one
+    panel per policy, where they stand beside naive async: here they would double the lines, all in one colour."""
     fig, ax = plt.subplots(figsize=(10, 4.5))
-    plain = {label: results for label, results in by_policy.items() if " + " not in label} or by_policy
-    left = len(by_policy) - len(plain)
-    by_policy = plain
+    plain = {label: results for label, results in by_policy.items() if strategy_of(results) == "naive"} or by_policy
+    left, by_policy = len(by_policy) - len(plain), plain
     style_of = _sweep_colours(by_policy)
     for label, results in by_policy.items():
         colour, marker = style_of[label]

@@ -138,6 +138,12 @@ def largest_safe_delay(results: dict[str, dict[str, Any]], execution: str, margi
     return safe
 
 
+def strategy_of(results: dict[str, dict[str, Any]]) -> str:
+    """The execution strategy a sweep ran, from its own records ("naive" for records from before strategies)."""
+    first = next(iter(results.values()), {})
+    return (first.get("summary", {}).get("strategy") or {}).get("strategy", "naive")
+
+
 def delay_curve(results: dict[str, dict[str, Any]], execution: str) -> list[tuple[int, dict[str, Any]]]:
     """(d, mean-score estimate) of one execution mode, with sync as d = 0."""
     pts = [(0, results[SYNC_SETTING]["summary"]["mean_score"])] if SYNC_SETTING in results else []

@@ -116,9 +116,12 @@ def strategy_figure(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path,
         ax.grid(alpha=0.3)
     for row in axes:
         row[0].set_ylabel("mean score (95% interval)")
-    handles = {h_l[1]: h_l[0] for ax in axes.flat for h_l in zip(*ax.get_legend_handles_labels(), strict=True)}
+    handles: dict[str, Any] = {}  # every strategy of every panel, once
+    for ax in axes.flat:
+        for handle, name in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(name, handle)
     axes[0][-1].legend(handles.values(), handles.keys(), loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8,
-                       title="strategy")  # every strategy of every panel, once, outside the data
+                       title="strategy")  # outside the data
     fig.suptitle("Execution strategies under latency: score against delay", fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
