@@ -358,3 +358,31 @@ def test_real_time_figures_stay_readable_with_many_policies_and_strategies(tmp_p
     visible = [a for a in drawn[-1].axes if a.get_visible()]
     assert len(visible) == 7 and len({round(a.get_position().y0, 3) for a in visible}) == 2  # two rows
     assert (tmp_path / "strategies.png").stat().st_size > 1000
+
+
+def test_a_strategy_is_judged_safe_against_the_plain_sync_score_not_its_own():
+    """A strategy that costs 0.2 everywhere, sync included, stays within the margin of its OWN sync at every delay;
+    against the policy's plain (naive) sync it keeps nothing, which is how the strategies' table judges it and how
+    the real-time section must too (it called such a sweep safe up to d = 8 at 1,600 Hz)."""
+    from bcbench.analysis.realtime import safe_delay_sentence
+    from bcbench.analysis.report import realtime_lines
+
+    base = np.random.default_rng(3).uniform(0.4, 0.9, 100)
+
+    def sweep(offset: float, kind: str) -> dict:
+        out = {"realtime-sync": _setting(base + offset),
+               **{f"realtime-blocking-d{d}": _setting(base + offset) for d in (1, 2, 4, 8)},
+               "realtime-blocking-measured": _setting(base + offset, median_ms=5.0)}
+        for r in out.values():
+            r["summary"]["strategy"] = {"strategy": kind}
+        return out
+
+    naive, ensemble = sweep(0.0, "naive"), sweep(-0.2, "ensemble")
+    assert "blocking d = 8" in safe_delay_sentence(ensemble, 0.05)  # against its own sync: "safe" to d = 8
+    lines = "\n".join(realtime_lines({"P": naive, "P + ensemble": ensemble}, 0.05))
+    mine = next(line for line in lines.splitlines() if line.startswith("- P + ensemble:"))
+    assert f"Against the plain sync score ({base.mean():.3f}, naive's)" in mine
+    assert "blocking d = 0: no delay is shown within the margin (d = 1 minus sync: blocking -0.200" in mine
+    assert "sync " + f"{base.mean() - 0.2:.3f}" in mine  # its own scores are still listed as measured
+    plain = next(line for line in lines.splitlines() if line.startswith("- P:"))
+    assert "Against" not in plain and "blocking d = 8" in plain

@@ -170,13 +170,13 @@ def cmd_report(args: argparse.Namespace) -> int:
 def cmd_realtime(args: argparse.Namespace) -> int:
     from bcbench.analysis.figures import figure5_realtime, realtime_figure
     from bcbench.analysis.findings import DEFAULT_MARGIN
-    from bcbench.analysis.realtime import margin_power_sentence, safe_delay_sentence
+    from bcbench.analysis.realtime import margin_power_sentence, safe_delay_sentences
     from bcbench.evaluation.latency_sources import LatencySource
     from bcbench.evaluation.realtime import finished_settings, realtime_record, sweep
     from bcbench.policies.learned import PolicyRunner
 
     args.no_ema = False
-    strategies = list(dict.fromkeys(args.strategy))
+    strategies = sorted(dict.fromkeys(args.strategy), key=lambda k: k != "naive")  # naive first: the others' bar
     configs = [strategy_config(args, k, several=True) for k in strategies]  # options checked before any episode
     policy, default_out = load_eval_policy(args)
     weak = load_weak(args, policy) if "bid" in strategies else None
@@ -199,6 +199,7 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     mode = policy.info.mode if isinstance(policy, PolicyRunner) else None  # what apply_mode set; baselines: none
     base = args.label or (f"{policy.name} ({mode})" if mode else policy.name)
     variant = {"sampler": args.sampler, "steps": args.steps, "spacing": args.spacing}
+    plain = None  # naive's sweep, once run
     for kind, strategy in zip(strategies, configs, strict=True):
         # naive alone writes to --out itself (as before strategies); several: one folder each
         where = out if strategies == ["naive"] else out / kind
@@ -219,7 +220,11 @@ def cmd_realtime(args: argparse.Namespace) -> int:
         realtime_figure({policy.name: results}, where / "realtime.png")
         if figure5_realtime({policy.name: results}, where / "fig5_realtime.png") is None:
             (where / "fig5_realtime.png").unlink(missing_ok=True)  # no measured setting this time: no stale figure
-        print(f"  {safe_delay_sentence(results, DEFAULT_MARGIN)}")
+        if kind == "naive":
+            plain = results
+        sweeps = {policy.name: results} if kind == "naive" or plain is None else {
+            policy.name: plain, f"{policy.name} + {kind}": results}  # a strategy: judged against naive's sync
+        print(f"  {list(safe_delay_sentences(sweeps, DEFAULT_MARGIN).values())[-1]}")
         if power := margin_power_sentence({policy.name: results}, DEFAULT_MARGIN):
             print(f"  {power}")
         # One record of the whole sweep, the form a study's report reads: inside a study's folder (e.g. beside a
