@@ -144,19 +144,19 @@ def strategy_of(results: dict[str, dict[str, Any]]) -> str:
     return (first.get("summary", {}).get("strategy") or {}).get("strategy", "naive")
 
 
-def judged_against_plain_sync(realtime: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
-    """Each sweep's settings as its safe delay is judged: a strategy's sweep ("P + ensemble") against its policy's
-    plain sync score (the naive sweep "P"'s d = 0), as the strategies' table judges it, so that a strategy which
-    lowers the sync score is not called safe against its own lower bar. Others (and a strategy sweep with no
-    naive sweep beside it) unchanged."""
-    out = {}
-    for label, settings in realtime.items():
-        kind = strategy_of(settings)
-        plain = realtime.get(label.replace(f" + {kind}", "", 1)) if kind != "naive" else None
-        if plain is not None and plain is not settings and strategy_of(plain) == "naive" and SYNC_SETTING in plain:
-            settings = {**settings, SYNC_SETTING: plain[SYNC_SETTING]}
-        out[label] = settings
-    return out
+def with_plain_sync(settings: dict[str, Any], plain: dict[str, Any]) -> dict[str, Any]:
+    """A strategy's sweep with its policy's plain sync score (the naive sweep's d = 0) in place of its own: the bar
+    its safe delay is judged against, so that a strategy which lowers the sync score is not called safe against its
+    own lower bar."""
+    return {**settings, SYNC_SETTING: plain[SYNC_SETTING]}
+
+
+def naive_sweep_of(realtime: dict[str, dict[str, Any]], label: str) -> dict[str, Any] | None:
+    """The naive sweep "P" beside a strategy's sweep "P + ensemble" (its strategy read from its records); None for a
+    naive sweep, or where no naive sweep with a sync setting is beside it."""
+    kind = strategy_of(realtime[label])
+    plain = realtime.get(label.replace(f" + {kind}", "", 1)) if kind != "naive" else None
+    return plain if plain is not None and strategy_of(plain) == "naive" and SYNC_SETTING in plain else None
 
 
 def delay_curve(results: dict[str, dict[str, Any]], execution: str) -> list[tuple[int, dict[str, Any]]]:
@@ -181,9 +181,14 @@ def highest_safe_rate(safe_d: int | None, latency_ms: float) -> float | None:
     return safe_d / (latency_ms / 1e3) if latency_ms > 0 else math.inf
 
 
-def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float) -> str:
+def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float, plain: dict[str, Any] | None = None
+                        ) -> str:
     """One policy's largest safe delay per execution mode and, from the better mode's measured setting, its
-    highest safe control rate; where no delay is shown safe, the d = 1 differences that say why."""
+    highest safe control rate; where no delay is shown safe, the d = 1 differences that say why. `plain`: for a
+    strategy's sweep, its policy's naive sweep, whose sync score it is judged against (and says so)."""
+    if plain is not None:
+        return (f"Against the plain sync score ({plain[SYNC_SETTING]['summary']['mean_score']['value']:.3f}, naive's), "
+                "as in the strategies' table: " + safe_delay_sentence(with_plain_sync(settings, plain), margin))
     if SYNC_SETTING not in settings:
         return ""
     safe = {e: largest_safe_delay(settings, e, margin) for e in ("async", "blocking")
@@ -212,13 +217,3 @@ def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float) -> s
                 f"highest safe control rate {med:.1f} Hz ({slow:.1f} Hz at its slowest call), {mode}")
     return f"{head}{fits}."
 
-
-def safe_delay_sentences(realtime: dict[str, dict[str, Any]], margin: float) -> dict[str, str]:
-    """safe_delay_sentence per sweep; a strategy's sweep judged against its policy's plain sync (and saying so)."""
-    out = {}
-    for label, judged in judged_against_plain_sync(realtime).items():
-        plain = judged is not realtime[label]
-        against = (f"Against the plain sync score ({judged[SYNC_SETTING]['summary']['mean_score']['value']:.3f}, "
-                   "naive's), as in the strategies' table: ") if plain else ""
-        out[label] = against + safe_delay_sentence(judged, margin)
-    return out

@@ -24,7 +24,7 @@ from bcbench.analysis.fewstep import fewstep_lines, load_paired, one_interleaved
 from bcbench.analysis.figures import figure3, figure4, figure5_realtime, learning_curves, realtime_figure
 from bcbench.analysis.findings import DEFAULT_MARGIN, Finding, judge, points_from_rows, shared_timing, with_interleaved
 from bcbench.analysis.provenance import lead_line, paired_conditions, provenance_notes, sweep_provenance
-from bcbench.analysis.realtime import margin_power_sentence, pooled_sentence, safe_delay_sentences
+from bcbench.analysis.realtime import margin_power_sentence, naive_sweep_of, pooled_sentence, safe_delay_sentence
 from bcbench.analysis.results import (
     Row,
     cpu_text,
@@ -201,12 +201,12 @@ def realtime_lines(realtime: dict[str, dict[str, Any]], margin: float, rows: lis
     out += [*realtime_table(realtime), "", "Every setting with its 95% interval, and what the sweep says (a measured "
             "or profile setting whose calls all took the same d repeats that fixed-delay setting and is marked so):",
             ""]
-    safe = safe_delay_sentences(realtime, margin)
     for label, settings in realtime.items():
         parts = [f"{name.removeprefix('realtime-')} " + (f"= {same} (every call d = {same.rsplit('-d', 1)[1]}: the "
                  "same episodes, not separate evidence)" if (same := same_as_fixed(settings, name))
                  else fmt_estimate(r["summary"]["mean_score"])) for name, r in settings.items()]
-        out.append(f"- {label}: " + "; ".join(parts) + ". " + safe[label])
+        out.append(f"- {label}: " + "; ".join(parts) + ". "
+                   + safe_delay_sentence(settings, margin, naive_sweep_of(realtime, label)))
     return [*out, ""]
 
 

@@ -20,9 +20,10 @@ from bcbench.analysis.realtime import (
     largest_safe_delay,
     pool_training_seeds,
     pooled_sentence,
+    with_plain_sync,
 )
 from bcbench.analysis.results import realtime_records, sweep_label
-from bcbench.protocol import SYNC_SETTING, delay_setting
+from bcbench.protocol import delay_setting
 from bcbench.utils.io import atomic_path
 
 STYLE = {"naive": ("k", "o", "--"), "rtc": ("C3", "s", "-"), "bid": ("C2", "^", "-"), "ensemble": ("C0", "D", "-")}
@@ -60,7 +61,7 @@ def keeps_sync_rate(sweeps: dict[str, dict[str, Any]], kind: str, margin: float,
                     ) -> tuple[int | None, float | None]:
     """(largest safe d, highest control rate in Hz) at which the strategy stays within the margin of the policy's
     plain sync score (naive's d = 0), given its own measured latency."""
-    settings = {**sweeps[kind], SYNC_SETTING: sweeps["naive"][SYNC_SETTING]}
+    settings = with_plain_sync(sweeps[kind], sweeps["naive"])
     safe = largest_safe_delay(settings, execution, margin)
     ms = measured_ms(sweeps[kind], execution)
     return safe, (highest_safe_rate(safe, ms) if ms else None)

@@ -170,7 +170,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 def cmd_realtime(args: argparse.Namespace) -> int:
     from bcbench.analysis.figures import figure5_realtime, realtime_figure
     from bcbench.analysis.findings import DEFAULT_MARGIN
-    from bcbench.analysis.realtime import margin_power_sentence, safe_delay_sentences
+    from bcbench.analysis.realtime import margin_power_sentence, safe_delay_sentence
     from bcbench.evaluation.latency_sources import LatencySource
     from bcbench.evaluation.realtime import finished_settings, realtime_record, sweep
     from bcbench.policies.learned import PolicyRunner
@@ -220,11 +220,8 @@ def cmd_realtime(args: argparse.Namespace) -> int:
         realtime_figure({policy.name: results}, where / "realtime.png")
         if figure5_realtime({policy.name: results}, where / "fig5_realtime.png") is None:
             (where / "fig5_realtime.png").unlink(missing_ok=True)  # no measured setting this time: no stale figure
-        if kind == "naive":
-            plain = results
-        sweeps = {policy.name: results} if kind == "naive" or plain is None else {
-            policy.name: plain, f"{policy.name} + {kind}": results}  # a strategy: judged against naive's sync
-        print(f"  {list(safe_delay_sentences(sweeps, DEFAULT_MARGIN).values())[-1]}")
+        plain = results if kind == "naive" else plain
+        print(f"  {safe_delay_sentence(results, DEFAULT_MARGIN, None if kind == 'naive' else plain)}")
         if power := margin_power_sentence({policy.name: results}, DEFAULT_MARGIN):
             print(f"  {power}")
         # One record of the whole sweep, the form a study's report reads: inside a study's folder (e.g. beside a
