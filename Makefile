@@ -7,7 +7,7 @@ STAMP   := $(VENV)/.bcbench-installed
 WHEELS  := $(wildcard /opt/wheels)
 PIPOPTS := -q $(if $(WHEELS),--find-links $(WHEELS),)
 
-.PHONY: install test test-sidecar lint demo clean lerobot-env
+.PHONY: install test test-sidecar lint demo clean lerobot-env reports
 LEROBOT_VENV ?= .lerobot-venv
 LEROBOT_PY   ?= $(firstword $(wildcard $(HOME)/.pyenv/versions/3.12*/bin/python3.12) $(shell command -v python3.12))
 
@@ -25,6 +25,13 @@ lint: install
 
 test: install lint
 	$(VENV)/bin/pytest -q --durations=15 -m "not sidecar" -n auto --dist loadfile
+
+# Every committed study's report rebuilt in place from its result files (no torch): run it after changing the
+# analysis or a mixing-reason.txt, then commit; tests/test_committed_results.py checks they match.
+reports: install
+	@for md in results/*/report/report.md; do \
+	  d=$${md%/report/report.md}; echo "report: $$d"; $(VENV)/bin/bcbench report "$$d" >/dev/null || exit 1; \
+	done
 
 # The LeRobot sidecar (opt-in): LeRobot 0.6.1 needs Python >= 3.12, torch < 2.12 and diffusers < 0.40, so it
 # lives in its own venv (about 5.6 GB, 3-4 minutes). `bcbench eval --policy lerobot:FOLDER` finds it here.
