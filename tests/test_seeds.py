@@ -324,3 +324,32 @@ def test_the_realtime_section_names_a_sweep_on_another_machine_and_its_one_train
                steps=None, spacing=None, beta_schedule=None, params=1, summary={}, train_seed=0,
                hardware={"cpu_model": "Xeon", "cpu_flags": ["avx2"], "torch_threads": 1})
     assert sweep_provenance({"BCT long + ensemble": {"realtime-sync": setting("Xeon", 0)}}, [*rows, long]) == ""
+
+
+@pytest.mark.parametrize("k, m, sizes", [(3, 0, None), (3, 2, None), (1, 1, None), (4, 3, [100, 93, 100, 86])])
+def test_the_two_level_bootstrap_draws_as_the_plain_double_loop_does(k, m, sizes):
+    """The bulk means (stats._resampled_means) give the interval a loop over resamples and slots gives, to the bit,
+    with unequal episode counts and with no alternative: committed reports were computed with the loop."""
+    from bcbench import stats
+
+    rng = np.random.default_rng(7)
+    sizes = sizes or [100] * k
+    draw = lambda: [{e: float(rng.random() > 0.3) * rng.random() for e in range(n)} for n in sizes]  # noqa: E731
+    seeds, others = draw(), [draw() for _ in range(m)] or None
+
+    def loop() -> list[float]:  # the pre-vectorized statistic, verbatim in effect
+        r = np.random.default_rng(0)
+        per_seed = stats._seed_arrays(seeds, others)
+        draws, boot = r.integers(0, k, size=(2000, k)), []
+        for b in range(2000):
+            ma, mr = [], []
+            for j in draws[b]:
+                a, rest = per_seed[j]
+                idx = r.integers(0, a.size, a.size)
+                ma.append(a[idx].mean())
+                mr.append(rest[:, idx].mean(axis=1))
+            boot.append(np.mean(ma) - (np.mean(mr, axis=0).max() if others else 0.0))
+        alpha = (1.0 - 0.95) / 2.0  # as the module computes it (not exactly 0.025)
+        return [float(q) for q in np.quantile(boot, [alpha, 1.0 - alpha])]
+
+    assert stats.two_level_bootstrap(seeds, others, n_boot=2000)["ci95"] == loop()

@@ -88,6 +88,33 @@ def _seed_arrays(seeds: list[dict[int, float]], others: list[list[dict[int, floa
     return out
 
 
+def _resampled_means(per_seed: list[tuple[np.ndarray, np.ndarray]], rng: np.random.Generator, n_boot: int
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """The two-level bootstrap's draws: per resample b and slot i, a training seed j drawn with replacement and its
+    episodes drawn with replacement; returns (n_boot, k) the mean of a over them and (n_boot, k, m) the others'.
+
+    The random draws are made one call at a time in the order a plain double loop makes them (all seeds first, then
+    each slot's episodes), so intervals stay bit-identical to it; only the means are taken in bulk, per training seed,
+    along a contiguous last axis (the same pairwise sum as a 1-D mean): a third of the loop's time (tested equal)."""
+    k = len(per_seed)
+    m = per_seed[0][1].shape[0]
+    draws = rng.integers(0, k, size=(n_boot, k))  # training seeds, with replacement
+    picks: list[list[np.ndarray]] = [[] for _ in range(k)]  # per seed, its episode draws in order
+    for j in draws.ravel():
+        n = per_seed[j][0].size
+        picks[j].append(rng.integers(0, n, n))  # its episodes, with replacement
+    ma, mr = np.empty((n_boot, k)), np.empty((n_boot, k, m))
+    for j, (a, rest) in enumerate(per_seed):
+        where = np.flatnonzero(draws.ravel() == j)  # the (b, slot) positions that drew seed j, in draw order
+        if where.size == 0:
+            continue
+        idx = np.stack(picks[j])  # (count_j, n_j)
+        ma.reshape(-1)[where] = a[idx].mean(axis=1)
+        if m:
+            mr.reshape(-1, m)[where] = rest[:, idx].mean(axis=2).T  # (count_j, m)
+    return ma, mr
+
+
 def two_level_bootstrap(seeds: list[dict[int, float]], others: list[list[dict[int, float]]] | None = None,
                         seed: int = 0, level: float = 0.95, n_boot: int = N_BOOT) -> dict[str, Any]:
     """Mean over training seeds of each seed's mean episode score, with an interval that resamples training seeds
@@ -111,17 +138,8 @@ def two_level_bootstrap(seeds: list[dict[int, float]], others: list[list[dict[in
 
     point = stat(np.array([a.mean() for a, _ in per_seed]).mean(),
                  np.array([r.mean(axis=1) for _, r in per_seed]).mean(axis=0) if others else np.empty(0))
-    boot = np.empty(n_boot)
-    draws = rng.integers(0, k, size=(n_boot, k))  # training seeds, with replacement
-    for b in range(n_boot):
-        ma, mr = [], []
-        for j in draws[b]:
-            a, rest = per_seed[j]
-            idx = rng.integers(0, a.size, a.size)  # its episodes, with replacement
-            ma.append(a[idx].mean())
-            if others:
-                mr.append(rest[:, idx].mean(axis=1))
-        boot[b] = stat(np.mean(ma), np.mean(mr, axis=0) if others else np.empty(0))
+    ma, mr = _resampled_means(per_seed, rng, n_boot)  # (n_boot, k), (n_boot, k, m)
+    boot = ma.mean(axis=1) - (mr.mean(axis=1).max(axis=1) if others else 0.0)  # stat(), one row per resample
     alpha = (1.0 - level) / 2.0
     lo, hi = np.quantile(boot, [alpha, 1.0 - alpha])
     diffs = [a - (r.max(axis=0) if r.size else 0.0) for a, r in per_seed]  # per-episode statistic, per seed
