@@ -139,7 +139,7 @@ def two_level_bootstrap(seeds: list[dict[int, float]], others: list[list[dict[in
     point = stat(np.array([a.mean() for a, _ in per_seed]).mean(),
                  np.array([r.mean(axis=1) for _, r in per_seed]).mean(axis=0) if others else np.empty(0))
     ma, mr = _resampled_means(per_seed, rng, n_boot)  # (n_boot, k), (n_boot, k, m)
-    boot = ma.mean(axis=1) - (mr.mean(axis=1).max(axis=1) if others else 0.0)  # stat(), one row per resample
+    boot = stat(ma.mean(axis=1), mr.mean(axis=1).T)  # (n_boot,): the statistic of each resample
     alpha = (1.0 - level) / 2.0
     lo, hi = np.quantile(boot, [alpha, 1.0 - alpha])
     diffs = [a - (r.max(axis=0) if r.size else 0.0) for a, r in per_seed]  # per-episode statistic, per seed
