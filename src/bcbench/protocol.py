@@ -58,3 +58,14 @@ def delay_setting(execution: str, d: int) -> str:
     """A real-time sweep's setting at fixed delay d as its records name it: realtime-EXECUTION-dD, and the sync
     reference for d = 0 (no delay leaves nothing for the execution mode to do)."""
     return SYNC_SETTING if d == 0 else f"realtime-{execution}-d{d}"
+
+
+def strategy_label(policy: str, strategy: str) -> str:
+    """A real-time sweep's label: the policy's own for naive, "POLICY + STRATEGY" for any other execution strategy
+    (so a report can set each strategy beside the same policy's naive sweep; `policy_label` reads it back)."""
+    return policy if strategy == "naive" else f"{policy} + {strategy}"
+
+
+def policy_label(label: str, strategy: str) -> str:
+    """The policy's label of a sweep labelled by `strategy_label` with `strategy`."""
+    return label if strategy == "naive" else label.replace(f" + {strategy}", "", 1)

@@ -9,7 +9,7 @@ import re
 import statistics
 from typing import Any
 
-from bcbench.protocol import CONTROL_DT_S, SYNC_SETTING, delay_setting
+from bcbench.protocol import CONTROL_DT_S, SYNC_SETTING, delay_setting, policy_label
 from bcbench.stats import Z95, episodes_to_show_within, over_training_seeds, paired_bootstrap
 
 
@@ -155,7 +155,7 @@ def naive_sweep_of(realtime: dict[str, dict[str, Any]], label: str) -> dict[str,
     """The naive sweep "P" beside a strategy's sweep "P + ensemble" (its strategy read from its records); None for a
     naive sweep, or where no naive sweep with a sync setting is beside it."""
     kind = strategy_of(realtime[label])
-    plain = realtime.get(label.replace(f" + {kind}", "", 1)) if kind != "naive" else None
+    plain = realtime.get(policy_label(label, kind)) if kind != "naive" else None
     return plain if plain is not None and strategy_of(plain) == "naive" and SYNC_SETTING in plain else None
 
 
@@ -216,4 +216,3 @@ def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float, plai
                 f"{'fits' if med >= 1 / CONTROL_DT_S else 'does not fit'} within {mode} d = {best} at 10 Hz; "
                 f"highest safe control rate {med:.1f} Hz ({slow:.1f} Hz at its slowest call), {mode}")
     return f"{head}{fits}."
-

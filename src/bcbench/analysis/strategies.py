@@ -23,7 +23,7 @@ from bcbench.analysis.realtime import (
     with_plain_sync,
 )
 from bcbench.analysis.results import realtime_records, sweep_label
-from bcbench.protocol import delay_setting
+from bcbench.protocol import delay_setting, policy_label
 from bcbench.utils.io import atomic_path
 
 STYLE = {"naive": ("k", "o", "--"), "rtc": ("C3", "s", "-"), "bid": ("C2", "^", "-"), "ensemble": ("C0", "D", "-")}
@@ -38,7 +38,7 @@ def load_strategy_sweeps(results: str | Path) -> dict[str, dict[str, dict[str, A
     for f, data in realtime_records(results):
         variant = data.get("study", {}).get("variant") or {}
         kind = variant.get("strategy") or "naive"
-        base = sweep_label(f, data).replace(f" + {kind}", "", 1)  # one policy, whichever strategy it ran
+        base = policy_label(sweep_label(f, data), kind)  # one policy, whichever strategy it ran
         shown = kind + (" (J = I)" if variant.get("rtc_jacobian") is False else "")  # RTC's form when not the paper's
         found.setdefault(base, {}).setdefault(shown, []).append(data["settings"])
     return {k: {kind: pool_training_seeds(s) for kind, s in v.items()} for k, v in found.items()

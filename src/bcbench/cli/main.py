@@ -18,6 +18,7 @@ from bcbench.cli import data
 from bcbench.cli.parser import build_parser
 from bcbench.cli.policies import load_eval_policy, load_weak, strategy_config
 from bcbench.errors import BCBenchError
+from bcbench.protocol import strategy_label
 from bcbench.stats import fmt_estimate, fmt_share
 from bcbench.utils.args import EXIT_USAGE
 from bcbench.utils.io import write_json
@@ -220,16 +221,15 @@ def cmd_realtime(args: argparse.Namespace) -> int:
         realtime_figure({policy.name: results}, where / "realtime.png")
         if figure5_realtime({policy.name: results}, where / "fig5_realtime.png") is None:
             (where / "fig5_realtime.png").unlink(missing_ok=True)  # no measured setting this time: no stale figure
+        print(f"  {safe_delay_sentence(results, DEFAULT_MARGIN, plain)}")  # naive runs first: plain is None for it
         plain = results if kind == "naive" else plain
-        print(f"  {safe_delay_sentence(results, DEFAULT_MARGIN, None if kind == 'naive' else plain)}")
         if power := margin_power_sentence({policy.name: results}, DEFAULT_MARGIN):
             print(f"  {power}")
         # One record of the whole sweep, the form a study's report reads: inside a study's folder (e.g. beside a
         # run's own sweep, with another --backend), `bcbench report` shows it under its label.
-        label = base if kind == "naive" else f"{base} + {kind}"
         write_json(where / "realtime-sweep.json", realtime_record(
-            results, "bcbench realtime", label, {**variant, "strategy": kind, **strategy.variant_extra()},
-            DEFAULT_MARGIN, args.device))
+            results, "bcbench realtime", strategy_label(base, kind),
+            {**variant, "strategy": kind, **strategy.variant_extra()}, DEFAULT_MARGIN, args.device))
     if len(strategies) > 1:
         from bcbench.analysis.strategies import load_strategy_sweeps, strategy_figure, strategy_table
 

@@ -35,7 +35,7 @@ from bcbench.modes import mode_name
 from bcbench.policies import make_policy
 from bcbench.policies.checkpoint import configure_runner, load_runner
 from bcbench.policies.outside import outside_policy
-from bcbench.protocol import VALIDATION_SEED_START, training_done
+from bcbench.protocol import VALIDATION_SEED_START, strategy_label, training_done
 from bcbench.study.spec import RunSpec, StudySpec, Variant
 from bcbench.training.loop import TrainOptions, new_run, train
 from bcbench.utils.device import pick_device
@@ -158,9 +158,8 @@ class StudyRunner:
                          done=read_json(partial) if partial.exists() else None,
                          on_setting=lambda results: write_json(partial, results),
                          execution_horizon=rt.get("execution_horizon"), strategy=strategy)
-        label = run.label if kind == "naive" else f"{run.label} + {kind}"
-        return realtime_record(settings, self.spec.name, label, {**asdict(variant), "strategy": kind,
-                                                                  **strategy.variant_extra()}, self.spec.margin,
+        extra = {**asdict(variant), "strategy": kind, **strategy.variant_extra()}
+        return realtime_record(settings, self.spec.name, strategy_label(run.label, kind), extra, self.spec.margin,
                                self.device, run.policy if run.outside else None)
 
     def after_stage(self) -> None:
