@@ -55,6 +55,14 @@ case "${1:-start}" in
       git rev-parse HEAD > "$PIN"
     fi
     COMMIT="$(cat "$PIN")"
+    # The study runs the spec as it was at the pin. A spec extended since (seeds or settings added at a later
+    # commit) would otherwise run nothing new and say "done" (a restore pins the export's commit, which predates
+    # the extension): say so, and how to move the pin.
+    if ! git show "$COMMIT:$SPEC" 2>/dev/null | cmp -s - "$SPEC"; then
+      echo "warning: $SPEC differs between the pinned commit ${COMMIT:0:12} and the work tree; the study runs the" \
+           "pinned one. To run the work tree's, write its commit into $PIN (results/$NAME then needs a" \
+           "mixing-reason.txt saying why the code is the same)" >&2
+    fi
     SRC="$BCBENCH_HOME/src-${COMMIT:0:12}"
     if [ ! -d "$SRC/.git" ]; then
       git clone --quiet --no-checkout "$PWD" "$SRC.tmp" && git -C "$SRC.tmp" checkout --quiet "$COMMIT"
