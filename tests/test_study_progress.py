@@ -54,7 +54,31 @@ def test_status_reads_steps_rates_and_estimates_the_time_left(tmp_path, monkeypa
     # two lanes: 50 s and 100 s side by side; one lane: one after the other
     assert s["lanes"] == cpus and s["train_seconds_left"] == pytest.approx(left_s)
     text = progress.format_status(runner)
-    assert "500 / 1,000 steps, 40 samples/s lately" in text and f"with {cpus} side by side" in text
+    assert "500 / 1,000 steps, 40 samples/s lately" in text
+    assert ("2 side by side" if cpus == 2 else "one at a time") in text
+
+
+@pytest.mark.parametrize("launch, lanes", [({"ray": False, "ray_cpus": 2}, 1), ({"ray": True, "ray_cpus": 4}, 4),
+                                           ({"ray": True, "ray_cpus": 1}, 1)])
+def test_the_time_left_follows_how_the_study_was_started(tmp_path, monkeypatch, launch, lanes):
+    """A spec with `resources` started without Ray (BCBENCH_RAY=0) trains one run at a time: the estimate adds
+    the trainings up instead of counting them side by side; under Ray its own CPU count sets the lanes."""
+    monkeypatch.setattr(progress.os, "cpu_count", lambda: 2)
+    runner = _runner(tmp_path)
+    write_json(runner.out / progress.LAUNCH_FILE, launch)
+    _training(runner, 0, 500)  # 50 s left; seeds 1 and 2 waiting, 100 s each at the same rate
+    s = progress.status(runner)
+    assert s["lanes"] == lanes
+    assert s["train_seconds_left"] == pytest.approx({1: 250.0, 4: 100.0}[lanes])
+
+
+def test_run_study_records_how_it_was_started(tmp_path, monkeypatch):
+    from bcbench.study import run_study
+
+    monkeypatch.setattr(StudyRunner, "run", lambda self: {"stages": 0})
+    runner = _runner(tmp_path)
+    run_study(runner.spec, runner.out, progress=False)
+    assert json.loads((runner.out / progress.LAUNCH_FILE).read_text())["ray"] is False
 
 
 def test_without_resources_trainings_run_one_at_a_time_and_unknown_rates_are_said(tmp_path):

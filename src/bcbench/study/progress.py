@@ -22,6 +22,7 @@ from bcbench.study.runner import StudyRunner
 from bcbench.study.spec import RunSpec, StudySpec
 from bcbench.utils.io import read_json, read_jsonl
 
+LAUNCH_FILE = "launch.json"  # how the running study was started: {"ray": bool, "ray_cpus": int} (run_study writes it)
 RATE_WINDOW = 20  # training log lines the recent rate is measured over (25 steps each by default)
 
 
@@ -77,6 +78,18 @@ def _hours(seconds: float) -> str:
     return f"{seconds / 3600:.1f} h" if seconds >= 3600 else f"{seconds / 60:.0f} min"
 
 
+def _lanes(runner: StudyRunner) -> int:
+    """Trainings that run side by side: under Ray, its CPUs over one training's; in one process (no `resources`,
+    or a study started without Ray, e.g. BCBENCH_RAY=0) one at a time. The study's launch.json says which; a
+    folder without one (a study not started yet, or by an older bcbench) is assumed on Ray with every CPU."""
+    cpus = runner.spec.resources.get("train", {}).get("cpus")
+    f = runner.out / LAUNCH_FILE
+    launch = read_json(f) if f.is_file() else {"ray": True, "ray_cpus": os.cpu_count() or 1}
+    if not cpus or not launch.get("ray"):
+        return 1
+    return max(1, int(launch.get("ray_cpus") or 1) // cpus)
+
+
 def status(runner: StudyRunner) -> dict[str, Any]:
     """Counts of stages done per kind, the trainings going and those waiting, and the estimates."""
     stages = [(s, r, runner.is_done(s, r, v)) for s, r, v in runner.stages()]  # each result file looked at once
@@ -94,9 +107,7 @@ def status(runner: StudyRunner) -> dict[str, Any]:
         if t.max_steps is None and per_epoch and t.batch:  # an epoch budget: steps from the data's size
             epochs = t.run.config_dict()["optim"].get("epochs")
             t.max_steps = int(epochs * per_epoch / t.batch) if epochs else None
-    cpus = runner.spec.resources.get("train", {}).get("cpus")
-    # trainings side by side under Ray: the machine's CPUs over one training's; else one at a time
-    lanes = max(1, int((os.cpu_count() or 1) // cpus)) if cpus else 1
+    lanes = _lanes(runner)
     # List scheduling in the runner's order (the going ones first): each training to the lane that frees first.
     free, unknown = [0.0] * lanes, 0
     for t in [*going, *waiting]:
@@ -124,7 +135,8 @@ def format_status(runner: StudyRunner) -> str:
         out.append(f"  waiting   {t.run.label} s{t.run.seed}{eta}")
     if s["train_seconds_left"] is not None:
         unknown = f"; {s['unknown']} training(s) with no rate measured yet not counted" if s["unknown"] else ""
-        out.append(f"training left: about {_hours(s['train_seconds_left'])} with {s['lanes']} side by side "
+        lanes = "one at a time" if s["lanes"] == 1 else f"{s['lanes']} side by side"
+        out.append(f"training left: about {_hours(s['train_seconds_left'])}, {lanes} "
                    f"(an estimate from this study's recent rates; evaluations, timing and real time come on top"
                    f"{unknown})")
     return "\n".join(out)
