@@ -74,6 +74,8 @@ def test_ray_study_writes_what_the_in_process_runner_writes(synthetic_zarr, tmp_
     timing = [i for i in index if i["stage"] == "latency"]
     assert len(timing) == 2 and all(i["node"] for i in timing)
     assert json.loads((tmp_path / "ray" / timing[0]["file"]).read_text())["node"]
+    launch = [json.loads((tmp_path / d / "launch.json").read_text()) for d in ("local", "ray")]
+    assert launch == [{"ray": False}, {"ray": True, "ray_cpus": 2}]  # the local instance's 2 CPUs (fixture)
     from pathlib import Path
 
     from bcbench.analysis.report import write_report

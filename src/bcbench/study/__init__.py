@@ -3,7 +3,6 @@ times them stage by stage, resumably, in this process or on Ray (on_ray.py)."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
@@ -28,9 +27,8 @@ def run_study(spec: StudySpec, out: str | Path | None = None, data: str | None =
     if problem:
         raise BCBenchError(f"study {spec.name}: {problem}")
     runner = StudyRunner(spec, out, str(Path(data).resolve()) if data else None, progress)
-    # How this process runs the study, for `bcbench study --status` (another process), whose estimate of the time
-    # left depends on it: trainings one at a time here, side by side on Ray's CPUs.
-    write_json(out / LAUNCH_FILE, {"ray": ray is not None, "ray_cpus": ray_cpus or os.cpu_count() or 1})
     if ray is None:
+        # for `bcbench study --status` (another process): trainings one at a time here (run_on_ray writes its own)
+        write_json(out / LAUNCH_FILE, {"ray": False})
         return runner.run()
     return run_on_ray(runner, None if ray == "local" else ray, ray_cpus)

@@ -28,6 +28,7 @@ from typing import Any
 from tqdm import tqdm
 
 from bcbench.errors import BCBenchError
+from bcbench.study.progress import LAUNCH_FILE
 from bcbench.study.runner import StudyRunner
 from bcbench.study.spec import RunSpec, StudySpec, Variant
 from bcbench.utils.io import write_json
@@ -123,6 +124,9 @@ def run_on_ray(runner: StudyRunner, address: str | None = None, cpus: int | None
     t0 = time.monotonic()
     runner.out.mkdir(parents=True, exist_ok=True)
     write_json(runner.out / "spec.json", {**asdict(spec), "runs": [asdict(r) for r in spec.runs]})
+    # for `bcbench study --status`: the CPUs Ray has (a local instance's, or a cluster's), which set how many
+    # trainings run side by side
+    write_json(runner.out / LAUNCH_FILE, {"ray": True, "ray_cpus": int(ray.cluster_resources().get("CPU", 1))})
     stages = runner.stages()
     pending = [s for s in stages if not runner.is_done(*s)]
     untrained = {id(run) for stage, run, _ in pending if stage == "train"}

@@ -22,7 +22,7 @@ from bcbench.study.runner import StudyRunner
 from bcbench.study.spec import RunSpec, StudySpec
 from bcbench.utils.io import read_json, read_jsonl
 
-LAUNCH_FILE = "launch.json"  # how the running study was started: {"ray": bool, "ray_cpus": int} (run_study writes it)
+LAUNCH_FILE = "launch.json"  # how the running study was started: {"ray": false} or {"ray": true, "ray_cpus": N}
 RATE_WINDOW = 20  # training log lines the recent rate is measured over (25 steps each by default)
 
 
@@ -87,7 +87,7 @@ def _lanes(runner: StudyRunner) -> int:
     launch = read_json(f) if f.is_file() else {"ray": True, "ray_cpus": os.cpu_count() or 1}
     if not cpus or not launch.get("ray"):
         return 1
-    return max(1, int(launch.get("ray_cpus") or 1) // cpus)
+    return max(1, int(launch["ray_cpus"]) // cpus)
 
 
 def status(runner: StudyRunner) -> dict[str, Any]:
