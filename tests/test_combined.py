@@ -79,6 +79,26 @@ def test_a_combined_report_refuses_a_missing_study_or_two_margins(tmp_path):
         write_report(out2)
 
 
+def test_a_combined_report_names_the_study_that_chose_each_preset(tmp_path):
+    """Issue 30: the report names, for every preset, the study that chose it and the seeds it read (combine.json's
+    `chosen_by`, printed under Provenance); a label no combined study trains, or an empty text, is refused."""
+    out = _combined(tmp_path)
+    spec = {"studies": ["../stage-a", "../stage-b"], "why": "one report",
+            "chosen_by": {"BCT": "chosen by explore-x (validation seeds 200000-200049)",
+                          "ResNet-50": "chosen by explore-y"}}
+    write_json(out / "combine.json", spec)
+    provenance = Path(write_report(out)["markdown"]).read_text().split("## Provenance")[1]
+    assert "- Preset of BCT: chosen by explore-x (validation seeds 200000-200049)" in provenance
+    assert "- Preset of ResNet-50: chosen by explore-y" in provenance
+    assert "Preset of BCT: chosen by explore-x" in Path(out / "report" / "report.html").read_text()
+    write_json(out / "combine.json", {**spec, "chosen_by": {"BTC": "explore-x"}})
+    with pytest.raises(BCBenchError, match=re.escape("'chosen_by' names 'BTC', which no study it combines trains")):
+        write_report(out)
+    write_json(out / "combine.json", {**spec, "chosen_by": {"BCT": " "}})
+    with pytest.raises(BCBenchError, match="'chosen_by' must map a policy label"):
+        write_report(out)
+
+
 def test_a_combined_report_leaves_out_a_replaced_round(tmp_path):
     """A policy's second round, a study of its own, replaces its first: the rounds share a run folder (the first
     round's doubling run is the second's seed 0) and a label. `leave_out` drops the first round's runs of that label

@@ -38,7 +38,7 @@ from bcbench.analysis.results import (
 )
 from bcbench.analysis.seeds import merge_training_seeds, per_seed_cell
 from bcbench.analysis.strategies import load_strategy_sweeps, strategy_figure, strategy_lines
-from bcbench.analysis.studies import left_out, mixing_reason, study_dirs, study_spec
+from bcbench.analysis.studies import left_out, mixing_reason, preset_choices, study_dirs, study_spec
 from bcbench.reference import CPU_DEVIATIONS, STUDY_REFERENCE
 from bcbench.stats import fmt_estimate, fmt_share
 from bcbench.utils.io import atomic_path
@@ -329,7 +329,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
              + "Latency: one call at batch 1, raw observation in, chunk out (median, and the p99 from at "
              "least 100 calls or else the maximum, labelled 'max of N'). The study's numbers were measured by the "
              "study on an A100; ours on the hardware named at the top. " + _spacing_note(rows))
-    notes = provenance_notes(rows, file_commits(results, extra_dirs), mixing_reason(results))
+    notes = preset_choices(results) + provenance_notes(rows, file_commits(results, extra_dirs), mixing_reason(results))
     notes += paired_conditions(paired, shared_timing(settings, paired.get("reference")))
     sources = [d.name for d in study_dirs(results) if d != results]
     leaving = [f"; leaves out {', '.join(labels)} of {study}" for study, labels in left_out(results).items()]

@@ -16,7 +16,8 @@ from bcbench.errors import BCBenchError
 from bcbench.protocol import MIXING_REASON
 from bcbench.utils.io import read_json
 
-COMBINE_FILE = "combine.json"  # {"studies": ["../a", "../b"], "why": "...", "leave_out": {"../a": ["label"]}}
+COMBINE_FILE = "combine.json"  # {"studies": ["../a", "../b"], "why": "...", "leave_out": {"../a": ["label"]},
+#                                  "chosen_by": {"label": "the study that chose its preset, and the seeds it read"}}
 
 
 def combined(results: Path) -> dict[str, Any] | None:
@@ -66,6 +67,23 @@ def _left_out_runs(results: Path, spec: dict[str, Any]) -> set[Path]:
             raise BCBenchError(f"{f}: {study} has no run labelled {', '.join(map(repr, missing))} to leave out")
         out |= set(found)
     return out
+
+
+def preset_choices(results: Path) -> list[str]:
+    """A combined report's `chosen_by`: for each policy label, the study that chose its preset and the episode seeds
+    that study read (issue 30: every choice is made on validation seeds, and the report says where). Empty for a
+    study's own folder or a combine.json without it; a label no study of the report trains is refused (a typo
+    would otherwise print a choice for nothing)."""
+    f = Path(results) / COMBINE_FILE
+    spec = combined(Path(results))
+    chosen = (spec or {}).get("chosen_by", {})
+    if not isinstance(chosen, dict) or not all(isinstance(v, str) and v.strip() for v in chosen.values()):
+        raise BCBenchError(f"{f}: 'chosen_by' must map a policy label to the study that chose its preset")
+    labels = {label for d in study_dirs(Path(results)) for label in run_labels(d).values()}
+    unknown = sorted(set(chosen) - labels)
+    if unknown:
+        raise BCBenchError(f"{f}: 'chosen_by' names {', '.join(map(repr, unknown))}, which no study it combines trains")
+    return [f"Preset of {label}: {text}" for label, text in chosen.items()]
 
 
 def run_labels(study: Path) -> dict[Path, str]:
