@@ -79,6 +79,8 @@ def preset_choices(results: Path) -> list[str]:
     chosen = (spec or {}).get("chosen_by", {})
     if not isinstance(chosen, dict) or not all(isinstance(v, str) and v.strip() for v in chosen.values()):
         raise BCBenchError(f"{f}: 'chosen_by' must map a policy label to the study that chose its preset")
+    if not chosen:
+        return []
     labels = {label for d in study_dirs(Path(results)) for label in run_labels(d).values()}
     unknown = sorted(set(chosen) - labels)
     if unknown:
