@@ -74,14 +74,15 @@ def preset_choices(results: Path) -> list[str]:
     that study read (issue 30: every choice is made on validation seeds, and the report says where). Empty for a
     study's own folder or a combine.json without it; a label no study of the report trains is refused (a typo
     would otherwise print a choice for nothing)."""
-    f = Path(results) / COMBINE_FILE
-    spec = combined(Path(results))
+    results = Path(results)
+    f = results / COMBINE_FILE
+    spec = combined(results)
     chosen = (spec or {}).get("chosen_by", {})
     if not isinstance(chosen, dict) or not all(isinstance(v, str) and v.strip() for v in chosen.values()):
         raise BCBenchError(f"{f}: 'chosen_by' must map a policy label to the study that chose its preset")
     if not chosen:
         return []
-    labels = {label for d in study_dirs(Path(results)) for label in run_labels(d).values()}
+    labels = {label for d in _dirs(results, spec) for label in run_labels(d).values()}  # spec read once, above
     unknown = sorted(set(chosen) - labels)
     if unknown:
         raise BCBenchError(f"{f}: 'chosen_by' names {', '.join(map(repr, unknown))}, which no study it combines trains")
