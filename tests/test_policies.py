@@ -75,6 +75,8 @@ def test_runner_maps_raw_observations_to_pixels(name):
     chunk = runner.predict_action_chunk(obs)
     assert chunk.shape == (2, 16, 2) and chunk.dtype == np.float32
     assert runner.chunk_start == 1 and runner.describe()["parameters"] == model.num_parameters()
+    model.reset_noise(7)  # `--seed 7`: a replicate of the same checkpoint, told apart in its record
+    assert runner.describe()["noise_seed"] == 7
 
 
 @pytest.mark.parametrize("make, norm", [(resnet18, "group"), (resnet50, "batch")])

@@ -262,5 +262,7 @@ class PolicyRunner:
         return out.reshape(rows, n, *out.shape[1:])
 
     def describe(self) -> dict[str, Any]:
-        return {"name": self.name, "parameters": self.model.num_parameters(),
+        # the noise seed is recorded because `--seed` changes a stochastic policy's episodes without changing its
+        # config: two records of one checkpoint that differ only in it are replicates, not repeats
+        return {"name": self.name, "parameters": self.model.num_parameters(), "noise_seed": self.noise_seed,
                 "config": config_to_dict(self.model.config), **self.info.describe()}
