@@ -584,3 +584,29 @@ def test_recovery_regenerates_the_committed_d8_shares_on_one_machine():
     bad = subprocess.run([*run, "--naive", str(study), str(study)], capture_output=True, text=True)
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
     assert "name one of its settings" in bad.stderr
+
+
+def test_replicates_regenerate_the_committed_horizon_choice():
+    """scripts/replicates.py rebuilds results/strategies-replicates/README.md's validation choice of RTC's horizon
+    from the committed records, finds the sync records of one policy equal, and refuses a missing record or records
+    of different episodes in one group (one line on stderr, exit 2)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    val = repo / "results/strategies-replicates/val"
+    run = [sys.executable, str(repo / "scripts" / "replicates.py")]
+    out = subprocess.run([*run, "diff", str(val / "flow-euler10-s8/rtc/realtime-async-d4.json"),
+                          str(val / "flow-euler10-s4/rtc/realtime-async-d4.json")],
+                         capture_output=True, text=True, check=True).stdout
+    assert "0.801 - 0.782 = +0.019 [-0.046, +0.088]" in out
+    assert "+0.019 [-0.046, +0.088]" in (repo / "results/strategies-replicates/README.md").read_text()
+    same = subprocess.run([*run, "same", str(val / "dp-ddim10-s*/rtc/realtime-sync.json")],
+                          capture_output=True, text=True, check=True).stdout
+    assert "2 records, 100 episodes each" in same and float(same.split()[-1]) < 1e-12
+    for bad in (["diff", str(val / "nothing.json"), str(val / "nothing.json")],
+                ["same", f"{val}/flow-euler10-s4/rtc/realtime-sync.json,"
+                         f"{repo}/results/strategies-confirm-long/dp-ddim10-s8/naive/realtime-sync.json"]):
+        r = subprocess.run([*run, *bad], capture_output=True, text=True)
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
