@@ -5,7 +5,8 @@ groups are paired, and the interval is the paired bootstrap over the episode see
 conditional on the models and averages over the sampler's noise. Where the replicates pair one to one (the same
 noise or training seed in both groups), the t interval over the replicates' own differences is printed beside it.
 
-    python scripts/replicates.py diff "F/seed*/rtc-d4/rtc/realtime-async-d4.json" "F/seed*/rtc-d4/rtc/realtime-sync.json"
+    python scripts/replicates.py diff "F/seed*/rtc-d4/rtc/realtime-async-d4.json" \
+        "F/seed*/rtc-d4/rtc/realtime-sync.json"
     python scripts/replicates.py recovery --sync "F/seed*/naive-d8/naive/realtime-sync.json" \
         --naive "F/seed*/naive-d8/naive/realtime-async-d8.json" "F/seed*/rtc-d8/rtc/realtime-async-d8.json"
     python scripts/replicates.py same "F/seed*/*/*/realtime-sync.json"
