@@ -586,9 +586,10 @@ def test_recovery_regenerates_the_committed_d8_shares_on_one_machine():
     assert "name one of its settings" in bad.stderr
 
 
-def test_replicates_regenerate_the_committed_horizon_choice():
-    """scripts/replicates.py rebuilds results/strategies-replicates/README.md's validation choice of RTC's horizon
-    from the committed records, finds the sync records of one policy equal, and refuses a missing record or records
+def test_replicates_regenerate_the_committed_horizon_choice_and_goal_lines():
+    """scripts/replicates.py rebuilds results/strategies-replicates/README.md's validation choice of RTC's horizon and
+    two of its goal lines (flow at d = 4 over three noise replicates, DP's d = 8 share) from the committed records,
+    finds the sync records of one policy equal, and refuses a missing record or records
     of different episodes in one group (one line on stderr, exit 2)."""
     import subprocess
     import sys
@@ -602,6 +603,17 @@ def test_replicates_regenerate_the_committed_horizon_choice():
                          capture_output=True, text=True, check=True).stdout
     assert "0.801 - 0.782 = +0.019 [-0.046, +0.088]" in out
     assert "+0.019 [-0.046, +0.088]" in (repo / "results/strategies-replicates/README.md").read_text()
+    readme = (repo / "results/strategies-replicates/README.md").read_text()
+    flow, dp = repo / "results/strategies-replicates/flow-euler10", repo / "results/strategies-replicates/dp-ddim10"
+    out = subprocess.run([*run, "diff", f"{flow}/seed*/rtc-d4/rtc/realtime-async-d4.json",
+                          f"{flow}/seed*/naive-d8/realtime-sync.json"],
+                         capture_output=True, text=True, check=True).stdout
+    assert "3 and 3 replicates: 0.820 - 0.869 = -0.049 [-0.088, -0.014]" in out and "-0.049 [-0.088, -0.014]" in readme
+    out = subprocess.run([*run, "recovery", "--sync", f"{dp}/seed*/naive-d8/realtime-sync.json", "--naive",
+                          f"{dp}/seed*/naive-d8/realtime-async-d8.json",
+                          f"{dp}/seed*/rtc-d8/rtc/realtime-async-d8.json"],
+                         capture_output=True, text=True, check=True).stdout
+    assert "recovers 63% [52, 73]" in out and "**63% [52, 73]**" in readme
     same = subprocess.run([*run, "same", str(val / "dp-ddim10-s*/rtc/realtime-sync.json")],
                           capture_output=True, text=True, check=True).stdout
     assert "2 records, 100 episodes each" in same and float(same.split()[-1]) < 1e-12
