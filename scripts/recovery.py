@@ -8,17 +8,18 @@ differences between CPUs.
         B/rtc/realtime-async-d8.json B/naive/realtime-async-d8.json
 
 A record is one setting's file, or a whole sweep's (a study's real-time stage, `realtime-sweep.json`) with the
-setting named after a colon: `RUN/realtime-ddim10.json:realtime-async-d8`.
+setting named after a colon: `RUN/realtime-ddim10.json:realtime-async-d8`. Each argument may also be a group of
+replicates (comma-separated records or a quoted glob: the same episodes with other noise or training seeds), whose
+per-episode scores are averaged before pairing (`bcbench.analysis.realtime.replicate_scores`; results/strategies-
+replicates/).
 """
 
 from __future__ import annotations
 
-from pathlib import Path
-
-from bcbench.analysis.realtime import seed_scores
+from bcbench.analysis.realtime import averaged, replicate_scores
+from bcbench.errors import BCBenchError
 from bcbench.stats import paired_bootstrap, recovered_share
 from bcbench.utils.args import OneLineParser
-from bcbench.utils.io import read_json
 
 
 def main() -> None:
@@ -27,24 +28,14 @@ def main() -> None:
     ap.add_argument("--naive", required=True, help="naive async's record at the delay (the loss to recover)")
     ap.add_argument("settings", nargs="+", help="records of the settings compared with it")
     args = ap.parse_args()
-
-    def scores(ref: str) -> dict[int, float]:
-        path, _, setting = ref.partition(":")
-        if not Path(path).is_file():
-            ap.error(f"no record '{path}'")
-        data = read_json(path)
-        if "settings" in data:  # a sweep: one of its settings
-            if setting not in data["settings"]:
-                ap.error(f"'{path}' is a sweep: name one of its settings after a colon "
-                         f"({', '.join(data['settings'])})")
-            data = data["settings"][setting]
-        return seed_scores(data)
-
-    sync, naive = scores(args.sync), scores(args.naive)
+    try:
+        sync, naive = (averaged(replicate_scores(g)) for g in (args.sync, args.naive))
+        others = [(g, averaged(replicate_scores(g))) for g in args.settings]
+    except BCBenchError as e:
+        ap.error(str(e))
     s, a = (sum(v.values()) / len(v) for v in (sync, naive))
     print(f"naive sync {s:.3f}, naive at the delay {a:.3f}: loss {s - a:.3f}")
-    for f in args.settings:
-        other = scores(f)
+    for f, other in others:
         d, dlo, dhi, _ = paired_bootstrap(other, [naive])
         r, lo, hi, n = recovered_share(sync, naive, other)
         print(f"{f}: {sum(other.values()) / len(other):.3f}, {d:+.3f} [{dlo:+.3f}, {dhi:+.3f}] over naive, "

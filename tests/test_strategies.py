@@ -588,7 +588,8 @@ def test_recovery_regenerates_the_committed_d8_shares_on_one_machine():
 
 def test_replicates_regenerate_the_committed_horizon_choice_and_goal_lines():
     """scripts/replicates.py rebuilds results/strategies-replicates/README.md's validation choice of RTC's horizon and
-    two of its goal lines (flow at d = 4 over three noise replicates, DP's d = 8 share) from the committed records,
+    flow's d = 4 goal line over three noise replicates, and scripts/recovery.py DP's d = 8 share over them, from the
+    committed records;
     finds the sync records of one policy equal, and refuses a missing record or records
     of different episodes in one group (one line on stderr, exit 2)."""
     import subprocess
@@ -609,7 +610,8 @@ def test_replicates_regenerate_the_committed_horizon_choice_and_goal_lines():
                           f"{flow}/seed*/naive-d8/realtime-sync.json"],
                          capture_output=True, text=True, check=True).stdout
     assert "3 and 3 replicates: 0.820 - 0.869 = -0.049 [-0.088, -0.014]" in out and "-0.049 [-0.088, -0.014]" in readme
-    out = subprocess.run([*run, "recovery", "--sync", f"{dp}/seed*/naive-d8/realtime-sync.json", "--naive",
+    recovery = [sys.executable, str(repo / "scripts" / "recovery.py")]  # the d = 8 line takes replicate groups too
+    out = subprocess.run([*recovery, "--sync", f"{dp}/seed*/naive-d8/realtime-sync.json", "--naive",
                           f"{dp}/seed*/naive-d8/realtime-async-d8.json",
                           f"{dp}/seed*/rtc-d8/rtc/realtime-async-d8.json"],
                          capture_output=True, text=True, check=True).stdout

@@ -4,17 +4,52 @@ highest control rate at which a policy keeps its sync score. Reads result record
 from __future__ import annotations
 
 import collections
+import glob
 import math
 import re
 import statistics
+from pathlib import Path
 from typing import Any
 
+from bcbench.errors import BCBenchError
 from bcbench.protocol import CONTROL_DT_S, SYNC_SETTING, delay_setting, policy_label
 from bcbench.stats import Z95, episodes_to_show_within, over_training_seeds, paired_bootstrap
+from bcbench.utils.io import read_json
 
 
 def seed_scores(r: dict[str, Any]) -> dict[int, float]:
     return {e["seed"]: e["score"] for e in r["episodes"]}
+
+
+def replicate_scores(group: str) -> list[dict[int, float]]:
+    """Per-episode scores of each record of a group of replicates of one setting (the same episode seeds run with
+    another noise or training seed), in sorted path order so that seed0, seed1, ... pair up across groups. `group`:
+    comma-separated records or globs; a record is one setting's file, or a sweep's (`realtime-sweep.json`, a study's
+    real-time stage) with the setting named after a colon: `RUN/realtime-ddim10.json:realtime-async-d8`."""
+    refs = []
+    for part in group.split(","):
+        pattern, colon, setting = part.partition(":")
+        refs += [path + colon + setting for path in glob.glob(pattern)] or [part]  # no match: named as given
+    out = []
+    for ref in sorted(refs):
+        path, _, setting = ref.partition(":")
+        if not Path(path).is_file():
+            raise BCBenchError(f"no record '{path}'")
+        data = read_json(path)
+        if "settings" in data:  # a sweep: one of its settings
+            if setting not in data["settings"]:
+                raise BCBenchError(f"'{path}' is a sweep: name one of its settings after a colon "
+                                   f"({', '.join(data['settings'])})")
+            data = data["settings"][setting]
+        out.append(seed_scores(data))
+    if any(set(s) != set(out[0]) for s in out):
+        raise BCBenchError(f"the records of '{group}' do not share their episode seeds: not replicates of one setting")
+    return out
+
+
+def averaged(replicates: list[dict[int, float]]) -> dict[int, float]:
+    """Each episode seed's score averaged over its replicates: the unit the paired comparisons then resample."""
+    return {k: sum(r[k] for r in replicates) / len(replicates) for k in replicates[0]}
 
 
 def training_seed(r: dict[str, Any]) -> int:
