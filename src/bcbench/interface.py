@@ -126,13 +126,16 @@ def is_generative(policy: object) -> bool:
 @dataclass
 class RunInfo:
     """What a runner of a trained run carries besides its model: where it came from and how it is set to run.
-    Written by checkpoint loading (run_dir, checkpoint, weights, preset), sampler configuration (sampler, steps,
+    Written by checkpoint loading (run_dir, checkpoint, weights, preset, the sha256 of the weights and normalizer
+    files), sampler configuration (sampler, steps,
     spacing) and the backends (mode, deployment); read by latency, real-time profiles and result records."""
 
     run_dir: str | None = None
     checkpoint: str | None = None
     weights: str | None = None  # "ema" or "raw"
     preset: str | None = None
+    weights_sha256: str | None = None  # of the weights file loaded: which model a record ran, whatever its folder
+    normalizer_sha256: str | None = None  # of its normalizer.json (the same weights with other statistics differ)
     sampler: str | None = None
     steps: int | None = None
     spacing: str | None = None

@@ -1,12 +1,16 @@
 """The seed protocol (torch-free): which episode seeds a choice may read and which are kept for the final test.
 
 - Test episodes: seeds 100000-100099, Diffusion Policy's and the literature's. Only a `confirm` study reads
-  them, once per final preset; nothing is ever chosen because of a score on them.
+  them, once per final preset; nothing is ever chosen because of a score on them. Where a test score did inform a
+  decision all the same, the study says so in its own file (`test_informed`) and every report that reads it prints
+  the decision under Provenance.
 - Validation episodes: seeds 200000+. Learning curves and every `explore` study read these; every choice
   (recipe, preset, step count, which variant to run next) is made on them, over at least 50 episodes.
 """
 
 from __future__ import annotations
+
+from bcbench.errors import BCBenchError
 
 TEST_SEED_START = 100_000
 TEST_EPISODES = 100
@@ -47,6 +51,21 @@ def check_purpose(purpose: str | None, seed_start: int, episodes: int) -> str | 
     elif seed_start != TEST_SEED_START:
         return f"a confirm study evaluates on the test seeds from {TEST_SEED_START}, not from {seed_start}"
     return None
+
+# Deviations from the protocol, named where they happened: each decision (a preset, a seed count, a stage added) that
+# a TEST-seed result informed. A study file lists its own (study.test_informed), a combined report's combine.json
+# lists every one of its studies' (and its own), and the report prints them under Provenance and "Which policy".
+TEST_INFORMED_KEYS = ("decision", "read")  # what was decided; the result file (or report) whose test score informed it
+
+
+def test_informed_entries(value: object, where: str, extra: tuple[str, ...] = ()) -> list[dict[str, str]]:
+    """`value` checked as a list of {decision, read, *extra} tables of non-empty strings (one line if not)."""
+    keys = (*TEST_INFORMED_KEYS, *extra)
+    if not isinstance(value, list) or not all(
+            isinstance(e, dict) and all(isinstance(e.get(k), str) and e[k].strip() for k in keys) for e in value):
+        raise BCBenchError(f"{where} must list tables of {', '.join(keys)} (each a non-empty string)")
+    return [dict(e) for e in value]
+
 
 CONTROL_DT_S = 0.1  # Push-T's control period (10 Hz): a delay d is counted in these steps
 

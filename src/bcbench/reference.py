@@ -14,6 +14,34 @@ STUDY_PARAMETERS: dict[str, int] = {"cnn_mlp": 1_365_494, "resnet50": 34_527_593
                                     "diffusion": 91_123_778}
 DIFFUSION_PARAMETERS = {"encoder": 11_176_512, "unet": 79_947_266, "total": 91_123_778}
 
+# The study's networks at full width (ResNet base width 64) and, for ResNet-50, ImageNet-initialised: a model that
+# departs from them is named with its own size wherever it is shown (`sized_label`), since a reader of "ResNet-50 CNN"
+# assumes the study's 34.5 M ImageNet network. Flow matching runs Diffusion Policy's network; BeT's study size is
+# unknown (it reports none), so its own size is always shown.
+FULL_WIDTH = 64
+_SIZE_REFERENCE = {"cnn_mlp": "cnn_mlp", "resnet50": "resnet50", "bct": "bct", "diffusion": "diffusion",
+                   "flow": "diffusion", "bet": None}
+
+
+def sized_label(label: str, policy: str, params: int, config: dict[str, Any] | None) -> str:
+    """`label` with the model's size and init where it is not the study's network: "ResNet-50 CNN, 1/8 width (0.49 M,
+    random init)"; unchanged for the study's own sizes (within 5% of its count, full width, its init), for policies
+    the study has no network for (baselines, a user's policy) and for a record without its full config or parameter
+    count (nothing to say)."""
+    if policy not in _SIZE_REFERENCE or "pred_horizon" not in (config or {}) or not params:
+        return label
+    cfg = config or {}
+    study = STUDY_PARAMETERS.get(_SIZE_REFERENCE[policy] or "")
+    width = cfg.get("width") if policy == "resnet50" else cfg.get("encoder_width")
+    narrow = f", 1/{FULL_WIDTH // width} width" if width and width < FULL_WIDTH and FULL_WIDTH % width == 0 else (
+        f", {width}/{FULL_WIDTH} width" if width and width < FULL_WIDTH else "")
+    init = ", random init" if policy == "resnet50" and not cfg.get("pretrained") else ""
+    same_size = bool(study and abs(params - study) <= 0.05 * study)
+    if same_size and not narrow and not init:
+        return label
+    return f"{label}{narrow} ({params / 1e6:.2f} M{init})"
+
+
 # The study's A100 inference times (ms per call): Diffusion Policy at 10 and 100 DDPM steps, the others.
 A100_DP_MS = {10: 116.5, 100: 1109.4}
 A100_MS = {"cnn_mlp": 2.2, "resnet50": 13.0, "bct": 12.0}

@@ -13,6 +13,7 @@ Each finding's `rule` states its test in one sentence (printed in the report).
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
@@ -341,7 +342,11 @@ def finding_4(points: list[Point], m: float) -> Finding:
         return Finding(4, claim, INCONCLUSIVE, "ResNet-50, BCT and CNN-MLP are not all evaluated", rule)
     d1, d2 = paired_interval(r, [b]), paired_interval(b, [c])
     v1, v2 = _at_least(d1.lo, d1.hi, m), _at_least(d2.lo, d2.hi, m)
-    evidence = (f"{_fmt(r)}; {_fmt(b)}; {_fmt(c)}; ResNet-50 - BCT: {_fmt_diff(d1)}{seeds_note(d1, [m])}; "
+    # a verdict about miniatures is a verdict at their sizes (sized_label names them so), not about the study's nets
+    miniature = any(re.search(r"\(\d+\.\d+ M", p.name) for p in (r, b, c))
+    sizes = ("At these sizes, not the study's networks (ResNet-50 CNN 34.5 M ImageNet-initialised, BCT 24.0 M, "
+             "CNN-MLP 1.37 M): " if miniature else "")
+    evidence = (f"{sizes}{_fmt(r)}; {_fmt(b)}; {_fmt(c)}; ResNet-50 - BCT: {_fmt_diff(d1)}{seeds_note(d1, [m])}; "
                 f"BCT - CNN-MLP: {_fmt_diff(d2)}{seeds_note(d2, [m])}")
     return _finish(4, claim, rule, _combine([v1, v2]), evidence, [r, b, c])
 

@@ -35,10 +35,18 @@ from bcbench.analysis.results import (
     same_cpu_once,
     study_machines,
     study_time,
+    weights_conflicts,
 )
 from bcbench.analysis.seeds import merge_training_seeds, per_seed_cell
 from bcbench.analysis.strategies import load_strategy_sweeps, strategy_figure, strategy_lines
-from bcbench.analysis.studies import left_out, mixing_reason, preset_choices, study_dirs, study_spec
+from bcbench.analysis.studies import (
+    left_out,
+    mixing_reason,
+    preset_choices,
+    study_dirs,
+    study_spec,
+    test_informed_lines,
+)
 from bcbench.reference import CPU_DEVIATIONS, STUDY_REFERENCE
 from bcbench.stats import fmt_estimate, fmt_share
 from bcbench.utils.io import atomic_path
@@ -329,7 +337,10 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
              + "Latency: one call at batch 1, raw observation in, chunk out (median, and the p99 from at "
              "least 100 calls or else the maximum, labelled 'max of N'). The study's numbers were measured by the "
              "study on an A100; ours on the hardware named at the top. " + _spacing_note(rows))
-    notes = preset_choices(results) + provenance_notes(rows, file_commits(results, extra_dirs), mixing_reason(results))
+    informed = test_informed_lines(results)
+    warnings = weights_conflicts(results)
+    notes = preset_choices(results) + informed + warnings
+    notes += provenance_notes(rows, file_commits(results, extra_dirs), mixing_reason(results))
     notes += paired_conditions(paired, shared_timing(settings, paired.get("reference")))
     sources = [d.name for d in study_dirs(results) if d != results]
     leaving = [f"; leaves out {', '.join(labels)} of {study}" for study, labels in left_out(results).items()]
@@ -337,6 +348,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     lead = lead_line(name, settings, mixed=any("mix several commits" in n for n in notes), runs=rows)
     md = ["# bcbench report", "", lead, "",
           *([f"![{FIG5}]({fig5.name})", ""] if fig5 else []), *control_loop_lines(settings, realtime, margin, paired),
+          *([_informed_sentence(informed), ""] if informed else []),
           "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
     md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
     versus = baseline_rows(settings, realtime)  # each learned policy against the scripted baseline
@@ -358,14 +370,20 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     with atomic_path(html_path) as tmp:
         choose = control_loop_rows(settings, realtime, margin, paired)
         top = ((_img(FIG5, fig5, "lead", _lead_height(lead, len(choose))) if fig5 else "")
-               + "<h2>Which policy for my control loop</h2>" + _html_table(CHOOSE_HEADER, choose))
+               + "<h2>Which policy for my control loop</h2>" + _html_table(CHOOSE_HEADER, choose)
+               + (f"<p>{html.escape(_informed_sentence(informed))}</p>" if informed else ""))
         tail = (f"<h2>How to read the numbers</h2><p>{html.escape(intro)}</p><h2>Provenance</h2><ul>"
                 + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
         findings_html = _findings_html(findings, FINDINGS_INTRO.format(m=margin)) + (
             "<h2>Against the scripted baseline</h2>" + _html_table(BASELINE_HEADER, versus) if versus else "")
         tmp.write_text(_html(lead.replace("`", ""), findings_html, (columns, table), figs, convergence_lines(rows),
                              top, tail))
-    return {"markdown": str(md_path), "html": str(html_path), "dir": str(out)}
+    return {"markdown": str(md_path), "html": str(html_path), "dir": str(out), "warnings": warnings}
+
+
+def _informed_sentence(informed: list[str]) -> str:
+    return (f"Against the protocol, {len(informed)} decision(s) behind these presets or stages were informed by a "
+            "test-seed result; each is listed under Provenance, with the file it read.")
 
 
 def _img(title: str, path: Path, cls: str = "", style: str = "") -> str:

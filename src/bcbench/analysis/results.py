@@ -17,6 +17,7 @@ from bcbench.analysis.realtime import pool_training_seeds
 from bcbench.analysis.studies import left_out_runs, study_dirs, study_files, study_roles
 from bcbench.errors import BCBenchError
 from bcbench.modes import EXACT_MODES
+from bcbench.reference import sized_label
 from bcbench.utils.io import read_json, read_jsonl
 
 # Result files the report reads, by kind: every one records the commit its process ran.
@@ -121,13 +122,16 @@ def _row_from_eval(path: Path, margin: float = 0.05, role: dict[str, Any] | None
         f"{sampler}{steps}" + ("" if spacing == "trailing" else f"-{spacing}") if sampler else "default")
     cfg = pol.get("config", {})
     run_dir = path.parent
-    label = study.get("label") or pol["name"]
+    params = int(pol.get("parameters", 0))
+    label = sized_label(study.get("label") or pol["name"], pol["name"], params, cfg)
     if study.get("outside_policy"):  # a user's policy (module:factory or a plug-in): labelled as such everywhere
         label += f" (outside bcbench: {study['outside_policy']})"
-    row = Row(key=f"{run_dir.name}:{vkey}", label=label, policy=pol["name"], run_label=study.get("label", ""),
-              doubles=study.get("doubles"),
+    run_label, doubles = (study.get(k) and sized_label(study[k], pol["name"], params, cfg)
+                          for k in ("label", "doubles"))
+    row = Row(key=f"{run_dir.name}:{vkey}", label=label, policy=pol["name"], run_label=run_label or "",
+              doubles=doubles or None,
               preset=pol.get("preset"), variant=vkey, sampler=sampler, steps=steps, spacing=spacing,
-              beta_schedule=cfg.get("beta_schedule"), params=int(pol.get("parameters", 0)), summary=ev["summary"],
+              beta_schedule=cfg.get("beta_schedule"), params=params, summary=ev["summary"],
               scores={int(e["seed"]): float(e["score"]) for e in ev.get("episodes", [])},
               git_commit=ev.get("git_commit"), hardware=ev.get("hardware", {}), source=str(path),
               train_seed=cfg.get("seed") if "run_dir" in pol else None)
@@ -206,12 +210,21 @@ def realtime_records(results: str | Path) -> list[tuple[Path, dict[str, Any]]]:
 def sweep_label(f: Path, data: dict[str, Any]) -> str:
     """A real-time record's label: its study label (a strategy's sweep in a study ends in ' + STRATEGY'), the
     sampler and steps it ran, and an outside policy's name."""
-    study = data.get("study", {})
+    study, pol = data.get("study", {}), _sweep_policy(data)
     v = study.get("variant") or {}
-    label = study.get("label", f.parent.name) + (f" {v['sampler'].upper()}{v['steps']}" if v.get("sampler") else "")
+    base = study.get("label", f.parent.name)
+    if pol:  # named with its size, as its evaluation rows are
+        base = sized_label(base, pol.get("name", ""), int(pol.get("parameters", 0)), pol.get("config"))
+    label = base + (f" {v['sampler'].upper()}{v['steps']}" if v.get("sampler") else "")
     if study.get("outside_policy"):
         label += f" (outside bcbench: {study['outside_policy']})"
     return label
+
+
+def _sweep_policy(data: dict[str, Any]) -> dict[str, Any]:
+    """The policy record of a real-time sweep's first setting (every setting ran the same model)."""
+    first = next(iter((data.get("settings") or {}).values()), {})
+    return first.get("policy") or {} if isinstance(first, dict) else {}
 
 
 def load_realtime(results: str | Path) -> dict[str, dict[str, Any]]:
@@ -221,6 +234,24 @@ def load_realtime(results: str | Path) -> dict[str, dict[str, Any]]:
     for f, data in realtime_records(results):
         found.setdefault(sweep_label(f, data), []).append(data["settings"])
     return {label: pool_training_seeds(sweeps) for label, sweeps in found.items()}
+
+
+def weights_conflicts(results: str | Path) -> list[str]:
+    """One warning per run whose records name more than one weights file (policy.weights_sha256, recorded since issue
+    74), for the same checkpoint step and weights: two different models under one run folder, e.g. a folder replaced
+    by a retrain, whose records a report would otherwise pool as one model."""
+    seen: dict[tuple[str, str, str], dict[str, list[str]]] = {}
+    for _, f in study_files(results, "*.json"):
+        rec = read_json(f)
+        records = [rec, *(rec.get("settings") or {}).values()] if isinstance(rec, dict) else []
+        for r in records:
+            pol = r.get("policy") if isinstance(r, dict) else None
+            if isinstance(pol, dict) and pol.get("weights_sha256"):
+                key = (Path(str(pol.get("run_dir", ""))).name, str(pol.get("checkpoint")), str(pol.get("weights")))
+                seen.setdefault(key, {}).setdefault(pol["weights_sha256"], []).append(f.name)
+    return [f"Warning: the records of {run} ({ckpt}, {kind} weights) name {len(h)} different weights files: "
+            + "; ".join(f"sha256 {sha[:12]} in {', '.join(sorted(set(files))[:3])}" for sha, files in h.items())
+            for (run, ckpt, kind), h in sorted(seen.items()) if len(h) > 1]
 
 
 def study_time(results: str | Path) -> dict[str, float]:

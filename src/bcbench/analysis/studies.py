@@ -13,11 +13,12 @@ from pathlib import Path
 from typing import Any
 
 from bcbench.errors import BCBenchError
-from bcbench.protocol import MIXING_REASON
+from bcbench.protocol import MIXING_REASON, test_informed_entries
 from bcbench.utils.io import read_json
 
 COMBINE_FILE = "combine.json"  # {"studies": ["../a", "../b"], "why": "...", "leave_out": {"../a": ["label"]},
-#                                  "chosen_by": {"label": "the study that chose its preset, and the seeds it read"}}
+#                                  "chosen_by": {"label": "the study that chose its preset, and the seeds it read"},
+#                                  "test_informed": [{"about": "label or stage", "decision": "...", "read": "file"}]}
 
 
 def combined(results: Path) -> dict[str, Any] | None:
@@ -87,6 +88,36 @@ def preset_choices(results: Path) -> list[str]:
     if unknown:
         raise BCBenchError(f"{f}: 'chosen_by' names {', '.join(map(repr, unknown))}, which no study it combines trains")
     return [f"Preset of {label}: {text}" for label, text in chosen.items()]
+
+
+def test_informed(results: Path) -> list[dict[str, str]]:
+    """The decisions behind a report that a test-seed result informed (the protocol's exceptions): a study folder's
+    own (spec.json's `test_informed`), or a combined report's `test_informed`, which must list every decision each
+    of its studies records, each naming what it is `about` (a preset's label or a stage). A combined report that
+    leaves one out is refused: its Provenance would hide a deviation its own studies state."""
+    results = Path(results)
+    spec = combined(results)
+    if spec is None:
+        own = read_json(results / "spec.json").get("test_informed", []) if (results / "spec.json").exists() else []
+        return test_informed_entries(own, f"{results / 'spec.json'}: 'test_informed'")
+    f = results / COMBINE_FILE
+    listed = test_informed_entries(spec.get("test_informed", []), f"{f}: 'test_informed'", ("about",))
+    decisions = {e["decision"] for e in listed}
+    for n in spec["studies"]:
+        own = test_informed_entries(read_json(results / n / "spec.json").get("test_informed", []),
+                                    f"{results / n / 'spec.json'}: 'test_informed'")
+        missing = [e["decision"] for e in own if e["decision"] not in decisions]
+        if missing:
+            raise BCBenchError(f"{f}: {n} records {len(missing)} decision(s) a test-seed result informed that its "
+                               f"'test_informed' does not list (first: {missing[0][:80]!r}); list each, so the "
+                               "report names it")
+    return listed
+
+
+def test_informed_lines(results: Path) -> list[str]:
+    """Provenance's lines for `test_informed`, one a decision."""
+    return [f"Informed by a test-seed result, against the protocol ({e.get('about', results.name)}): {e['decision']} "
+            f"(read: {e['read']})" for e in test_informed(results)]
 
 
 def run_labels(study: Path) -> dict[Path, str]:

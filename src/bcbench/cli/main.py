@@ -164,6 +164,8 @@ def cmd_report(args: argparse.Namespace) -> int:
               + (f"; left out {len(left_out)} run(s) still training: {', '.join(d.name for d in left_out)}"
                  if left_out else ""))
     paths = write_report(args.results, extra_dirs=args.include or [])
+    for warning in paths["warnings"]:
+        print(warning, file=sys.stderr)
     print(f"report: {paths['markdown']}  and  {paths['html']}")
     return 0
 

@@ -27,7 +27,7 @@ from bcbench.interface import RunInfo
 from bcbench.policies import REGISTRY
 from bcbench.policies.config import config_from_dict
 from bcbench.policies.learned import PolicyRunner
-from bcbench.utils.io import read_json, write_json
+from bcbench.utils.io import read_json, sha256_file, write_json
 
 KEEP = 2  # step directories kept besides the newest
 
@@ -127,10 +127,12 @@ def load_runner(run_dir: str | Path, use_ema: bool = True, device: str = "cpu") 
     has_ema = (ckpt / "ema.safetensors").exists()
     if not use_ema and not (ckpt / "model.safetensors").exists():
         raise BCBenchError(f"{run_dir} holds the EMA inference weights only (a published model); drop --no-ema")
-    load_weights(ckpt, model, ema=use_ema and has_ema)
+    weights = "ema" if use_ema and has_ema else "raw"
+    load_weights(ckpt, model, ema=weights == "ema")
     norm = MinMaxNormalizer.from_dict(read_json(run_dir / "normalizer.json"))
-    info = RunInfo(run_dir=str(run_dir), checkpoint=ckpt.name, weights="ema" if use_ema and has_ema else "raw",
-                   preset=run.get("preset"))
+    info = RunInfo(run_dir=str(run_dir), checkpoint=ckpt.name, weights=weights, preset=run.get("preset"),
+                   weights_sha256=sha256_file(weights_file(ckpt, weights)),
+                   normalizer_sha256=sha256_file(run_dir / "normalizer.json"))
     return PolicyRunner(model, norm, device, info)
 
 

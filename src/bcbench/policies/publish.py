@@ -14,7 +14,6 @@ state, no pickle, nothing that runs code when loaded.
 
 from __future__ import annotations
 
-import hashlib
 import math
 import shutil
 from pathlib import Path
@@ -24,13 +23,8 @@ from safetensors import safe_open
 
 from bcbench.errors import BCBenchError
 from bcbench.policies.checkpoint import latest_checkpoint, read_run, weights_file
-from bcbench.utils.io import atomic_dir, read_json, write_json
+from bcbench.utils.io import atomic_dir, read_json, sha256_file, write_json
 from bcbench.utils.system import git_commit
-
-
-def _sha256(path: Path) -> str:
-    with open(path, "rb") as f:
-        return hashlib.file_digest(f, "sha256").hexdigest()
 
 
 def _check_fp32(file: Path) -> int:
@@ -71,12 +65,35 @@ def _scores_record(scores: Path, run_dir: Path, ckpt: Path, weights: str) -> dic
             "hardware": {k: rec.get("hardware", {}).get(k) for k in ("cpu_model", "cpu_flags", "torch_threads")}}
 
 
+# The repository's published models: written from a clean tree only, so the commit a model.json names is the code
+# that published it (three early folders were written from uncommitted trees and say "-dirty").
+MODELS_DIR = Path(__file__).resolve().parents[3] / "models"
+
+
+def _history(out: Path) -> list[dict[str, Any]]:
+    """The weights a folder held before, newest last: a replaced folder keeps what it replaced, so a record that
+    names an older sha256 (the DP and flow folders held their first round's weights before) can still be placed."""
+    meta = out / "model.json"
+    if not meta.is_file():
+        return []
+    old = read_json(meta)
+    entry = {"sha256": old["file"]["sha256"], "source": old.get("source"), "scores": (old.get("scores") or {}).get(
+        "file"), "published_at_commit": old.get("published_at_commit")}
+    return [*old.get("history", []), entry]
+
+
 def publish(run_dir: str | Path, out: str | Path, scores: str | Path, force: bool = False) -> dict[str, Any]:
     """Write the model folder `out` from `run_dir`'s newest checkpoint; returns model.json's record.
 
     `scores` is the committed evaluation (per-episode JSON) of exactly these weights: model.json points at it so
-    that a test, or a user, can check on a few episodes that the published weights reproduce it."""
+    that a test, or a user, can check on a few episodes that the published weights reproduce it. Into the
+    repository's models/ only from a clean tree; a folder replaced with --force keeps the replaced weights' sha256 in
+    `history`."""
     run_dir, out = Path(run_dir), Path(out)
+    commit = git_commit()
+    if out.resolve().parent == MODELS_DIR and (commit is None or commit.endswith("-dirty")):
+        raise BCBenchError(f"{out} is a published model folder: publish from a clean, committed tree (this one is "
+                           f"{commit or 'not a git checkout'}), so its model.json names the code that wrote it")
     run = read_run(run_dir)
     ckpt = latest_checkpoint(run_dir)
     if ckpt is None:
@@ -92,9 +109,12 @@ def publish(run_dir: str | Path, out: str | Path, scores: str | Path, force: boo
         "parameters": parameters, "weights": weights,
         "source": {"run": run_dir.name, "checkpoint": ckpt.name, "git_commit": run.get("git_commit")},
         "file": {"path": f"checkpoints/{ckpt.name}/{file.name}", "bytes": file.stat().st_size,
-                 "sha256": _sha256(file), "dtype": "fp32"},
-        "scores": source, "published_at_commit": git_commit(),
+                 "sha256": sha256_file(file), "dtype": "fp32"},
+        "scores": source, "published_at_commit": commit,
     }
+    history = _history(out) if force else []
+    if history:
+        record["history"] = history
     with atomic_dir(out, force=force) as staged:
         (staged / "checkpoints" / ckpt.name).mkdir(parents=True)
         shutil.copy2(file, staged / record["file"]["path"])
@@ -115,6 +135,6 @@ def verify(model_dir: str | Path) -> dict[str, Any]:
     file = model_dir / record["file"]["path"]
     if not file.is_file():
         raise BCBenchError(f"{file} is missing (a clone without Git LFS content, or a partial copy?)")
-    if _sha256(file) != record["file"]["sha256"]:
+    if sha256_file(file) != record["file"]["sha256"]:
         raise BCBenchError(f"{file} does not match the sha256 in {meta}")
     return record

@@ -55,12 +55,13 @@ from bcbench.modes import MODES, mode_name
 from bcbench.policies import REGISTRY, is_learned, make_config, sampler_kinds
 from bcbench.policies.config import config_to_dict
 from bcbench.policies.outside import load_factory
-from bcbench.protocol import MIN_CHOICE_EPISODES, check_purpose
+from bcbench.protocol import MIN_CHOICE_EPISODES, check_purpose, test_informed_entries
 from bcbench.study.spec_tables import realtime_table, resources_table
 
 STUDY_KEYS = {"name", "episodes", "seed_start", "val_fraction", "latency", "threads", "max_steps", "rate_hz",
               "latency_min_calls", "latency_min_seconds", "device", "margin", "curve_episodes", "realtime",
-              "check_episodes", "backend", "precision", "latency_modes", "resources", "purpose"}
+              "check_episodes", "backend", "precision", "latency_modes", "resources", "purpose",
+              "test_informed"}
 RUN_KEYS = {"policy", "preset", "config", "steps", "max_minutes", "seeds", "set", "eval", "label", "eval_every",
             "realtime", "args", "doubles", "check_episodes"}
 
@@ -142,6 +143,9 @@ class StudySpec:
     # a confirm study's twice-the-steps check: the doubling run and the seed it checks are compared on this many
     # validation episodes (seeds 200000+; the test seeds are not for choices); >= 50
     check_episodes: int = 100
+    # decisions behind this study that a test-seed result informed (bcbench.protocol.test_informed_entries): the
+    # protocol's exceptions, stated in the study's own file and carried into every report that reads it
+    test_informed: list[dict[str, str]] = field(default_factory=list)
 
     def checks_on_validation(self, run: RunSpec) -> bool:
         """In a confirm study: a doubling run, or the run of the same label and seed that one checks."""
@@ -324,6 +328,7 @@ def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
         spec.realtime = realtime_table(study["realtime"])
     _backend_keys(study, spec)
     spec.resources = resources_table(study.get("resources", {}))
+    spec.test_informed = test_informed_entries(study.get("test_informed", []), "study.test_informed")
     for i, run in enumerate(runs):
         spec.runs.extend(_run_specs(i, run))
     _check_doubling(spec)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
 import shutil
@@ -107,3 +108,9 @@ def write_jsonl(path: str | Path, records: list[dict[str, Any]]) -> None:
 def safe_name(text: str) -> str:
     """A file-system-safe name: 'my_pkg.mod:make' -> 'my_pkg.mod-make' (letters, digits, . _ - kept)."""
     return "".join(c if c.isalnum() or c in "._-" else "-" for c in text).strip("-") or "policy"
+
+
+def sha256_file(path: str | Path) -> str:
+    """The sha256 of a file's bytes (weights, normalizers): what a record names to say which model it ran."""
+    with open(path, "rb") as f:
+        return hashlib.file_digest(f, "sha256").hexdigest()
