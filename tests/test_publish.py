@@ -143,3 +143,34 @@ def test_committed_model_reproduces_its_committed_scores(model_dir):
     # episode by episode, so only the mean over more episodes is comparable (a wrong or untrained model fails it).
     then, now = (sum(r[i] for r in rows) / len(rows) for i in (1, 2))
     assert len(rows) == 10 and abs(then - now) < 0.15, (hw.get("cpu_flags"), cpu_flags(), rows)
+
+
+def test_publishing_into_models_needs_a_clean_tree_and_a_replaced_folder_keeps_its_history(trained, tmp_path,
+                                                                                         monkeypatch):
+    """Issue 74: models/ folders come from a clean tree only (model.json then names the code that wrote them), and a
+    folder replaced with --force keeps the sha256 of what it held before, so an older record can still be placed."""
+    import bcbench.policies.publish as pub
+
+    run, scores = trained
+    monkeypatch.setattr(pub, "MODELS_DIR", tmp_path / "models")
+    monkeypatch.setattr(pub, "git_commit", lambda: "a" * 40 + "-dirty")
+    with pytest.raises(BCBenchError, match="publish from a clean, committed tree"):
+        publish(run, tmp_path / "models" / "m", scores)
+    assert not (tmp_path / "models" / "m").exists()
+    publish(run, tmp_path / "elsewhere", scores)  # a scratch folder outside models/ may come from a dirty tree
+    monkeypatch.setattr(pub, "git_commit", lambda: "b" * 40)
+    first = publish(run, tmp_path / "models" / "m", scores)
+    assert "history" not in first
+    f = tmp_path / "models" / "m" / first["file"]["path"]
+    f.write_bytes(f.read_bytes()[:-1] + b"\0")  # as if other weights had been published here before
+    old = pub.sha256_file(f)
+    pub.write_json(tmp_path / "models" / "m" / "model.json", {**first, "file": {**first["file"], "sha256": old}})
+    second = publish(run, tmp_path / "models" / "m", scores, force=True)
+    assert [h["sha256"] for h in second["history"]] == [old] and second["file"]["sha256"] == first["file"]["sha256"]
+    assert json.loads((tmp_path / "models" / "m" / "model.json").read_text())["history"][0]["sha256"] == old
+
+
+def test_committed_models_that_replaced_others_name_what_they_replaced():
+    for name in ("diffusion-cpu", "flow-cpu"):  # their first round's weights were published under the same name
+        record = verify(ROOT / "models" / name)
+        assert record["history"] and record["history"][0]["sha256"] != record["file"]["sha256"]

@@ -55,19 +55,25 @@ def paired_bootstrap(a: dict[int, float], others: list[dict[int, float]], seed: 
 
 
 def recovered_share(sync: dict[int, float], naive: dict[int, float], other: dict[int, float], seed: int = 0,
-                    level: float = 0.95, n_boot: int = N_BOOT) -> tuple[float, float, float, int]:
+                    level: float = 0.95, n_boot: int = N_BOOT, start: dict[int, float] | None = None
+                    ) -> tuple[float, float, float, int]:
     """The share of naive's loss to delay that another strategy gets back: (other - naive) / (sync - naive), the
     three paired over the episode seeds they share, with a percentile-bootstrap interval (seeds resampled together,
     so numerator and denominator move as one), and the number of shared seeds. Issue 31's "half of naive async's
-    loss recovered" is this share >= 0.5. Resamples where naive lost nothing (no share defined) are left out."""
-    s, a, o = _aligned(sync, naive, other)  # (n,) each
+    loss recovered" is this share >= 0.5. Resamples where naive lost nothing (no share defined) are left out.
+
+    `start`: the share of one step only, (other - start) / (sync - naive), e.g. a strategy over naive at the same
+    execution horizon, so that a recovery splits into what the longer horizon buys and what the method adds
+    (issue 74)."""
+    s, a, o, *b = _aligned(sync, naive, other, *([start] if start is not None else []))  # (n,) each
+    b0 = b[0] if b else a
     n = len(s)
     if n == 0:
         return float("nan"), float("nan"), float("nan"), 0
     loss = s.mean() - a.mean()
-    est = float((o.mean() - a.mean()) / loss) if loss > 0 else float("nan")
+    est = float((o.mean() - b0.mean()) / loss) if loss > 0 else float("nan")
     idx = np.random.default_rng(seed).integers(0, n, size=(n_boot, n))
-    num, den = o[idx].mean(axis=1) - a[idx].mean(axis=1), s[idx].mean(axis=1) - a[idx].mean(axis=1)  # (n_boot,)
+    num, den = o[idx].mean(axis=1) - b0[idx].mean(axis=1), s[idx].mean(axis=1) - a[idx].mean(axis=1)  # (n_boot,)
     boot = num[den > 0] / den[den > 0]
     if boot.size == 0:
         return est, float("nan"), float("nan"), n

@@ -143,15 +143,21 @@ def margin_power_sentence(realtime: dict[str, dict[str, Any]], margin: float) ->
 
 
 def pooled_sentence(sweeps: dict[str, dict[str, dict[str, Any]]]) -> str:
-    """Which of the policies' sweeps are pooled over training seeds, and what that does to the numbers."""
+    """Which of the policies' sweeps are pooled over training seeds, and what that does to the numbers; and that
+    the others are of one trained model each, whose intervals say nothing of other training seeds (issue 74)."""
     seeds = {label: next(iter(s.values()))["summary"]["training_seeds"] for label, s in sweeps.items()
              if s and "training_seeds" in next(iter(s.values()))["summary"]}
+    single = len([s for s in sweeps.values() if s]) - len(seeds)
+    one = ((f"{'The other' if seeds else 'Every'} sweep{'s are' if single > 1 or not seeds else ' is'} of one trained "
+            "model (one training seed): its intervals are over episode seeds only and say nothing of other training "
+            "seeds, so a strategy shown to keep or recover a score here is shown so for that model.") if single
+           else "")
     if not seeds:
-        return ""
+        return one
     named = "; ".join(f"{label}: {', '.join(map(str, ids))}" for label, ids in seeds.items())
     return (f"Swept with several training seeds ({named}): each score is the mean over those seeds, and every "
             "interval and paired difference resamples training seeds and, within each, episodes (differences "
-            "paired within a training seed).")
+            "paired within a training seed)." + (f" {one}" if one else ""))
 
 
 def delay_vs_sync(results: dict[str, dict[str, Any]], setting: str) -> tuple[float, float, float, int]:

@@ -112,15 +112,19 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def cmd_params(args: argparse.Namespace) -> int:
     from bcbench.policies import learned_policies, make_policy
+    from bcbench.policies.config import config_to_dict
     from bcbench.policies.encoders import count_parameters, resnet18, resnet50
-    from bcbench.reference import STUDY_PARAMETERS
+    from bcbench.reference import STUDY_PARAMETERS, sized_label
 
-    print(f"{'policy':<18}{'paper':>14}{'study':>14}{'diff':>9}{'quick':>12}")
+    print(f"{'policy':<18}{'paper':>14}{'study':>14}{'diff':>9}{'quick':>12}{'cpu':>12}  "
+          "cpu preset, as reports name it")
     for name in learned_policies():
-        paper, quick = make_policy(name, "paper"), make_policy(name, "quick")
+        paper, quick, cpu = make_policy(name, "paper"), make_policy(name, "quick"), make_policy(name, "cpu")
         n, study = paper.num_parameters(), STUDY_PARAMETERS.get(name)
         diff = f"{100 * (n - study) / study:+.3f}%" if study else "-"
-        print(f"{name:<18}{n:>14,}{(f'{study:,}' if study else '-'):>14}{diff:>9}{quick.num_parameters():>12,}")
+        named = sized_label(name, name, cpu.num_parameters(), config_to_dict(cpu.config))  # the study's size or not
+        print(f"{name:<18}{n:>14,}{(f'{study:,}' if study else '-'):>14}{diff:>9}{quick.num_parameters():>12,}"
+              f"{cpu.num_parameters():>12,}  {named}")
         for part, count in getattr(paper, "parameter_breakdown", lambda: {})().items():
             print(f"  {part:<16}{count:>14,}")
     print("backbones (no fc head):")
