@@ -14,6 +14,7 @@ import pytest
 
 from bcbench.analysis.choose import choice, delay_steps, rank, strategy_at, with_evidence
 from bcbench.analysis.published import Sweep, published_models, reproduction, sweep_records, sweeps_of
+from bcbench.cli.main import main
 from bcbench.errors import BCBenchError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -111,13 +112,16 @@ def test_a_missing_or_empty_models_folder_is_one_error(tmp_path):
     (["choose", "--models", "{tmp}/missing"], "no models folder"),
     (["choose", "--policy", "nosuch"], "unknown policy 'nosuch'"),
 ], ids=["rate-0", "empty-models", "missing-models", "unknown-policy"])
-def test_bad_input_is_one_line_and_exit_2(argv, message, tmp_path):
+def test_bad_input_is_one_line_and_exit_2(argv, message, tmp_path, capsys, monkeypatch):
     (tmp_path / "empty").mkdir()
-    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
-    proc = subprocess.run([sys.executable, "-m", "bcbench.cli", *argv, "--out", str(tmp_path / "out")],
-                          capture_output=True, text=True, timeout=300, cwd=ROOT)
-    err = proc.stderr.strip().splitlines()
-    assert proc.returncode == 2 and len(err) == 1 and message in err[0], proc.stderr
+    monkeypatch.chdir(ROOT)  # models/ and results/ as on a clone
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv] + ["--out", str(tmp_path / "out")]
+    try:
+        code = main(argv)
+    except SystemExit as exc:  # argparse's own errors (OneLineParser)
+        code = exc.code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and message in err[0], err
     assert not (tmp_path / "out").exists()
 
 
@@ -125,7 +129,7 @@ def test_bad_input_is_one_line_and_exit_2(argv, message, tmp_path):
 def test_published_models_reproduce_their_committed_episodes(name):
     """BCT (deterministic) and flow (noise from each episode's own stream) re-scored on 2 test episodes in their
     committed setting match the committed per-episode scores: exactly on the CPU that made them, within floating
-    point (1e-4) on another one."""
+    point (1e-3, test_publish's rule) on another one or at another batch size."""
     from bcbench.analysis.published import committed_eval
     from bcbench.cli.policies import eval_namespace, load_eval_policy
     from bcbench.evaluation.choose import rescore

@@ -84,9 +84,10 @@ def committed_eval(model: Published, root: Path) -> tuple[dict[int, float], dict
     return {e["seed"]: float(e["score"]) for e in data["episodes"]}, data["summary"]["mean_score"]
 
 
-def reproduction(live: dict[int, float], committed: dict[int, float], tolerance: float = 1e-4) -> dict[str, Any]:
+def reproduction(live: dict[int, float], committed: dict[int, float], tolerance: float = 1e-3) -> dict[str, Any]:
     """The live scores against the committed ones of the same seeds: exactly equal, equal within `tolerance`
-    (floating point on another CPU or batch: the trajectory is the same), or how far apart (mean and largest)."""
+    (floating point on another CPU or batch: the same trajectory; 1e-3, tests/test_publish.py's rule: matrix kernels
+    round differently at another batch size), or how far apart (mean and largest)."""
     seeds = sorted(set(live) & set(committed))
     if not seeds:
         raise BCBenchError("no episode seed is both re-scored and committed")
