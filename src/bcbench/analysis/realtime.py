@@ -219,7 +219,7 @@ def highest_safe_rate(safe_d: int | None, latency_ms: float) -> float | None:
 def too_few_episodes(settings: dict[str, dict[str, Any]]) -> int | None:
     """The episodes per setting of a sweep too small to give a safe-delay verdict (fewer than the protocol's
     MIN_CHOICE_EPISODES: at 5 episodes a delay that scored 0.99 against sync 0.69 was called unsafe), else None."""
-    n = min(int(r["summary"]["n"]) for r in settings.values())
+    n = min(int(r["summary"].get("n", len(r.get("episodes") or []))) for r in settings.values())
     return n if n < MIN_CHOICE_EPISODES else None
 
 
@@ -266,7 +266,11 @@ def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float, plai
     fits = ""
     if measured:
         med, slow = (highest_safe_rate(best, measured[k]) for k in ("median_ms", "max_ms"))
+        top = 1 / CONTROL_DT_S
         fits = (f"; its measured median call {measured['median_ms']:.0f} ms "
                 f"{'fits' if med >= 1 / CONTROL_DT_S else 'does not fit'} within {mode} d = {best} at 10 Hz; "
-                f"highest safe control rate {rate_text(med)} ({rate_text(slow)} at its slowest call), {mode}")
+                f"highest safe control rate {min(med, top):.1f} Hz ({min(slow, top):.1f} Hz at its slowest call), "
+                f"{mode}"
+                + (f" (capped at Push-T's {top:g} Hz step rate, in which the sweep counts delay: the calls alone would "
+                   f"allow {med:.0f} Hz, {slow:.0f} Hz at the slowest)" if med > top else ""))
     return f"{head}{fits}."
