@@ -80,7 +80,8 @@ def method_notes(record: dict[str, Any]) -> list[str]:
         f"{busy.get('other_cpus', 0):.2f} CPUs meanwhile" + (" (not a quiet machine: times are noisy)."
                                                              if busy.get("other_cpus", 0) > 0.1 else "."),
         "x floor: the median against this call's floor here (weights read and FLOPs against the machine's measured "
-        "read bandwidth and matrix-product throughput; bcbench.evaluation.floor).",
+        "read bandwidth and matrix-product throughput; bcbench.evaluation.floor). Below 1x the weights fit in the "
+        "CPU's cache, where the byte term over-counts memory traffic: a rough bound only.",
         f"Delay: d = ceil(tail latency x {rate:g} Hz), at least 1, from the slow calls (p99), since a control loop "
         "must meet its deadline on those too. The committed sweeps count delay in Push-T's 0.1 s steps; at another "
         "rate the score at d reads them as holding in control steps (as Diffusion Policy's Fig. 6 counts delay).",
