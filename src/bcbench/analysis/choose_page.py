@@ -11,6 +11,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+from bcbench.analysis.accuracy_latency import place_labels
 from bcbench.analysis.choose import choice_header, choice_rows, rank, sweep_sources
 from bcbench.analysis.figures import COLOURS, save_png
 from bcbench.utils.io import atomic_path, write_json
@@ -32,6 +33,8 @@ def figure(rows: list[dict[str, Any]], rate_hz: float, chosen: str | None, path:
     if not pts:
         return None
     fig, ax = plt.subplots(figsize=(7.5, 4.2))
+    labels: list[tuple[float, float, str, str]] = []
+    markers: list[tuple[float, float, float]] = []
     for r in pts:
         est = r.get("committed") or r["live"]["mean_score"]
         x, (lo, hi) = r["fastest"]["median_ms"], est["ci95"]
@@ -40,8 +43,8 @@ def figure(rows: list[dict[str, Any]], rate_hz: float, chosen: str | None, path:
         ax.errorbar([x], [est["value"]], yerr=[[est["value"] - lo], [hi - est["value"]]], fmt="*" if
                     r["label"] == chosen else "o", ms=14 if r["label"] == chosen else 6, color=c,
                     mfc="white" if hollow else c, capsize=2, lw=1)
-        ax.annotate(r["label"] + (" (live)" if hollow else ""), (x, est["value"]), fontsize=7,
-                    xytext=(4, 3), textcoords="offset points")
+        labels.append((x, est["value"], r["label"] + (" (live)" if hollow else ""), c))
+        markers.append((x, est["value"], 7 if r["label"] == chosen else 3))
     budget = 1e3 / rate_hz
     ax.axvline(budget, ls="--", lw=1, color="k", alpha=0.5)
     ax.text(budget * 0.95, 0.02, f"one step at {rate_hz:g} Hz ({budget:.0f} ms): d = 1 below", rotation=90,
@@ -51,6 +54,7 @@ def figure(rows: list[dict[str, Any]], rate_hz: float, chosen: str | None, path:
     ax.set_ylabel("committed score, sync (95% CI)")
     ax.set_ylim(0, 1.05)
     ax.grid(alpha=0.3)
+    place_labels(ax, labels, fontsize=7, markers=markers)  # no label over another (the report's Figure 5 way)
     return save_png(fig, path)
 
 
