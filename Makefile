@@ -1,4 +1,4 @@
-# bcbench: every target sets itself up; `make test` and `make demo` work on a fresh clone.
+# bcbench: every target sets itself up; `make test`, `make demo` and `make smoke` work on a fresh clone.
 VENV    ?= .venv
 PY      := $(VENV)/bin/python
 PIP     := $(PY) -m pip
@@ -7,7 +7,7 @@ STAMP   := $(VENV)/.bcbench-installed
 WHEELS  := $(wildcard /opt/wheels)
 PIPOPTS := -q $(if $(WHEELS),--find-links $(WHEELS),)
 
-.PHONY: install test test-sidecar lint demo clean lerobot-env reports
+.PHONY: install test test-sidecar lint demo smoke clean lerobot-env reports
 LEROBOT_VENV ?= .lerobot-venv
 LEROBOT_PY   ?= $(firstword $(wildcard $(HOME)/.pyenv/versions/3.12*/bin/python3.12) $(shell command -v python3.12))
 
@@ -19,6 +19,7 @@ $(STAMP): pyproject.toml
 	$(PIP) install $(PIPOPTS) torch==2.13.0
 	$(PIP) install $(PIPOPTS) -e '.[dev,ray]'
 	@touch $(STAMP)
+	@echo "installed: run bcbench as .venv/bin/bcbench, or first: source $(VENV)/bin/activate"
 
 lint: install
 	$(VENV)/bin/ruff check src tests benchmarks
@@ -46,16 +47,33 @@ $(LEROBOT_VENV)/.installed:
 test-sidecar: install lerobot-env
 	$(VENV)/bin/pytest -q --durations=10 -m sidecar
 
+# The main job, on this machine: the simulator checked against the data, then every published model (models/) timed
+# here, re-scored on 5 test episodes against its committed scores, and read at the delay its latency implies at
+# 10 Hz from the committed real-time sweeps; prints the answer and writes one page with a rollout video.
 demo: install
-	$(VENV)/bin/bcbench data replay --quiet --out runs/demo/replay.json
-	$(VENV)/bin/bcbench eval --policy scripted --episodes 4 --video 2 --quiet --out runs/demo/videos
-	$(VENV)/bin/bcbench study studies/demo.toml --out runs/demo/study
+	@start=$$(date +%s); \
+	$(VENV)/bin/bcbench data replay --quiet --out runs/demo/replay.json && \
+	$(VENV)/bin/bcbench choose --quiet --out runs/demo/choose && \
+	echo "" && \
+	echo "demo done in $$(( $$(date +%s) - start )) s on$$(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2) ($$(nproc) cores)." && \
+	echo "  the answer, as a page (open in a browser): runs/demo/choose/choose.html  (Markdown: choose.md)" && \
+	echo "  simulator replay check:                    runs/demo/replay.json" && \
+	echo "  rollout video of the chosen policy:        runs/demo/choose/rollout/videos/" && \
+	echo "  the converged CPU study it reads from:     results/cpu-confirm/report/report.html" && \
+	echo "  run bcbench yourself: source $(VENV)/bin/activate  (then bcbench --help)"
+
+# The whole pipeline at smoke size (what `make demo` was): trains, scores and times every policy in a minute or two
+# each; its models are not converged and its report gives no verdicts on them.
+smoke: install
+	$(VENV)/bin/bcbench data replay --quiet --out runs/smoke/replay.json
+	$(VENV)/bin/bcbench eval --policy scripted --episodes 4 --video 2 --quiet --out runs/smoke/videos
+	$(VENV)/bin/bcbench study studies/demo.toml --out runs/smoke/study
 	@echo ""
-	@echo "demo done. Its models are smoke-sized (a minute or two of training each): the report marks them"
-	@echo "not converged and gives no verdicts on them. The converged CPU study: results/cpu/report/report.html"
-	@echo "  report (open in a browser): runs/demo/study/report/report.html  (Markdown: report.md)"
-	@echo "  simulator replay check:     runs/demo/replay.json"
-	@echo "  rollout videos:             runs/demo/videos/videos/"
+	@echo "smoke done. Its models are smoke-sized (a minute or two of training each): the report marks them"
+	@echo "not converged and gives no verdicts on them. The converged CPU study: results/cpu-confirm/report/report.html"
+	@echo "  report (open in a browser): runs/smoke/study/report/report.html  (Markdown: report.md)"
+	@echo "  simulator replay check:     runs/smoke/replay.json"
+	@echo "  rollout videos:             runs/smoke/videos/videos/"
 
 clean:
 	rm -rf $(VENV) $(LEROBOT_VENV) runs build src/*.egg-info .pytest_cache .ruff_cache

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from bcbench.evaluation.auto import CANDIDATES, _restore, _state, pick_fastest
+from bcbench.evaluation.auto import CANDIDATES, mode_state, pick_fastest, restore_state
 from bcbench.evaluation.backends import apply_mode
 from bcbench.evaluation.benchmark import _normalizer
 from bcbench.interface import example_observation
@@ -59,10 +59,10 @@ def measure(name: str, repeats: int, n_alone: int) -> list[dict[str, object]]:
     prepared = {}
     for m in CANDIDATES:
         apply_mode(runner, m)
-        prepared[m] = _state(runner)
+        prepared[m] = mode_state(runner)
 
     def switch(m: str) -> None:
-        _restore(runner, prepared[m])
+        restore_state(runner, prepared[m])
 
     obs = example_observation(1, runner.obs_horizon)
 

@@ -19,7 +19,8 @@ def test_one_row_per_run_with_its_swept_setting_and_safe_rate():
     # the setting swept in real time (DDIM-10, fixed in the study file), not the best score (DDPM-20's 0.743)
     assert dp[1] == "DDIM10" and dp[2].startswith("0.706")
     assert dp[3] == "70.2 (fast)"  # faster than reference (94.4 ms)
-    assert dp[4] == "14.3 Hz (blocking, up to d = 1)"  # 1 step / 70.2 ms
+    # 1 step / 70.2 ms = 14.3 Hz, capped at the simulator's 10 Hz step rate (the sweeps count delay in its steps)
+    assert dp[4] == "10 Hz (Push-T's step rate; calls alone allow 14 Hz; blocking, up to d = 1)"
     assert table["BCT, 1/4 width (1.12 M)"][4].startswith("none shown")  # d = 1 is not shown within the margin
     assert table["Diffusion Policy (linear betas), 1/4 width (5.33 M)"][1] == "DDIM10"
     assert table["scripted"][4] == "not swept"
@@ -39,7 +40,7 @@ def test_times_of_one_interleaved_run_replace_each_runs_own():
     table = {r[0]: r for r in control_loop_rows(rows, load_realtime(CPU), 0.05, paired)}
     dp = table[DP]
     assert dp[3] == "25.0 (openvino-fp32, interleaved)"  # not the other run's 20.0, nor its own 70.2 (fast)
-    assert dp[4] == "40.0 Hz (blocking, up to d = 1)"  # 1 step / 25 ms
+    assert dp[4] == "10 Hz (Push-T's step rate; calls alone allow 40 Hz; blocking, up to d = 1)"  # 1 step / 25 ms
     assert table["BCT, 1/4 width (1.12 M)"][3] == "4.0 (openvino-fp32, interleaved)"
     own = {r[0]: r for r in control_loop_rows(rows, load_realtime(CPU), 0.05)}
     assert table["CNN-MLP"][3] == own["CNN-MLP"][3]  # not timed in the run: its own record

@@ -123,7 +123,7 @@ def test_a_combined_report_leaves_out_a_replaced_round(tmp_path):
     assert "a" * 40 not in file_commits(out)
     assert study_time(out)["evaluation"] == 1.0  # stage-a's left-out check is not recorded time
     md = Path(write_report(out)["markdown"]).read_text()
-    assert "combines stage-a, stage-b, stage-c; leaves out ResNet-50, ResNet-50 2x of stage-a)" in md
+    assert "combines stage-a, stage-b, stage-c; leaves out 'ResNet-50' and 'ResNet-50 2x' of stage-a)" in md
     write_json(out / "combine.json", {"studies": ["../stage-a", "../stage-b", "../stage-c"],
                                       "leave_out": {"../stage-a": ["ResNet50"]}})
     with pytest.raises(BCBenchError, match=re.escape("../stage-a has no run labelled 'ResNet50' to leave out")):

@@ -149,7 +149,7 @@ def test_realtime_sweep_cli(tmp_path, capsys):
     assert names == ["realtime-async-d2.json", "realtime-blocking-d2.json", "realtime-sync.json"]
     assert (out / "realtime.png").stat().st_size > 1000
     printed = capsys.readouterr().out
-    assert "realtime-async-d2" in printed and "Largest safe delay: async d = " in printed
+    assert "realtime-async-d2" in printed and "too few episodes to decide (2)" in printed  # no verdict from 2
     assert not (out / "fig5_realtime.png").exists()  # no measured setting: no real-time Figure 5
     from bcbench.analysis.results import load_realtime
 
@@ -191,10 +191,13 @@ def test_realtime_report_states_the_largest_safe_delay_and_the_highest_safe_rate
     assert "At its measured latency, minus sync: async -0.100 [-0.100, -0.100]." in lines  # no delay settings
     m = float(base.mean())  # the table: one row per policy, "-" where a setting was not run
     assert f"| backend | {m:.3f} | - | - | - | - | - | - | - | - | {m - 0.1:.3f} (20 ms) | - | - |" in lines
-    assert "async d = 0, blocking d = 1; its measured median call 50 ms fits within blocking d = 1 at 10 Hz; " \
-           "highest safe control rate 20.0 Hz (10.0 Hz at its slowest call), blocking." in lines
-    assert "async d = 2; its measured median call 50 ms fits within async d = 2 at 10 Hz; highest safe " \
-           "control rate 40.0 Hz (20.0 Hz at its slowest call), async." in lines
+    # 20 and 40 Hz capped at the 10 Hz step rate the sweep counts delay in
+    assert ("async d = 0, blocking d = 1; its measured median call 50 ms fits within blocking d = 1 at 10 Hz; "
+            "highest safe control rate 10.0 Hz (10.0 Hz at its slowest call), blocking (capped at Push-T's 10 Hz step "
+            "rate, in which the sweep counts delay: the calls alone would allow 20 Hz, 10 Hz at the slowest).") in lines
+    assert ("async d = 2; its measured median call 50 ms fits within async d = 2 at 10 Hz; highest safe control "
+            "rate 10.0 Hz (10.0 Hz at its slowest call), async (capped at Push-T's 10 Hz step rate, in which the sweep "
+            "counts delay: the calls alone would allow 40 Hz, 20 Hz at the slowest).") in lines
     assert "async d = 0: no delay is shown within the margin (d = 1 minus sync: async -0.300 [-0.300, -0.300])" \
            ", so no real-time control rate" in lines
     assert highest_safe_rate(None, 50.0) is None

@@ -22,11 +22,17 @@ EXACT_MODES = ("reference", "fast", "openvino-fp32", "onnxruntime-fp32")
 TORCH_MODES = ("reference", "fast", "auto")  # what runs on a GPU too (auto resolves to torch there)
 PRECISIONS = ("fp32", "bf16", "int8", "int8w")  # OpenVINO's; ONNX Runtime: fp32, int8
 BACKENDS = ("torch", "openvino", "onnxruntime", "auto")
+BACKEND_MODES = {"torch": "fast", "openvino": "openvino-fp32", "onnxruntime": "onnxruntime-fp32", "auto": "auto"}
 AUTO = "auto"  # the fastest exact mode on this machine for this checkpoint, measured (bcbench.evaluation.auto)
 
 
 def mode_name(backend: str, precision: str = "fp32", reference: bool = False) -> str:
-    """The mode of --backend/--precision(/--reference) arguments, checked."""
+    """The mode of --backend/--precision(/--reference) arguments, checked. A mode's own name (`latency --backend`
+    takes those: fast, openvino-bf16, ...) is accepted as the backend too, alone."""
+    if backend in MODES:
+        if precision != "fp32" or reference:
+            raise BCBenchError(f"--backend {backend} names a mode already: no --precision or --reference with it")
+        return backend
     if backend == AUTO:
         if precision != "fp32" or reference:
             raise BCBenchError("--backend auto picks among the exact (fp32) modes: no --precision or --reference")

@@ -6,20 +6,37 @@ them), its score with the 95% interval, its median call at batch 1 in the fastes
 machine (from one interleaved run of every policy and mode where the folder has one: `one_interleaved_run`),
 and the highest control rate at which it keeps its sync score under real-time execution (from the delay sweep
 and that call time; see bcbench.analysis.realtime.highest_safe_rate). Reads rows and sweep records only.
+
+The same question on the user's own machine (`bcbench choose`, `rank` and `choice` below): every published model
+timed here, at the delay d = ceil(p99 latency x rate) that its slow calls imply, read from the committed sweeps of
+the same weights at that d (bcbench.analysis.published); the policy with the highest committed score at its own d
+is the answer. Only committed 100-episode evidence ranks: a policy scored live on a few episodes is listed, not
+ranked (its interval is too wide to rank on), and a model with no committed sweep at its d is listed with why.
 """
 
 from __future__ import annotations
 
+import math
+from pathlib import Path
 from typing import Any
 
 from bcbench.analysis.fewstep import interleaved_medians, one_interleaved_run
-from bcbench.analysis.realtime import highest_safe_rate, largest_safe_delay
+from bcbench.analysis.published import (
+    Published,
+    Sweep,
+    committed_eval,
+    horizon_text,
+    reproduction,
+    reproduction_text,
+    sweeps_of,
+)
+from bcbench.analysis.realtime import highest_safe_rate, largest_safe_delay, rate_text, seed_scores, too_few_episodes
 from bcbench.analysis.results import Row
 from bcbench.modes import EXACT_MODES
-from bcbench.stats import fmt_estimate
+from bcbench.stats import fmt_estimate, paired_bootstrap
 
 HEADER = ["policy", "setting", "score [95% CI]", "median ms, batch 1 (fastest exact mode)",
-          "highest control rate keeping its score"]
+          "highest control rate keeping its sync score (at most Push-T's 10 Hz step rate)"]
 
 
 def fastest_exact(row: Row, interleaved: dict[str, dict[str, Any]] | None = None) -> tuple[str, float] | None:
@@ -71,6 +88,8 @@ def chosen_settings(rows: list[Row], realtime: dict[str, dict[str, Any]]) -> dic
 def _rate_cell(settings: dict[str, Any] | None, ms: float | None, margin: float) -> str:
     if settings is None or ms is None:
         return "not swept"
+    if (few := too_few_episodes(settings)) is not None:
+        return f"too few episodes to decide ({few})"
     safe = {e: largest_safe_delay(settings, e, margin) for e in ("async", "blocking")
             if any(k.startswith(f"realtime-{e}-d") for k in settings)}
     if not safe:
@@ -79,7 +98,7 @@ def _rate_cell(settings: dict[str, Any] | None, ms: float | None, margin: float)
     if not d:
         return "none shown: no delay swept is shown within the margin of sync"
     rate = highest_safe_rate(d, ms) or 0.0
-    return (f"{rate:.1f}" if rate < 100 else f"{rate:.0f}") + f" Hz ({mode}, up to d = {d})"
+    return rate_text(rate, f"{mode}, up to d = {d}")
 
 
 def control_loop_rows(rows: list[Row], realtime: dict[str, dict[str, Any]], margin: float,
@@ -111,7 +130,147 @@ def control_loop_lines(rows: list[Row], realtime: dict[str, dict[str, Any]], mar
             "default, or DDIM-10 / Euler-10 for a sampler sweep), its score, its median call at batch 1 in the "
             "fastest exact mode timed on this machine, and "
             f"the highest control rate at which its score stays within {margin} of sync under real-time execution "
-            "(the larger safe delay of async and blocking, divided by that call time). The machine is named once, "
+            "(the larger safe delay of async and blocking, divided by that call time; the sweeps count delay in "
+            "Push-T's 0.1 s steps, so a rate above 10 Hz is shown as 10 Hz with what the calls alone would allow, "
+            "and a policy's rate says nothing of how good its score is). The machine is named once, "
             "at the top; each run's training under 'Training: converged?'." + source, "",
             "| " + " | ".join(HEADER) + " |", "|---" * len(HEADER) + "|",
             *("| " + " | ".join(r) + " |" for r in table), ""]
+
+
+# ----------------------------------------------------------------------------- on this machine (`bcbench choose`)
+
+
+def delay_steps(latency_ms: float, rate_hz: float) -> int:
+    """Control steps a call of `latency_ms` takes at `rate_hz`: d = ceil(L f), at least 1 (a call takes time)."""
+    return max(1, math.ceil(latency_ms / 1e3 * rate_hz - 1e-9))
+
+
+def strategy_at(sweeps: list[Sweep], d: int) -> dict[str, Any] | None:
+    """What to run at delay d, from the committed sweeps: naive at the default horizon (the study's own sweep),
+    unless another committed strategy or horizon at the same d beats it on the same test seeds by its paired 95%
+    interval (lower bound above 0), the rule docs/realtime.md's "which to use" reads; None: nothing swept at d."""
+    at_d = [s for s in sweeps if s.at(d) is not None]
+    if not at_d:
+        return None
+    firsts: dict[tuple[str, int | None], Sweep] = {}
+    for s in at_d:
+        firsts.setdefault((s.strategy, s.horizon), s)
+    base = firsts.get(("naive", None)) or next(iter(firsts.values()))
+    pick, versus = base, None
+    for s in firsts.values():
+        if s is base:
+            continue
+        est, lo, hi, _ = paired_bootstrap(seed_scores(s.at(d)), [seed_scores(base.at(d))])
+        if lo > 0 and (versus is None or est > versus[0]):
+            pick, versus = s, (est, lo, hi)
+    result = pick.at(d)
+    return {"strategy": pick.strategy, "horizon": pick.horizon, "horizon_text": horizon_text(pick.horizon, d),
+            "score": result["summary"]["mean_score"], "episodes": result["summary"]["n"], "file": str(pick.path),
+            "versus_naive": versus, "seeds": seed_scores(result),
+            "others": sorted(f"{k[0]} {horizon_text(k[1], d)}" for k, s in firsts.items() if s is not pick)}
+
+
+def rank(rows: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], str]:
+    """The rows that can be ranked, best first, and on what: the committed score at each one's own d where any
+    has one; else (nothing swept at these delays) the committed sync score, which the page then says."""
+    timed = [r for r in rows if r.get("fastest")]
+    ranked = [r for r in timed if r.get("realtime")]
+    if ranked:
+        return sorted(ranked, key=lambda r: -r["realtime"]["score"]["value"]), "realtime"
+    synced = [r for r in timed if r.get("committed")]
+    return sorted(synced, key=lambda r: -r["committed"]["value"]), "sync"
+
+
+def ranked_score(row: dict[str, Any], basis: str) -> dict[str, Any]:
+    return row["realtime"]["score"] if basis == "realtime" else row["committed"]
+
+
+def choice(rows: list[dict[str, Any]], rate_hz: float, cpu: str) -> dict[str, Any]:
+    """The answer: the first of `rank`, the runner-up, their paired difference where both were swept on the same
+    seeds, and the page's first line."""
+    ranked, basis = rank(rows)
+    if not ranked:
+        return {"line": f"At {rate_hz:g} Hz on {cpu}: no policy has committed evidence to rank (see the table)",
+                "chosen": None, "runner_up": None, "basis": basis}
+    best, second = ranked[0], (ranked[1] if len(ranked) > 1 else None)
+    f = best["fastest"]
+    how = (f"score {fmt_estimate(ranked_score(best, basis))} at d = {best['d']} "
+           + (f"({best['realtime']['strategy']}, {best['realtime']['horizon_text']})" if basis == "realtime"
+              else "(sync score: no committed sweep at these delays)"))
+    line = (f"At {rate_hz:g} Hz on {cpu}: use {best['label']} ({best['setting']}, {f['mode']}): {how}; "
+            f"median {f['median_ms']:.1f} ms, {f['tail_stat']} {f['tail_ms']:.1f} ms")
+    gap = None
+    if second is not None:
+        line += f". Runner-up: {second['label']}, {fmt_estimate(ranked_score(second, basis))} at d = {second['d']}"
+        if basis == "realtime":
+            est, lo, hi, n = paired_bootstrap(best["realtime"]["seeds"], [second["realtime"]["seeds"]])
+            gap = {"value": est, "ci95": [lo, hi], "pairs": n}
+            line += f"; the choice leads it by {est:+.3f} [{lo:+.3f}, {hi:+.3f}], paired over {n} test seeds"
+    return {"line": line, "chosen": best["label"], "runner_up": second["label"] if second else None,
+            "basis": basis, "gap": gap}
+
+
+def choice_header(rate_hz: float) -> list[str]:
+    return ["policy", "setting", "score at d [95% CI]", f"d at {rate_hz:g} Hz", "strategy, horizon",
+            "median / tail ms (fastest exact mode)", "x floor", "committed sync score", "re-scored here"]
+
+
+def with_evidence(m: dict[str, Any], model: Published | None, records: list[tuple[Path, dict[str, Any]]],
+                  root: Path, rate_hz: float) -> dict[str, Any]:
+    """One policy's row: its measurements here (`m`, from bcbench.evaluation.choose: timings, live episodes), its
+    delay d at `rate_hz` from the tail of its fastest exact mode, and the committed evidence of a published model
+    (its score, whether the live episodes reproduce it, its real-time score at d). A policy from outside models/
+    has its live score only, labelled so."""
+    row = dict(m)
+    if m.get("fastest"):
+        row["d"] = delay_steps(m["fastest"]["tail_ms"], rate_hz)
+    live = m.get("live") or {}
+    if model is None:
+        row["live_only"] = True
+        if live:
+            row["rescored"] = (f"scored live, {live['episodes']} episodes (wide interval): "
+                               f"{fmt_estimate(live['mean_score'])}")
+        return row
+    committed, estimate = committed_eval(model, root)
+    row["committed"] = estimate
+    if live:
+        rep = reproduction(dict(zip(live["seeds"], live["scores"], strict=True)), committed)
+        row["reproduction"], row["rescored"] = rep, reproduction_text(rep)
+    if "d" in row:
+        row["realtime"] = strategy_at(sweeps_of(model, records), row["d"])
+    return row
+
+
+
+def choice_rows(rows: list[dict[str, Any]], sources: dict[str, int]) -> list[list[str]]:
+    """The printed table and the page's, one row per policy in ranked order then the rest; `sources` numbers
+    each sweep file (the page lists them under the table, so that no path widens it)."""
+    ranked = rank(rows)[0]
+    order = ranked + [r for r in rows if r not in ranked]
+    out = []
+    for r in order:
+        f, rt = r.get("fastest"), r.get("realtime")
+        if rt:
+            score = f"{fmt_estimate(rt['score'])} [{sources[rt['file']]}]"
+            strategy = f"{rt['strategy']}, {rt['horizon_text']}"
+        elif r.get("live_only"):
+            score, strategy = "-", "-"
+        else:
+            score, strategy = f"no committed sweep at d = {r.get('d', '?')}", "-"
+        timing = f"{f['median_ms']:.1f} / {f['tail_ms']:.1f} ({f['tail_stat']}; {f['mode']})" if f else \
+            r.get("timing_error", "not timed")
+        floor = f"{r['floor']['x_floor']:.1f}x" if (r.get("floor") or {}).get("x_floor") else "-"
+        committed = fmt_estimate(r["committed"]) if r.get("committed") else "-"
+        out.append([r["label"], r["setting"], score, str(r.get("d", "-")), strategy, timing, floor, committed,
+                    r.get("rescored", "-")])
+    return out
+
+
+def sweep_sources(rows: list[dict[str, Any]]) -> dict[str, int]:
+    """Each sweep file the table cites, numbered in order of appearance."""
+    out: dict[str, int] = {}
+    for r in rank(rows)[0] + rows:
+        if r.get("realtime"):
+            out.setdefault(r["realtime"]["file"], len(out) + 1)
+    return out

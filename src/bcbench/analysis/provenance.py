@@ -19,12 +19,9 @@ def _and(items: list[str]) -> str:
     return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
 
 
-def hardware_line(rows: list[Row]) -> str:
-    """Where the rows were evaluated (and timed), said once: one machine, or each machine (CPU and torch threads)
-    with what ran there. `rows` are one per run (not merged over training seeds: seeds of one setting may have run
-    on different machines); with several training seeds a machine names the training seeds of each label it
-    evaluated ("seeds 1 and 2 of label"), else the settings, a label whose settings all ran there once ("all N
-    settings of label")."""
+def _by_machine(rows: list[Row]) -> tuple[dict[tuple[str, str], dict[str, list[str]]], Any]:
+    """(CPU, threads) -> label -> the training seeds (several) or settings of it run there, and `said(label,
+    items)`, the words for one label's items ("seeds 1 and 2 of DP", "all 2 settings of Flow", "Flow euler1")."""
     multi = len({(r.label, r.train_seed) for r in rows}) > len({r.label for r in rows})
     by_hw: dict[tuple[str, str], dict[str, list[str]]] = {}  # (cpu, threads) -> label -> seeds or settings there
     settings: dict[str, set[str]] = {}  # label -> its settings, wherever they ran
@@ -36,10 +33,6 @@ def hardware_line(rows: list[Row]) -> str:
         items = by_hw.setdefault(hw, {}).setdefault(r.label, [])
         if item not in items:
             items.append(item)
-    timed = _timed_elsewhere(rows)
-    did = "Evaluated and timed" if any(r.latency for r in rows) and not timed else "Evaluated"
-    if len(by_hw) <= 1:
-        return f"{did} on {', '.join(next(iter(by_hw), ('no machine',)))}.{timed}"
 
     def said(label: str, items: list[str]) -> list[str]:
         if multi:
@@ -50,11 +43,38 @@ def hardware_line(rows: list[Row]) -> str:
             return [f"all {len(items)} settings of {label}"]
         return [f"{label} {i}".rstrip() for i in items]
 
+    return by_hw, said
+
+
+def hardware_line(rows: list[Row]) -> str:
+    """Where the rows were evaluated (and timed), said once: one machine, or each machine (CPU and torch threads)
+    with what ran there. `rows` are one per run (not merged over training seeds: seeds of one setting may have run
+    on different machines); with several training seeds a machine names the training seeds of each label it
+    evaluated ("seeds 1 and 2 of label"), else the settings, a label whose settings all ran there once ("all N
+    settings of label")."""
+    by_hw, said = _by_machine(rows)
+    timed = _timed_elsewhere(rows)
+    did = "Evaluated and timed" if any(r.latency for r in rows) and not timed else "Evaluated"
+    if len(by_hw) <= 1:
+        return f"{did} on {', '.join(next(iter(by_hw), ('no machine',)))}.{timed}"
     cpus = sorted({cpu for cpu, _ in by_hw})
     parts = [f"{cpu}: " + "; ".join(", ".join(x for label, items in ran.items() for x in said(label, items))
                                     + f" with {t}" for (c, t), ran in sorted(by_hw.items()) if c == cpu)
              for cpu in cpus]
     return f"{did} on {'several machines: ' if len(cpus) > 1 else ''}" + "; ".join(parts) + "." + timed
+
+
+MACHINES_HEADER = ["machine", "torch threads", "what it evaluated"]
+
+
+def machine_rows(rows: list[Row]) -> list[list[str]]:
+    """The compact table of a report evaluated on several machines (one row per CPU and thread count, with what
+    ran there), which stands below the answer instead of a paragraph above it; empty for one machine."""
+    by_hw, said = _by_machine(rows)
+    if len(by_hw) <= 1:
+        return []
+    return [[cpu, t, ", ".join(x for label, items in ran.items() for x in said(label, items))]
+            for (cpu, t), ran in sorted(by_hw.items())]
 
 
 def _timed_elsewhere(rows: list[Row]) -> str:
@@ -76,7 +96,10 @@ def lead_line(name: str, rows: list[Row], mixed: bool, runs: list[Row] | None = 
     eps = (f"{'/'.join(map(str, ns))} episodes each (seeds {seeds[0]}-{seeds[-1]})" if seeds else "no episodes")
     if k:
         eps += f", {'/'.join(map(str, k))} training seeds per trained setting"
-    return (f"Study `{name}`: {len(rows)} evaluated settings, {eps}. {hardware_line(runs or rows)}"
+    machines = machine_rows(runs or rows)
+    where = (f"Evaluated on {len(machines)} machines (the table 'Machines' under the answer)."
+             + _timed_elsewhere(runs or rows) if machines else hardware_line(runs or rows))
+    return (f"Study `{name}`: {len(rows)} evaluated settings, {eps}. {where}"
             + (" These results mix several commits: see Provenance at the end." if mixed else ""))
 
 

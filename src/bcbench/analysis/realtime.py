@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from bcbench.errors import BCBenchError
-from bcbench.protocol import CONTROL_DT_S, SYNC_SETTING, delay_setting, policy_label
+from bcbench.protocol import CONTROL_DT_S, MIN_CHOICE_EPISODES, SYNC_SETTING, delay_setting, policy_label
 from bcbench.stats import Z95, episodes_to_show_within, over_training_seeds, paired_bootstrap
 from bcbench.utils.io import read_json
 
@@ -222,6 +222,23 @@ def highest_safe_rate(safe_d: int | None, latency_ms: float) -> float | None:
     return safe_d / (latency_ms / 1e3) if latency_ms > 0 else math.inf
 
 
+def too_few_episodes(settings: dict[str, dict[str, Any]]) -> int | None:
+    """The episodes per setting of a sweep too small to give a safe-delay verdict (fewer than the protocol's
+    MIN_CHOICE_EPISODES: at 5 episodes a delay that scored 0.99 against sync 0.69 was called unsafe), else None."""
+    n = min(int(r["summary"].get("n", len(r.get("episodes") or []))) for r in settings.values())
+    return n if n < MIN_CHOICE_EPISODES else None
+
+
+def rate_text(hz: float, extra: str = "") -> str:
+    """A safe control rate, capped at what the simulator shows: delay is counted in Push-T's 10 Hz steps, so a
+    rate above 10 Hz says only that the calls would allow it ("10 Hz (Push-T's step rate; calls alone allow 5599
+    Hz)"); `extra` goes inside the same parentheses."""
+    top = 1 / CONTROL_DT_S
+    if hz <= top + 1e-9:
+        return f"{hz:.1f} Hz" + (f" ({extra})" if extra else "")
+    return f"{top:g} Hz (Push-T's step rate; calls alone allow {hz:.0f} Hz" + (f"; {extra})" if extra else ")")
+
+
 def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float, plain: dict[str, Any] | None = None
                         ) -> str:
     """One policy's largest safe delay per execution mode and, from the better mode's measured setting, its
@@ -232,6 +249,8 @@ def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float, plai
                 "as in the strategies' table: " + safe_delay_sentence(with_plain_sync(settings, plain), margin))
     if SYNC_SETTING not in settings:
         return ""
+    if (few := too_few_episodes(settings)) is not None:
+        return f"Largest safe delay and highest safe control rate: too few episodes to decide ({few})."
     safe = {e: largest_safe_delay(settings, e, margin) for e in ("async", "blocking")
             if any(k.startswith(f"realtime-{e}-d") for k in settings)}
 
@@ -253,7 +272,11 @@ def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float, plai
     fits = ""
     if measured:
         med, slow = (highest_safe_rate(best, measured[k]) for k in ("median_ms", "max_ms"))
+        top = 1 / CONTROL_DT_S
         fits = (f"; its measured median call {measured['median_ms']:.0f} ms "
                 f"{'fits' if med >= 1 / CONTROL_DT_S else 'does not fit'} within {mode} d = {best} at 10 Hz; "
-                f"highest safe control rate {med:.1f} Hz ({slow:.1f} Hz at its slowest call), {mode}")
+                f"highest safe control rate {min(med, top):.1f} Hz ({min(slow, top):.1f} Hz at its slowest call), "
+                f"{mode}"
+                + (f" (capped at Push-T's {top:g} Hz step rate, in which the sweep counts delay: the calls alone would "
+                   f"allow {med:.0f} Hz, {slow:.0f} Hz at the slowest)" if med > top else ""))
     return f"{head}{fits}."

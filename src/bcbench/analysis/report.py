@@ -23,7 +23,14 @@ from bcbench.analysis.convergence import NO_CHECK, NOT_CONVERGED, apply_checks, 
 from bcbench.analysis.fewstep import fewstep_lines, load_paired, one_interleaved_run
 from bcbench.analysis.figures import figure3, figure4, figure5_realtime, learning_curves, realtime_figure
 from bcbench.analysis.findings import DEFAULT_MARGIN, Finding, judge, points_from_rows, shared_timing, with_interleaved
-from bcbench.analysis.provenance import lead_line, paired_conditions, provenance_notes, sweep_provenance
+from bcbench.analysis.provenance import (
+    MACHINES_HEADER,
+    lead_line,
+    machine_rows,
+    paired_conditions,
+    provenance_notes,
+    sweep_provenance,
+)
 from bcbench.analysis.realtime import margin_power_sentence, naive_sweep_of, pooled_sentence, safe_delay_sentence
 from bcbench.analysis.results import (
     Row,
@@ -343,13 +350,22 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     notes += provenance_notes(rows, file_commits(results, extra_dirs), mixing_reason(results))
     notes += paired_conditions(paired, shared_timing(settings, paired.get("reference")))
     sources = [d.name for d in study_dirs(results) if d != results]
-    leaving = [f"; leaves out {', '.join(labels)} of {study}" for study, labels in left_out(results).items()]
-    name = results.name + (f" (combines {', '.join(sources)}{''.join(leaving)})" if sources else "")
+    # labels quoted and joined with "and": a label with a comma in it ("ResNet-50 CNN, twice the steps") reads as two
+    leaving = [f"; leaves out {' and '.join(repr(x) for x in labels)} of {study}"
+               for study, labels in left_out(results).items()]
+    name = (study_spec(results).get("name") or results.name) + (  # the spec's name, not the output folder's
+        f" (combines {', '.join(sources)}{''.join(leaving)})" if sources else "")
     lead = lead_line(name, settings, mixed=any("mix several commits" in n for n in notes), runs=rows)
+    trained = [r for r in rows if r.converged is not None]
+    if trained and not any(r.converged for r in trained):
+        lead += (" None of its trained models is shown converged (smoke-sized or short trainings: see 'Training: "
+                 "converged?'): read its scores as a check of the pipeline, not of the policies.")
+    machines = machine_rows(rows)
+    machines_md = ["## Machines", "", _md_table(MACHINES_HEADER, machines), ""] if machines else []
     md = ["# bcbench report", "", lead, "",
           *([f"![{FIG5}]({fig5.name})", ""] if fig5 else []), *control_loop_lines(settings, realtime, margin, paired),
           *([_informed_sentence(informed), ""] if informed else []),
-          "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
+          *machines_md, "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
     md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
     versus = baseline_rows(settings, realtime)  # each learned policy against the scripted baseline
     md += ["", *baseline_lines(settings, versus), "## Results", "", _md_table(columns, table), "",
@@ -371,7 +387,8 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
         choose = control_loop_rows(settings, realtime, margin, paired)
         top = ((_img(FIG5, fig5, "lead", _lead_height(lead, len(choose))) if fig5 else "")
                + "<h2>Which policy for my control loop</h2>" + _html_table(CHOOSE_HEADER, choose)
-               + (f"<p>{html.escape(_informed_sentence(informed))}</p>" if informed else ""))
+               + (f"<p>{html.escape(_informed_sentence(informed))}</p>" if informed else "")
+               + ("<h2>Machines</h2>" + _html_table(MACHINES_HEADER, machines) if machines else ""))
         tail = (f"<h2>How to read the numbers</h2><p>{html.escape(intro)}</p><h2>Provenance</h2><ul>"
                 + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
         findings_html = _findings_html(findings, FINDINGS_INTRO.format(m=margin)) + (

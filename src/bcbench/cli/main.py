@@ -15,8 +15,9 @@ from pathlib import Path
 from typing import Any
 
 from bcbench.cli import data
+from bcbench.cli.choose import cmd_choose  # noqa: F401  (a handler, found by name in main)
 from bcbench.cli.parser import build_parser
-from bcbench.cli.policies import load_eval_policy, load_weak, strategy_config
+from bcbench.cli.policies import load_eval_policy, load_weak, sampler_of, strategy_config
 from bcbench.errors import BCBenchError
 from bcbench.protocol import strategy_label
 from bcbench.stats import fmt_estimate, fmt_share
@@ -41,7 +42,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else default_out
     result = evaluate(policy, cfg, out, progress=not args.quiet, weak=load_weak(args, policy))
     s = result["summary"]
-    print(f"{policy.name}: {s['n']} episodes from seed {cfg.seed_start}")
+    print(f"{policy.name}: {s['n']} episodes from seed {cfg.seed_start}{ran_text(policy)}")
     n = s["n"]  # shares with Wilson intervals (a bootstrap gives [0, 0] at 0%)
     print(f"  mean score {fmt_estimate(s['mean_score'])}   > 0.5 {fmt_share(s['share_above_0.5'], n)}"
           f"   > 0.9 {fmt_share(s['share_above_0.9'], n)}   success {fmt_share(s['success_rate'], n)}")
@@ -54,6 +55,16 @@ def cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def ran_text(policy: Any) -> str:
+    """", sampler ddim, 10 steps (trailing), mode fast": what a trained policy ran, named on the console."""
+    info = getattr(policy, "info", None)
+    if info is None:
+        return ""
+    sampler = (f", sampler {info.sampler}, {info.steps} steps" + (f" ({info.spacing} spacing)" if info.spacing else "")
+               if info.sampler else "")
+    return f"{sampler}, mode {info.mode or 'fast'}"
+
+
 def _parse_sets(items: list[str] | None) -> dict[str, Any]:
     """--set key=value pairs; values are JSON when they parse as JSON (numbers, lists, true), else strings."""
     from bcbench.policies.outside import parse_kwargs
@@ -63,7 +74,7 @@ def _parse_sets(items: list[str] | None) -> dict[str, Any]:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from bcbench.training.loop import TrainOptions, new_run, train
+    from bcbench.training.loop import TrainOptions, discard_new_run, new_run, train
     from bcbench.training.parts import Distributed
     from bcbench.utils.device import pick_device
 
@@ -101,7 +112,12 @@ def cmd_train(args: argparse.Namespace) -> int:
         train(run_dir, opts)
         return 0
     print(f"run directory: {run_dir}")
-    s = train(run_dir, opts)
+    try:
+        s = train(run_dir, opts)
+    except BCBenchError:
+        if not args.resume:  # a failed start (e.g. data that does not load) leaves no run folder behind
+            discard_new_run(run_dir)
+        raise
     sps = f"{s['samples_per_s']:.0f}" if s["samples_per_s"] else "-"
     print(f"{s['policy']} ({s['preset']}): stopped ({s['stopped']}) at step {s['step']}/{s['total_steps']} "
           f"= {s['epochs']:.2f} epochs; {sps} samples/s on {s['device']} ({s['threads']} threads, {s['precision']})")
@@ -205,7 +221,8 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else default_out.with_name(default_out.name.replace("eval-", "realtime-"))
     mode = policy.info.mode if isinstance(policy, PolicyRunner) else None  # what apply_mode set; baselines: none
     base = args.label or (f"{policy.name} ({mode})" if mode else policy.name)
-    variant = {"sampler": args.sampler, "steps": args.steps, "spacing": args.spacing}
+    ran = sampler_of(args) if args.checkpoint else (args.sampler, args.steps, args.spacing)
+    variant = dict(zip(("sampler", "steps", "spacing"), ran, strict=True))  # what ran (a model's recorded setting)
     plain = None  # naive's sweep, once run
     for kind, strategy in zip(strategies, configs, strict=True):
         # naive alone writes to --out itself (as before strategies); several: one folder each
@@ -304,15 +321,32 @@ def cmd_policies(args: argparse.Namespace) -> int:
     return 0
 
 
+def _latency_runners(args: argparse.Namespace) -> dict[str, Any]:
+    """`latency --checkpoint`: each run or published model loaded as `eval --checkpoint` loads it (a published
+    model in its recorded sampler setting unless --sampler/--steps name one)."""
+    if not args.checkpoint:
+        return {}
+    if len(args.sampler or []) > 1 or len(args.steps or []) > 1:
+        raise BCBenchError("with --checkpoint, give at most one --sampler and one --steps")
+    from bcbench.cli.policies import eval_namespace
+
+    first = lambda v: v[0] if v else None  # noqa: E731
+    return {c: load_eval_policy(eval_namespace(checkpoint=c, sampler=first(args.sampler), steps=first(args.steps),
+                                               device="cpu" if args.device == "auto" else args.device))[0]
+            for c in args.checkpoint}
+
+
 def cmd_latency(args: argparse.Namespace) -> int:
     from bcbench.analysis.figures import latency_bars
     from bcbench.evaluation.benchmark import run_latency_benchmark
+    from bcbench.modes import BACKEND_MODES
     from bcbench.policies.outside import parse_kwargs
 
-    out = run_latency_benchmark(policies=args.policy, presets=args.preset, modes=args.mode, steps=args.steps,
+    modes = [BACKEND_MODES.get(m, m) for m in args.mode] if args.mode else None  # `eval --backend` names too
+    out = run_latency_benchmark(policies=args.policy, presets=args.preset, modes=modes, steps=args.steps,
                                 samplers=args.sampler, device=args.device, threads=args.threads,
                                 rate_hz=args.rate, out=args.out, quick_timing=args.quick,
-                                policy_args=parse_kwargs(args.policy_arg))
+                                policy_args=parse_kwargs(args.policy_arg), runners=_latency_runners(args))
     rec, plot = out["record"], Path(out["json"]).with_name("latency.png")
     hw = rec["hardware"]
     latency_bars([{**r, "label": f"{r['policy']} {r['preset']} {r['variant']} {r['mode']}"} for r in rec["rows"]],

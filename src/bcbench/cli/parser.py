@@ -12,7 +12,7 @@ from typing import Any
 
 from bcbench import __version__
 from bcbench.evaluation.config import EXECUTIONS, STRATEGIES, EvalConfig, StrategyConfig
-from bcbench.modes import AUTO, BACKENDS, MODES, PRECISIONS
+from bcbench.modes import BACKENDS, MODES, PRECISIONS
 from bcbench.training.options import TrainOptions
 from bcbench.utils.args import OneLineParser
 from bcbench.utils.fields import field_default, field_docs
@@ -162,6 +162,7 @@ def _add_study_commands(sub: Any) -> None:
 
     _add_latency_command(sub)
     _add_realtime_command(sub)
+    _add_choose_command(sub)
 
     p = sub.add_parser("params", help="parameter counts of every learned policy (paper and quick sizes)")
     p.set_defaults(func="cmd_params")
@@ -177,10 +178,17 @@ def _add_latency_command(sub: Any) -> None:
     _add_policy_arg(p)
     p.add_argument("--preset", "--config", dest="preset", action="append", choices=["quick", "cpu", "paper"],
                    help="presets (default paper and quick; --config is the old name of this option)")
-    p.add_argument("--mode", action="append", choices=[*MODES, AUTO],
-                   help="inference modes (default all: torch reference and fast, OpenVINO fp32, bf16, int8, "
-                        "int8w, ONNX Runtime fp32 and int8, and auto: the fastest exact one on this machine, "
-                        "measured, as a user gets it)")
+    p.add_argument("--checkpoint", action="append", metavar="RUN_DIR",
+                   help="time this trained run or published model (e.g. models/diffusion-cpu; repeatable) in its "
+                        "own setting (a published model's recorded sampler and steps unless --sampler/--steps), "
+                        "instead of the untrained registry policies")
+    p.add_argument("--backend", "--mode", dest="mode", action="append", choices=[*MODES, *BACKENDS],
+                   metavar="BACKEND",
+                   help="inference modes (repeatable): a mode (reference, fast, openvino-fp32|bf16|int8|int8w, "
+                        "onnxruntime-fp32|int8) or a backend as `eval --backend` takes it (torch = fast, openvino = "
+                        "openvino-fp32, onnxruntime = onnxruntime-fp32, auto: the fastest exact one on this machine, "
+                        "measured, as a user gets it). Default: every mode and auto (a --checkpoint: the exact "
+                        "ones and auto). --mode is the old name of this option")
     p.add_argument("--sampler", action="append", choices=["ddpm", "ddim", "euler", "midpoint"],
                    help="samplers of generative policies (default ddpm and ddim; flow: euler)")
     p.add_argument("--steps", type=_positive_int, action="append",
@@ -191,6 +199,30 @@ def _add_latency_command(sub: Any) -> None:
     p.add_argument("--quick", action="store_true", help="fewer timed calls (a rough table in a minute or two)")
     p.add_argument("--out", metavar="DIR", help="output folder (default runs/latency-TIME)")
     p.set_defaults(func="cmd_latency")
+
+
+def _add_choose_command(sub: Any) -> None:
+    p = sub.add_parser("choose", help="which policy for my control loop, on this machine: every published model "
+                       "timed here, re-scored on a few test episodes, read at the delay its latency implies")
+    p.add_argument("--models", default="models", metavar="DIR",
+                   help="the published models (default models/ of the repository)")
+    p.add_argument("--results", default="results", metavar="DIR",
+                   help="the committed results whose real-time sweeps are read (default results/)")
+    p.add_argument("--policy", action="append", metavar="NAME",
+                   help="also a policy of yours (repeatable): a plug-in (knn), module:factory or lerobot:FOLDER, as "
+                        "`bcbench eval --policy` takes it; it is scored live on --episodes test seeds")
+    _add_policy_arg(p)
+    p.add_argument("--rate", type=_positive_float, default=10.0, metavar="HZ",
+                   help="the control loop's rate in Hz (default 10)")
+    p.add_argument("--episodes", type=_positive_int, default=5, metavar="N",
+                   help="test episodes re-scored live per policy (default 5)")
+    p.add_argument("--calls", type=_positive_int, default=100, metavar="N",
+                   help="timed calls per policy and mode (default 100: a p99; fewer: the maximum, labelled)")
+    p.add_argument("--threads", type=_positive_int, help="torch threads (default: torch's choice)")
+    p.add_argument("--no-video", action="store_true", help="no rollout video of the chosen policy")
+    p.add_argument("--out", default="runs/choose", metavar="DIR", help="the page's folder (default runs/choose)")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(func="cmd_choose")
 
 
 def _add_realtime_command(sub: Any) -> None:
@@ -271,9 +303,10 @@ def _add_policy_arg(p: Any) -> None:
 
 
 def _add_backend_args(p: Any) -> None:
-    p.add_argument("--backend", choices=list(BACKENDS),
+    p.add_argument("--backend", "--mode", dest="backend", choices=[*BACKENDS, *MODES], metavar="BACKEND",
                    help="what runs a trained policy's networks: torch, openvino or onnxruntime (these two export "
-                        "them, cached beside the checkpoint), auto (the fastest exact one here, measured). Default: "
+                        "them, cached beside the checkpoint), auto (the fastest exact one here, measured), or a mode "
+                        "by its `latency --backend` name (fast, openvino-bf16, ...; --mode is accepted too). Default: "
                         "auto where a measured latency sets the delays (--latency measured, --measured), else torch")
     p.add_argument("--precision", default="fp32", choices=PRECISIONS,
                    help="with --backend openvino: fp32 (exact, default), bf16, int8 or int8w (int8 weights only; "

@@ -30,6 +30,28 @@ def _needs_torch(args: argparse.Namespace) -> str:
     return torch_only([kinds] if isinstance(kinds, str) else kinds, getattr(args, "rtc_jacobian", True))
 
 
+def eval_namespace(**over: Any) -> argparse.Namespace:
+    """The options `load_eval_policy` reads, as `bcbench eval` has them by default, with `over` in their place: how
+    another command (choose, latency --checkpoint) resolves a policy exactly as `eval` does."""
+    base = {"checkpoint": None, "policy": None, "policy_arg": None, "backend": None, "precision": "fp32",
+            "reference": False, "sampler": None, "steps": None, "spacing": None, "preset": "quick", "seed": 0,
+            "episodes": 1, "no_ema": False, "device": "cpu"}
+    return argparse.Namespace(**{**base, **over})
+
+
+def sampler_of(args: argparse.Namespace) -> tuple[str | None, int | None, str | None]:
+    """(sampler, steps, spacing) a --checkpoint runs: as given; where none is given and the folder is a published
+    model, the setting its committed score ran (model.json's scores: DDIM-10 for models/diffusion-cpu, not the
+    run's own DDPM-100), so that `eval --checkpoint models/NAME` reproduces the number it is published with."""
+    given = (args.sampler, args.steps, args.spacing)
+    if any(v is not None for v in given):
+        return given
+    from bcbench.analysis.published import model_record
+
+    scores = (model_record(args.checkpoint) or {}).get("scores") or {}
+    return scores.get("sampler"), scores.get("steps"), scores.get("spacing")
+
+
 def load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
     """The policy to evaluate and the default output folder."""
     from bcbench.policies import REGISTRY, is_learned, make_policy
@@ -42,7 +64,8 @@ def load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
         from bcbench.policies.checkpoint import configure_runner, load_runner
 
         runner = load_runner(args.checkpoint, use_ema=not args.no_ema, device=args.device)
-        tag = configure_runner(runner, args.sampler, args.steps, args.seed, args.spacing)
+        sampler, steps, spacing = sampler_of(args)
+        tag = configure_runner(runner, sampler, steps, args.seed, spacing)
         mode = mode_name(backend(args), args.precision, args.reference)
         apply_mode(runner, mode, torch_only=_needs_torch(args))
         tag += "" if mode == "fast" else f"{mode}-"
@@ -86,6 +109,6 @@ def load_weak(args: argparse.Namespace, policy: Any) -> Any:
     weak = load_runner(args.bid_weak, use_ema=not args.no_ema, device=args.device)
     if weak.name != policy.name:
         raise BCBenchError(f"--bid-weak is a {weak.name} run; the policy is {policy.name}")
-    configure_runner(weak, args.sampler, args.steps, args.seed, args.spacing)
+    configure_runner(weak, policy.info.sampler, policy.info.steps, args.seed, policy.info.spacing)  # as the policy
     apply_mode(weak, policy.info.mode or mode_name(backend(args), args.precision, args.reference))
     return weak

@@ -55,14 +55,14 @@ def pick_fastest(setups: dict[str, Callable[[], None]], call: Callable[[], Any],
     return min(medians, key=medians.__getitem__), medians
 
 
-def _state(runner: PolicyRunner) -> tuple[Any, ...]:
+def mode_state(runner: PolicyRunner) -> tuple[Any, ...]:
     """What a mode sets on a runner (bcbench.evaluation.backends.set_mode and apply_mode)."""
     m = runner.model
     split = m.split_film if isinstance(m, FilmSplittable) else None
     return m.deployed, m.deployment, split, runner.info.mode, runner.info.deployment
 
 
-def _restore(runner: PolicyRunner, state: tuple[Any, ...]) -> None:
+def restore_state(runner: PolicyRunner, state: tuple[Any, ...]) -> None:
     m = runner.model
     m.deployed, m.deployment, split, runner.info.mode, runner.info.deployment = state
     if split is not None:
@@ -100,8 +100,8 @@ def choose_mode(runner: PolicyRunner, apply: Callable[[PolicyRunner, str], None]
     prepared = {}
     for m in candidates:  # export and compile each mode once; the rounds then only switch between them
         apply(runner, m)
-        prepared[m] = _state(runner)
-    chosen, medians = pick_fastest({m: (lambda m=m: _restore(runner, prepared[m])) for m in candidates},
+        prepared[m] = mode_state(runner)
+    chosen, medians = pick_fastest({m: (lambda m=m: restore_state(runner, prepared[m])) for m in candidates},
                                    lambda: runner.predict_action_chunk(obs))
     why = (f"lowest median of {ROUNDS} interleaved rounds x {CALLS} calls (after {WARM} warm-up calls each) at "
            "batch 1 among the exact modes")

@@ -20,7 +20,7 @@ from bcbench.errors import BCBenchError
 from bcbench.evaluation.backends import apply_mode
 from bcbench.evaluation.floor import against_floor, call_work, floor_ms, machine_limits
 from bcbench.evaluation.timing import TimingConfig, measure_runner, verdicts
-from bcbench.modes import AUTO, MODES
+from bcbench.modes import AUTO, EXACT_MODES, MODES
 from bcbench.policies import REGISTRY, is_learned, make_policy
 from bcbench.policies.learned import PolicyRunner
 from bcbench.policies.outside import outside_policy
@@ -64,6 +64,23 @@ def _rows_for(name: str, preset: str, modes: list[str], samplers: list[str], ste
     return rows
 
 
+def _checkpoint_rows(path: str, runner: PolicyRunner, modes: list[str], device: torch.device, timing: TimingConfig,
+                     rate_hz: float) -> list[dict[str, Any]]:
+    """A trained run's rows: the runner in each mode, in its own sampler setting, with this machine's floor."""
+    info, rows = runner.info, []
+    for mode in modes:
+        apply_mode(runner, mode)
+        runner.model.reset_noise(0)
+        limits = machine_limits() if device.type == "cpu" else None
+        stats = measure_runner(runner, timing, rate_hz)
+        against = {"machine_limits": limits, **call_work(runner)} if limits else {}
+        rows.append({"policy": runner.name, "preset": info.preset or "-", "mode": mode, "checkpoint": path,
+                     "variant": f"{info.sampler}{info.steps}" if info.sampler else "default",
+                     "params": runner.model.num_parameters(), "deployment": runner.info.deployment, **stats,
+                     **against})
+    return rows
+
+
 def _opt(v: float | None) -> str:
     return "-" if v is None else f"{v:.2f}"
 
@@ -96,9 +113,12 @@ def run_latency_benchmark(policies: list[str] | None = None, presets: list[str] 
                           modes: list[str] | None = None, steps: list[int] | None = None,
                           samplers: list[str] | None = None, device: str = "auto", threads: int | None = None,
                           rate_hz: float = 10.0, out: str | None = None, quick_timing: bool = False,
-                          policy_args: dict[str, Any] | None = None) -> dict[str, Any]:
+                          policy_args: dict[str, Any] | None = None,
+                          runners: dict[str, PolicyRunner] | None = None) -> dict[str, Any]:
     """Time every named policy at batch 1: a registered one at each preset, mode and sampler setting; an outside
-    one (module:factory or a plug-in, built with `policy_args`) as it is."""
+    one (module:factory or a plug-in, built with `policy_args`) as it is; `runners` (`latency --checkpoint`: a
+    trained run or published model, already loaded and configured) in each of `modes` (default: the exact modes and
+    auto), in place of the untrained registry policies unless `policies` names some."""
     if threads:
         torch.set_num_threads(threads)
     dev = pick_device(device)
@@ -107,8 +127,10 @@ def run_latency_benchmark(policies: list[str] | None = None, presets: list[str] 
     if any(not 1 <= k <= 100 for k in steps or []):
         raise BCBenchError("--steps must be in 1..100")
     timing = TimingConfig(min_calls=5, min_seconds=0.5, max_seconds=20) if quick_timing else TimingConfig()
-    jobs = [(n, p) for n in names for p in (presets or ["paper", "quick"])]
+    jobs = [(n, p) for n in names for p in (presets or ["paper", "quick"])] if policies or not runners else []
     rows: list[dict[str, Any]] = []
+    for path, runner in (runners or {}).items():
+        rows += _checkpoint_rows(path, runner, modes or [*EXACT_MODES, AUTO], dev, timing, rate_hz)
     for name, policy in outside.items():
         rows.append({"policy": policy.name, "preset": "-", "mode": "as given", "variant": "default",
                      "params": int(policy.describe().get("parameters", 0)), "source": name,

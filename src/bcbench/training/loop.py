@@ -125,6 +125,7 @@ def new_run(policy: str, preset: str, overrides: dict[str, Any], out: str | Path
         raise BCBenchError(f"policy '{policy}' has nothing to train")
     config = with_overrides(config_cls.preset(preset), overrides)
     preset_dict = config_to_dict(config_cls.preset(preset))
+    resolve_dataset(opts.data)  # a bad --data fails here, before any run folder exists
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     run_dir = Path(out) if out else Path("runs") / f"train-{policy}-{preset}-{stamp}"
     if (run_dir / "run.json").exists():
@@ -139,6 +140,18 @@ def new_run(policy: str, preset: str, overrides: dict[str, Any], out: str | Path
         "created": datetime.now(UTC).isoformat(timespec="seconds"), **provenance(),
     })
     return run_dir
+
+
+def discard_new_run(run_dir: str | Path) -> None:
+    """Undo `new_run` for a training that failed before its first checkpoint (unreadable data, say): its files go,
+    and its folder too where nothing else is in it, so a failed start leaves nothing that looks like a run."""
+    run_dir = Path(run_dir)
+    if (run_dir / "checkpoints").exists():
+        return
+    for name in ("run.json", "normalizer.json", "metrics.jsonl", "train_summary.json"):
+        (run_dir / name).unlink(missing_ok=True)
+    if run_dir.is_dir() and not any(run_dir.iterdir()):
+        run_dir.rmdir()
 
 
 def prepare(run_dir: str | Path, opts: TrainOptions) -> Run:
