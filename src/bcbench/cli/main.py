@@ -178,9 +178,9 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     from bcbench.evaluation.realtime import finished_settings, realtime_record, sweep
     from bcbench.policies.learned import PolicyRunner
 
+    args.no_ema = False
     if args.wall_clock:
         return wallclock.cmd_realtime_wallclock(args)
-    args.no_ema = False
     strategies = sorted(dict.fromkeys(args.strategy), key=lambda k: k != "naive")  # naive first: the others' bar
     configs = [strategy_config(args, k, several=True) for k in strategies]  # options checked before any episode
     policy, default_out = load_eval_policy(args)

@@ -166,7 +166,9 @@ def _print_run(record: dict[str, Any], out: Path) -> None:
         f"; while a call was out: median {s['busy_period_ms_median']:.1f} ms, max {s['busy_period_ms_max']:.1f} ms")
     print(f"  simulator step median {s['step_ms_median']:.1f} ms, max {s['step_ms_max']:.1f} ms{busy}")
     if s["overruns"]:
-        print(f"  overruns: {s['overruns']} of {s['steps']} steps took longer than the control period; the clock "
+        by_step = s["overruns_by_step_time"]
+        print(f"  overruns: {s['overruns']} of {s['steps']} steps ended after their period ({by_step} "
+              f"by the simulator's own step time, the rest by a late start: the CPU busy elsewhere); the clock "
               f"slipped {s['slip_ms']:.0f} ms in all (recorded per episode)")
     if s["stale_chunks"]:
         print(f"  {s['stale_chunks']} answers arrived with all their actions in the past")

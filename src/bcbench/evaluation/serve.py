@@ -97,9 +97,9 @@ class PolicyServer:
 
 
 def serve(policy: ChunkPolicy, bind: str, server_info: dict[str, Any] | None = None,
-          max_requests: int | None = None) -> PolicyServer:
+          max_requests: int | None = None, stop_event: threading.Event | None = None) -> PolicyServer:
     """Serve `policy` on `bind` (checked by the caller: loopback unless allowed) until SIGTERM / SIGINT (or
-    `max_requests` answers); prints LISTENING + the endpoint once bound (a `*` port resolved)."""
+    `max_requests` answers, or `stop_event`); prints LISTENING + the endpoint once bound (a `*` port resolved)."""
     ctx = zmq.Context.instance()
     sock = ctx.socket(zmq.REP)
     sock.setsockopt(zmq.LINGER, 0)
@@ -115,7 +115,8 @@ def serve(policy: ChunkPolicy, bind: str, server_info: dict[str, Any] | None = N
     previous = signal.signal(signal.SIGTERM, lambda *a: stop.append(1)) if main_thread else None
     print(f"{LISTENING}{endpoint}", flush=True)
     try:
-        while not stop and (max_requests is None or server.served + server.refused < max_requests):
+        while not stop and not (stop_event and stop_event.is_set()) and (
+                max_requests is None or server.served + server.refused < max_requests):
             if not sock.poll(200):  # wake up now and then to notice SIGTERM
                 continue
             frames = sock.recv_multipart()

@@ -152,6 +152,7 @@ def run_episode(client: PolicyClient, meta: dict[str, Any], seed: int, cfg: Wall
         if (wait := tick - time.perf_counter()) > 0:
             time.sleep(wait)
         start = time.perf_counter()
+        late = start - tick  # > 0: this process woke after the tick (the CPU was busy elsewhere)
         if step:
             ep.period_ms.append((start - previous_start) * 1e3)
             if pending is not None:  # a call was outstanding over this period: the world went on regardless
@@ -183,8 +184,9 @@ def run_episode(client: PolicyClient, meta: dict[str, Any], seed: int, cfg: Wall
         end = time.perf_counter()
         ep.step_ms.append((end - start) * 1e3)
         tick += dt
-        if end > tick:  # the step itself overran its period: the clock slips by that much, recorded
-            ep.overruns.append({"step": step, "step_ms": (end - start) * 1e3, "slip_ms": (end - tick) * 1e3})
+        if end > tick:  # the step (its late start included) overran its period: the clock slips, recorded
+            ep.overruns.append({"step": step, "step_ms": (end - start) * 1e3, "late_start_ms": late * 1e3,
+                                "slip_ms": (end - tick) * 1e3})
             tick = end
         if terminated:
             break
@@ -263,6 +265,7 @@ def run_wallclock(client: PolicyClient, cfg: WallClockConfig, progress: bool = T
         "plan_delay": plan_delay, "plan_delay_from": "stated" if cfg.plan_delay else "warm-up median",
         "warmup_ms": warm, "compute_ms_median": float(np.median([c["compute_ms"] for c in calls])) if calls else None,
         "overruns": sum(len(e.overruns) for e in episodes), "steps": sum(e.length for e in episodes),
+        "overruns_by_step_time": sum(o["step_ms"] > cfg.control_dt_s * 1e3 for e in episodes for o in e.overruns),
         "slip_ms": float(sum(o["slip_ms"] for e in episodes for o in e.overruns)),
         "step_ms_median": float(np.median(step_ms)), "step_ms_max": float(np.max(step_ms)),
         "busy_period_ms_median": float(np.median(busy)) if busy else None,
