@@ -241,7 +241,8 @@ def _add_wallclock_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--allow-remote", action="store_true", help="allow a --server that is not on this machine")
     _field(g, "--plan-delay", WallClockConfig, type=_positive_int, metavar="D")
     g.add_argument("--server-threads", type=_positive_int, metavar="N",
-                   help="torch threads of the server started here (default torch's own choice)")
+                   help="torch threads of the server started here (default: the cores but one, which the "
+                        "simulator keeps)")
     g.add_argument("--compare-with", metavar="EVAL_JSON", help="pair with this simulated record (async at the "
                    "rule's d, e.g. a sweep's realtime-async-dD.json) instead of running the twin here")
     g.add_argument("--no-compare", action="store_true", help="the wall-clock episodes only, no simulated twin")
