@@ -159,7 +159,7 @@ def _print_run(record: dict[str, Any], out: Path) -> None:
     s, dist = record["summary"], record["summary"]["delays"]
     seed = record["wallclock_config"]["seed_start"]
     print(f"{record['server']['name']}: {s['n']} wall-clock episodes from seed {seed}, mean score "
-          f"{s['mean_score']:.3f}; re-plan threshold {s['plan_delay']} steps ({s['plan_delay_from']})")
+          f"{s['mean_score']:.3f}; re-plan thresholds {s['plan_delay']} ({s['plan_delay_from']})")
     if dist["calls"]:
         print(f"  {dist['calls']} calls: delay median {dist['median_steps']:g} steps ({dist['median_s'] * 1e3:.0f} ms),"
               f" p90 {dist['p90_steps']:g}, max {dist['max_steps']} ({dist['max_s'] * 1e3:.0f} ms); histogram "
@@ -213,7 +213,7 @@ def _simulated_twin(args: argparse.Namespace, record: dict[str, Any], out: Path)
     vars(args).update(_mode_flags(record["policy"].get("mode")) if args.checkpoint else {})
     policy, _ = load_eval_policy(args)  # in the server's resolved mode, so both ran the same computation
     cfg = EvalConfig(episodes=args.episodes, seed_start=args.seed_start, max_steps=args.max_steps, execution="async",
-                     latency_ms=d * CONTROL_DT_S * 1e3, execution_horizon=args.execution_horizon)
+                     latency_ms=round(d * CONTROL_DT_S * 1e3, 6), execution_horizon=args.execution_horizon)
     print(f"simulated twin: async at d = {d} (the calls' median delay), same seeds")
     result = evaluate(policy, cfg, None, progress=not args.quiet, extra={"wallclock_twin": {"d": d}})
     write_json(out / f"simulated-async-d{d}.json", result)

@@ -135,9 +135,11 @@ class WallClockConfig:
     max_steps: int = 300
     """control steps per episode at most"""
     execution_horizon: int | None = None
-    """actions of each chunk executed before the next is asked for (s); default: the action horizon minus plan_delay"""
+    """actions of each chunk executed before the next is asked for (s); default: the action horizon minus the
+    threshold"""
     plan_delay: int | None = None
-    """control steps a call is expected to take: the re-plan threshold (default: from the warm-up calls' median)"""
+    """control steps a call is expected to take: the re-plan threshold (default: the median d of the run's last 20
+    calls, the warm-up calls' before the first)"""
     warmup_calls: int = 10
     """predict calls before the first episode (they warm the server up and measure the expected delay)"""
     response_timeout_s: float = 60.0

@@ -6,11 +6,12 @@ the world never waits: control step k starts at its tick (t0 + k * 0.1 s), execu
 the simulator, and spends the rest of the period waiting on the socket, so an answer is received (and timed) as it
 comes. Execution is the simulated async controller's (bcbench.evaluation.controller), with the delay measured
 instead of given:
-- a request is sent, from the observation of that step, when the executing chunk has `plan_delay` actions left (the
-  controller's threshold; `plan_delay` is the delay expected: stated, or from warm-up calls before any episode);
+- a request is sent, from the observation of that step, when the executing chunk has D actions left (the
+  controller's threshold, D the delay expected: `plan_delay` where stated, else the median d of the run's calls so
+  far, the warm-up calls' before the first: a deployment learns its latency from its own recent calls);
 - the answer takes effect at the first control step that starts after it arrived: if that is d steps after the
   request, its first d actions (from chunk_start, the request's step) are in the past and skipped, and the chunk
-  runs `actions_executed(action_horizon, plan_delay, s)` actions from there; if the queue runs dry first, the agent
+  runs `actions_executed(action_horizon, D, s)` actions from there; if the queue runs dry first, the agent
   holds its last target (as the controller does);
 - d (steps) and the round trip (seconds, this process's monotonic clock), the server's compute time and its own
   time for the request are recorded for every call.
@@ -130,11 +131,26 @@ def _window(history: deque) -> dict[str, np.ndarray]:
             "agent_pos": np.stack([o["agent_pos"] for o in history]).astype(np.float32)}
 
 
-def run_episode(client: PolicyClient, meta: dict[str, Any], seed: int, cfg: WallClockConfig, plan_delay: int
+class Threshold:
+    """The re-plan threshold D: fixed where stated, else the median d (rounded up) of the run's last `window` calls,
+    `first` (the warm-up calls' d) until one is measured."""
+
+    def __init__(self, fixed: int | None, first: int, window: int = 20) -> None:
+        self.fixed, self.first, self.recent = fixed, first, deque(maxlen=window)
+
+    def now(self) -> int:
+        if self.fixed:
+            return self.fixed
+        return max(1, int(np.ceil(np.median(self.recent)))) if self.recent else self.first
+
+    def measured(self, d: int) -> None:
+        self.recent.append(d)
+
+
+def run_episode(client: PolicyClient, meta: dict[str, Any], seed: int, cfg: WallClockConfig, threshold: Threshold
                 ) -> _Episode:
     """One episode in real time (the module docstring says how it runs)."""
     cs, tp, dt = meta["chunk_start"], meta["pred_horizon"], cfg.control_dt_s
-    s = actions_executed(meta["action_horizon"], plan_delay, cfg.execution_horizon)
     env, ep = make_env(), _Episode(seed)
     obs, _ = env.reset(options={"reset_to_state": dp_initial_state(seed)})
     ep.final_coverage = ep.max_coverage = env.coverage()
@@ -165,14 +181,16 @@ def run_episode(client: PolicyClient, meta: dict[str, Any], seed: int, cfg: Wall
         if answered is not None:  # takes effect now: the first step that starts after it arrived
             d = step - pending["step"]
             chunk = chunk_of(answered[0])
-            lo, hi = cs + d, min(cs + d + s, tp)
+            lo, hi = cs + d, min(cs + d + actions_executed(meta["action_horizon"], pending["plan"],
+                                                           cfg.execution_horizon), tp)
             queue = deque(chunk[lo:hi])
             ep.stale_chunks += lo >= tp
             ep.calls.append(_call_record(pending, answered, d))
+            threshold.measured(d)
             pending = answered = None
-        if pending is None and len(queue) <= plan_delay:
+        if pending is None and len(queue) <= (plan := threshold.now()):
             rid, t = client.send("predict", obs=_window(history), seed=seed, first=not ep.calls)
-            pending = {"id": rid, "t": t, "step": step}
+            pending = {"id": rid, "t": t, "step": step, "plan": plan}
         if queue:
             last = queue.popleft()
         obs, reward, terminated, _, info = env.step(np.asarray(last, dtype=np.float64))
@@ -220,9 +238,14 @@ def _drain(client: PolicyClient, pending: dict[str, Any], timeout_s: float) -> N
 def _call_record(pending: dict[str, Any], answered: tuple[dict[str, Any], float], d: int) -> dict[str, Any]:
     answer, arrived = answered
     server_ms = (answer["sent_at"] - answer["received_at"]) * 1e3
-    return {"id": pending["id"], "request_step": pending["step"], "delay_steps": d,
+    return {"id": pending["id"], "request_step": pending["step"], "plan_delay": pending["plan"], "delay_steps": d,
             "delay_s": arrived - pending["t"], "compute_ms": float(answer["compute_ms"]), "server_ms": server_ms,
             "model_steps": steps_for(arrived - pending["t"])}
+
+
+def _histogram(values: list[int]) -> dict[str, int]:
+    v, n = np.unique(np.asarray(values, dtype=int), return_counts=True)
+    return {str(int(a)): int(b) for a, b in zip(v, n, strict=True)}
 
 
 def delay_distribution(steps: list[int], seconds: list[float]) -> dict[str, Any]:
@@ -248,12 +271,12 @@ def run_wallclock(client: PolicyClient, cfg: WallClockConfig, progress: bool = T
     if async_actions_needed(meta["chunk_start"], 1, cfg.execution_horizon) > meta["pred_horizon"]:
         raise BCBenchError(f"execution horizon {cfg.execution_horizon} does not fit a chunk of {meta['pred_horizon']}")
     warm = warm_up(client, meta, cfg)
-    plan_delay = cfg.plan_delay or max(1, steps_for(median(warm) / 1e3))
+    threshold = Threshold(cfg.plan_delay, max(1, steps_for(median(warm) / 1e3)))
     episodes = []
     bar = tqdm(range(cfg.episodes), desc=f"wall clock {meta['name']}", unit="episode", disable=not progress)
     with CpuContention() as load:  # the server's own use counts as "other" here: it is another process
         for i in bar:
-            episodes.append(run_episode(client, meta, cfg.seed_start + i, cfg, plan_delay))
+            episodes.append(run_episode(client, meta, cfg.seed_start + i, cfg, threshold))
             bar.set_postfix(score=f"{np.mean([e.score for e in episodes]):.3f}")
     bar.close()
     calls = [c for e in episodes for c in e.calls]
@@ -262,7 +285,8 @@ def run_wallclock(client: PolicyClient, cfg: WallClockConfig, progress: bool = T
     busy = [m for e in episodes for m in e.busy_period_ms]
     summary = {
         "n": len(episodes), "mean_score": float(np.mean([e.score for e in episodes])), "delays": dist,
-        "plan_delay": plan_delay, "plan_delay_from": "stated" if cfg.plan_delay else "warm-up median",
+        "plan_delay": _histogram([c["plan_delay"] for c in calls]),
+        "plan_delay_from": "stated" if cfg.plan_delay else "median d of the last 20 calls (the warm-up's first)",
         "warmup_ms": warm, "compute_ms_median": float(np.median([c["compute_ms"] for c in calls])) if calls else None,
         "overruns": sum(len(e.overruns) for e in episodes), "steps": sum(e.length for e in episodes),
         "overruns_by_step_time": sum(o["step_ms"] > cfg.control_dt_s * 1e3 for e in episodes for o in e.overruns),
