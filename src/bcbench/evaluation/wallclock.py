@@ -156,7 +156,7 @@ def run_episode(client: PolicyClient, meta: dict[str, Any], seed: int, cfg: Wall
     ep.final_coverage = ep.max_coverage = env.coverage()
     history = deque([obs] * meta["obs_horizon"], maxlen=meta["obs_horizon"])
     queue: deque[np.ndarray] = deque()
-    last = np.asarray(obs["agent_pos"], dtype=np.float64)  # before any command: stay put
+    last = np.asarray(obs["agent_pos"], dtype=np.float32)  # before any command: stay put (float32, as the controller)
     pending: dict[str, Any] | None = None  # the outstanding call
     answered: tuple[dict[str, Any], float] | None = None  # its answer, once in
     tick = previous_start = time.perf_counter()
