@@ -210,6 +210,11 @@ def _simulated_twin(args: argparse.Namespace, record: dict[str, Any], out: Path)
               "above is the only measure of it)")
         return None
 
+    threads = (meta.get("server") or {}).get("threads")
+    if threads:  # the server's thread count: its arithmetic, and no threads spinning against the simulators
+        import torch
+
+        torch.set_num_threads(int(threads))
     vars(args).update(_mode_flags(record["policy"].get("mode")) if args.checkpoint else {})
     policy, _ = load_eval_policy(args)  # in the server's resolved mode, so both ran the same computation
     cfg = EvalConfig(episodes=args.episodes, seed_start=args.seed_start, max_steps=args.max_steps, execution="async",
