@@ -3,6 +3,7 @@ break it."""
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import numpy as np
@@ -63,3 +64,25 @@ def raises() -> Toward:
 
 def factory_raises() -> Toward:
     raise ValueError("no such checkpoint")
+
+
+class Sleepy(Toward):
+    """A policy whose every call takes a known time (it sleeps `ms`), for the wall-clock tests: at 10 Hz, 250 ms is
+    d = 3 control steps."""
+
+    name = "sleepy"
+
+    def __init__(self, ms: float = 250.0) -> None:
+        super().__init__()
+        self.ms = float(ms)
+
+    def predict_action_chunk(self, obs: dict[str, Any]) -> np.ndarray:
+        time.sleep(self.ms / 1e3)
+        return super().predict_action_chunk(obs)
+
+    def describe(self) -> dict[str, Any]:
+        return {**super().describe(), "name": self.name, "sleep_ms": self.ms}
+
+
+def sleepy(ms: float = 250.0) -> Sleepy:
+    return Sleepy(ms)

@@ -14,7 +14,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from bcbench.cli import data
+from bcbench.cli import data, wallclock
 from bcbench.cli.choose import cmd_choose  # noqa: F401  (a handler, found by name in main)
 from bcbench.cli.parser import build_parser
 from bcbench.cli.policies import load_eval_policy, load_weak, sampler_of, strategy_config
@@ -199,6 +199,8 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     from bcbench.policies.learned import PolicyRunner
 
     args.no_ema = False
+    if args.wall_clock:
+        return wallclock.cmd_realtime_wallclock(args)
     strategies = sorted(dict.fromkeys(args.strategy), key=lambda k: k != "naive")  # naive first: the others' bar
     configs = [strategy_config(args, k, several=True) for k in strategies]  # options checked before any episode
     policy, default_out = load_eval_policy(args)
@@ -359,7 +361,8 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(argv)
-    handler = getattr(data, args.func, None) or globals()[args.func]  # the data commands live in cli/data.py
+    # the data commands live in cli/data.py, serve and the wall-clock check in cli/wallclock.py
+    handler = getattr(data, args.func, None) or getattr(wallclock, args.func, None) or globals()[args.func]
     git_commit()  # the code this process runs: read now, before anyone edits the tree (results carry it)
     try:
         return int(handler(args) or 0)

@@ -11,7 +11,7 @@ import argparse
 from typing import Any
 
 from bcbench import __version__
-from bcbench.evaluation.config import EXECUTIONS, STRATEGIES, EvalConfig, StrategyConfig
+from bcbench.evaluation.config import EXECUTIONS, STRATEGIES, EvalConfig, StrategyConfig, WallClockConfig
 from bcbench.modes import BACKENDS, MODES, PRECISIONS
 from bcbench.training.options import TrainOptions
 from bcbench.utils.args import OneLineParser
@@ -163,6 +163,7 @@ def _add_study_commands(sub: Any) -> None:
     _add_latency_command(sub)
     _add_realtime_command(sub)
     _add_choose_command(sub)
+    _add_serve_command(sub)
 
     p = sub.add_parser("params", help="parameter counts of every learned policy (paper and quick sizes)")
     p.set_defaults(func="cmd_params")
@@ -257,7 +258,48 @@ def _add_realtime_command(sub: Any) -> None:
                    help="keep the settings an interrupted sweep already wrote to --out when they match this one "
                         "exactly (policy, checkpoint, episodes, seeds, strategy, horizon); measured ones are re-run")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    _add_wallclock_args(p)
     p.set_defaults(func="cmd_realtime")
+
+
+def _add_wallclock_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("wall clock (docs/realtime.md, 'Wall-clock check')")
+    g.add_argument("--wall-clock", action="store_true",
+                   help="run the simulator in real time at 10 Hz against a policy server in another process (started "
+                        "here on a free loopback port, or --server), async, every call's real delay recorded; then "
+                        "the simulated-delay twin at the calls' median d, paired on the episode seeds")
+    g.add_argument("--server", metavar="ADDR", help="a running `bcbench serve` (tcp://127.0.0.1:PORT) instead of one "
+                   "started here; --checkpoint/--policy then name its policy for the simulated twin")
+    g.add_argument("--allow-remote", action="store_true", help="allow a --server that is not on this machine")
+    _field(g, "--plan-delay", WallClockConfig, type=_positive_int, metavar="D")
+    g.add_argument("--server-threads", type=_positive_int, metavar="N",
+                   help="torch threads of the server started here (default: the cores but one, which the "
+                        "simulator keeps)")
+    g.add_argument("--compare-with", metavar="EVAL_JSON", help="pair with this simulated record (async at the "
+                   "rule's d, e.g. a sweep's realtime-async-dD.json) instead of running the twin here")
+    g.add_argument("--no-compare", action="store_true", help="the wall-clock episodes only, no simulated twin")
+
+
+def _add_serve_command(sub: Any) -> None:
+    p = sub.add_parser("serve", help="a policy server (ZeroMQ, msgpack): predict/describe/ping requests answered by "
+                       "one policy, as a robot's computer would run it (docs/realtime.md, 'Wall-clock check')")
+    p.add_argument("--policy", metavar="NAME", help="a baseline, a plug-in or module:factory (or --checkpoint)")
+    _add_policy_arg(p)
+    p.add_argument("--preset", "--config", dest="preset", default="quick", help=argparse.SUPPRESS)
+    p.add_argument("--checkpoint", metavar="RUN_DIR", help="a trained run")
+    p.add_argument("--no-ema", action="store_true", help="use the raw weights even if the run kept an EMA")
+    p.add_argument("--sampler", choices=["ddpm", "ddim", "euler", "midpoint"], help="generative policies: sampler")
+    p.add_argument("--steps", type=_positive_int, help="generative policies: steps")
+    p.add_argument("--spacing", choices=["trailing", "leading"], help="diffusion: timestep spacing")
+    p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="where the policy runs (default cpu)")
+    p.add_argument("--seed", type=_nonneg_int, default=0, help="the policy's own random seed (default 0)")
+    _add_backend_args(p)
+    p.add_argument("--bind", default="tcp://127.0.0.1:5555", metavar="ADDR",
+                   help="where to listen (default tcp://127.0.0.1:5555; port * = any free one, printed); a "
+                        "non-loopback address is refused unless --allow-remote")
+    p.add_argument("--allow-remote", action="store_true", help="allow --bind on an address other machines reach")
+    p.add_argument("--threads", type=_positive_int, help="torch threads (default torch's own choice)")
+    p.set_defaults(func="cmd_serve")
 
 
 def _add_deploy_commands(sub: Any) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from bcbench.errors import BCBenchError
-from bcbench.protocol import TEST_SEED_START
+from bcbench.protocol import CONTROL_DT_S, TEST_SEED_START
 
 EXECUTIONS = ("sync", "blocking", "async")  # how the world moves while the policy computes (see the controller)
 STRATEGIES = ("naive", "rtc", "bid", "ensemble")  # what is done with chunks across re-plans (see the controller)
@@ -122,3 +122,38 @@ class EvalConfig:
         check_latency_options(self.latency, self.latency_ms)
         if isinstance(self.strategy, dict):  # from a result file or a study spec
             self.strategy = StrategyConfig(**self.strategy)
+
+
+@dataclass
+class WallClockConfig:
+    """What a wall-clock run is asked to do."""
+
+    episodes: int = 100
+    """episodes, one at a time (real time cannot batch them)"""
+    seed_start: int = TEST_SEED_START
+    """episode i uses seed seed_start + i, as `bcbench eval`"""
+    max_steps: int = 300
+    """control steps per episode at most"""
+    execution_horizon: int | None = None
+    """actions of each chunk executed before the next is asked for (s); default: the action horizon minus the
+    threshold"""
+    plan_delay: int | None = None
+    """control steps a call is expected to take: the re-plan threshold (default: the median d of the run's last 20
+    calls, the warm-up calls' before the first)"""
+    warmup_calls: int = 10
+    """predict calls before the first episode (they warm the server up and measure the expected delay)"""
+    response_timeout_s: float = 60.0
+    """a call not answered in this long stops the run (the server is gone or stuck)"""
+    control_dt_s: float = CONTROL_DT_S
+    """the control period (Push-T's 10 Hz)"""
+
+    def __post_init__(self) -> None:
+        if self.episodes < 1 or not 1 <= self.max_steps <= 10_000 or self.seed_start < 0:
+            raise BCBenchError("--episodes must be >= 1, --max-steps in 1..10000 and --seed-start >= 0")
+        if self.execution_horizon is not None and self.execution_horizon < 1:
+            raise BCBenchError(f"--execution-horizon must be >= 1, got {self.execution_horizon}")
+        if self.plan_delay is not None and self.plan_delay < 1:
+            raise BCBenchError(f"--plan-delay must be >= 1 (an answer takes effect at the next step at the earliest), "
+                               f"got {self.plan_delay}")
+        if self.warmup_calls < 1 or self.response_timeout_s <= 0 or self.control_dt_s <= 0:
+            raise BCBenchError("warm-up calls must be >= 1, the response timeout and the control period > 0")
