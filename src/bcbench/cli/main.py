@@ -16,7 +16,7 @@ from typing import Any
 
 from bcbench.cli import data
 from bcbench.cli.parser import build_parser
-from bcbench.cli.policies import load_eval_policy, load_weak, strategy_config
+from bcbench.cli.policies import load_eval_policy, load_head, load_weak, strategy_config
 from bcbench.errors import BCBenchError
 from bcbench.protocol import strategy_label
 from bcbench.stats import fmt_estimate, fmt_share
@@ -39,7 +39,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
                      execution_horizon=args.execution_horizon, strategy=strategy_config(args, args.strategy))
     policy, default_out = load_eval_policy(args)
     out = Path(args.out) if args.out else default_out
-    result = evaluate(policy, cfg, out, progress=not args.quiet, weak=load_weak(args, policy))
+    result = evaluate(policy, cfg, out, progress=not args.quiet, weak=load_weak(args, policy), head=load_head(args))
     s = result["summary"]
     print(f"{policy.name}: {s['n']} episodes from seed {cfg.seed_start}")
     n = s["n"]  # shares with Wilson intervals (a bootstrap gives [0, 0] at 0%)
@@ -181,12 +181,16 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     args.no_ema = False
     strategies = sorted(dict.fromkeys(args.strategy), key=lambda k: k != "naive")  # naive first: the others' bar
     configs = [strategy_config(args, k, several=True) for k in strategies]  # options checked before any episode
+    if args.correction and "correction" not in strategies:
+        raise BCBenchError("--correction goes with --strategy correction")
     policy, default_out = load_eval_policy(args)
     weak = load_weak(args, policy) if "bid" in strategies else None
+    head = load_head(args) if "correction" in strategies else None
     from bcbench.evaluation.strategies import Strategy
 
     # each strategy can run on this policy: checked before hours of episodes
-    built = {k: Strategy(c, policy, weak if k == "bid" else None) for k, c in zip(strategies, configs, strict=True)}
+    built = {k: Strategy(c, policy, weak if k == "bid" else None, head if k == "correction" else None)
+             for k, c in zip(strategies, configs, strict=True)}
     measured: dict[str, LatencySource] = {}
     if args.measured and len(strategies) > 1:  # timed together, before any episode (latency_sources says why)
         from statistics import median
@@ -214,6 +218,7 @@ def cmd_realtime(args: argparse.Namespace) -> int:
                         progress=not args.quiet, max_steps=args.max_steps, seed_start=args.seed_start,
                         execution_horizon=args.execution_horizon, strategy=strategy,
                         weak=weak if kind == "bid" else None, measured_source=measured.get(kind),
+                        head=head if kind == "correction" else None,
                         on_setting=partial(_write_newest, where), done=done)  # each setting's file as it finishes
         print(f"{policy.name}, strategy {kind}: score under real-time execution ({args.episodes} episodes each)")
         for name, r in results.items():
