@@ -10,7 +10,7 @@ import torch.nn.functional as F
 
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.config import StrategyConfig
-from bcbench.evaluation.controller import ChunkedController, episode_generator
+from bcbench.evaluation.controller import episode_generator
 from bcbench.evaluation.latency_sources import LatencySource
 from bcbench.evaluation.strategies import Strategy, prefix_mask, prefix_weights
 from bcbench.interface import example_observation
