@@ -156,7 +156,7 @@ def test_heads_that_cannot_run_say_why_in_one_line(base_run, synthetic_zarr, tmp
     from bcbench.cli.main import main
 
     head = _untrained_head(base_run)
-    with pytest.raises(BCBenchError, match="was trained on the base .* not on this policy"):
+    with pytest.raises(BCBenchError, match=r"was trained on the base .* not on this policy"):
         Strategy(StrategyConfig("correction", correction="x"), _runner("diffusion"), head=head)
     with pytest.raises(BCBenchError, match="needs its trained head"):
         Strategy(StrategyConfig("correction", correction="x"), _runner("diffusion"))
