@@ -21,7 +21,7 @@ from bcbench.errors import BCBenchError
 from bcbench.protocol import strategy_label
 from bcbench.stats import fmt_estimate, fmt_share
 from bcbench.utils.args import EXIT_USAGE
-from bcbench.utils.io import write_json
+from bcbench.utils.io import read_json, write_json
 from bcbench.utils.system import git_commit
 
 EXIT_INTERRUPTED = 130
@@ -106,7 +106,11 @@ def cmd_train(args: argparse.Namespace) -> int:
     print(f"{s['policy']} ({s['preset']}): stopped ({s['stopped']}) at step {s['step']}/{s['total_steps']} "
           f"= {s['epochs']:.2f} epochs; {sps} samples/s on {s['device']} ({s['threads']} threads, {s['precision']})")
     print(f"  validation loss {s['val_loss']:.5f} (best {s['best_val_loss']:.5f}); parameters {s['parameters']:,}")
-    print(f"  evaluate: bcbench eval --checkpoint {run_dir} --episodes 40")
+    if s["policy"] == "correction":  # a head runs beside its base (bcbench.policies.correction)
+        base = read_json(Path(run_dir) / "run.json")["config"]["base"]
+        print(f"  sweep: bcbench realtime --checkpoint {base} --strategy naive correction --correction {run_dir}")
+    else:
+        print(f"  evaluate: bcbench eval --checkpoint {run_dir} --episodes 40")
     return 0
 
 
