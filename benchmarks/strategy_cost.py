@@ -37,7 +37,7 @@ def main() -> None:
     ap.add_argument("--sampler", default="ddim")
     ap.add_argument("--steps", type=int, default=10)
     ap.add_argument("--strategies", nargs="+", default=["naive", "rtc"],
-                    help="naive, rtc, rtc-no-jacobian (rtc with J = I), bid, ensemble")
+                    help="naive, rtc, rtc-no-jacobian (rtc with J = I), bid, ensemble, prefix (a delay-trained run)")
     ap.add_argument("--rounds", type=int, default=20)
     ap.add_argument("--calls", type=int, default=5, help="timed requests per strategy and round")
     ap.add_argument("--warmup", type=int, default=10, help="untimed requests per strategy first")

@@ -22,11 +22,24 @@ from bcbench.utils.io import read_json
 from tests.tiny import tiny_overrides
 
 
-def _runner(name: str) -> PolicyRunner:
+def _runner(name: str, **overrides) -> PolicyRunner:
     torch.manual_seed(0)
     world = np.array([[0.0, 0.0], [512.0, 512.0]], np.float32)
-    model = make_policy(name, "quick", **tiny_overrides(name))
+    model = make_policy(name, "quick", **tiny_overrides(name), **overrides)
     return PolicyRunner(model, MinMaxNormalizer.fit({"agent_pos": world, "action": world}))
+
+
+class ShiftHead:
+    """A correction head that moves every planned action by (age, index): deterministic, and it acts."""
+
+    def correct(self, obs, actions, ages, indices):
+        return actions + np.stack([ages, indices], axis=-1).astype(np.float32)
+
+    def base_mismatch(self, policy):
+        return None
+
+    def describe(self):
+        return {"name": "shift"}
 
 
 def _obs(t: int) -> dict[str, np.ndarray]:
@@ -35,11 +48,11 @@ def _obs(t: int) -> dict[str, np.ndarray]:
 
 
 def _drive(policy, strategy: str = "naive", execution: str = "sync", d: int = 0, steps: int = 30, seed: int = 0,
-           s: int | None = None, **params) -> list[np.ndarray]:
+           s: int | None = None, head=None, **params) -> list[np.ndarray]:
     """The actions of one episode of `steps` steps (observations a fixed function of the step)."""
     cfg = StrategyConfig(strategy, **params)
     ctl = ChunkedController(policy, execution=execution, delay=lambda env_id: d, execution_horizon=s,
-                            strategy=Strategy(cfg, policy))
+                            strategy=Strategy(cfg, policy, head=head))
     ctl.reset(0, _obs(0), seed=seed)
     out = []
     for t in range(steps):
@@ -64,11 +77,13 @@ def test_prefix_weights_are_the_papers_soft_mask():
 @pytest.mark.parametrize("strategy", STRATEGIES)
 @pytest.mark.parametrize("execution", ["async", "blocking"])
 def test_at_zero_delay_every_strategy_equals_sync_per_seed(strategy, execution):
-    runner = _runner("flow")
-    params = {"bid_samples": 3} if strategy == "bid" else {}
+    # prefix: a model trained with delay conditioning (bcbench.policies.prefix); correction: a head that acts
+    runner = _runner("flow", delay_train=(0, 6)) if strategy == "prefix" else _runner("flow")
+    params = {"bid_samples": 3} if strategy == "bid" else {"correction": "shift"} if strategy == "correction" else {}
+    head = ShiftHead() if strategy == "correction" else None
     for seed in (100000, 100001):
-        sync = _drive(runner, strategy, "sync", seed=seed, **params)
-        assert _same(_drive(runner, strategy, execution, 0, seed=seed, **params), sync)
+        sync = _drive(runner, strategy, "sync", seed=seed, head=head, **params)
+        assert _same(_drive(runner, strategy, execution, 0, seed=seed, head=head, **params), sync)
     if strategy == "naive":  # and the naive strategy is bcbench's execution as it was
         ctl = ChunkedController(runner)
         ctl.reset(0, _obs(0), seed=100000)

@@ -20,7 +20,9 @@ Optional parts, each its own protocol, so that code asks `isinstance` instead of
 - `FilmSplittable`: the exact FiLM split of the denoising U-Net that the fast inference form switches on;
 - `GuidedPolicy`: samples a chunk inpainted towards the executing one (Real-Time Chunking, `--strategy rtc`);
 - `CandidatePolicy`: samples n chunks per observation in one call (Bidirectional Decoding's candidates; without
-  it the controller repeats the observation rows, which costs n encodings).
+  it the controller repeats the observation rows, which costs n encodings);
+- `PrefixPolicy`: samples a chunk continuing a clean prefix (training-time delay conditioning, `--strategy prefix`);
+- `CorrectionHead`: not a policy but a per-step residual on a policy's planned action (A2C2, `--strategy correction`).
 """
 
 from __future__ import annotations
@@ -110,6 +112,40 @@ class CandidatePolicy(Protocol):
         """(B, n, Tp, 2) pixels; row r's candidates draw their noise in turn from row r's stream (n = 1: the chunk
         predict_action_chunk returns)."""
         ...
+
+
+@runtime_checkable
+class PrefixPolicy(Protocol):
+    """Samples a chunk whose masked actions are given clean (training-time Real-Time Chunking, a model trained with a
+    simulated delay: bcbench.policies.prefix)."""
+
+    def prefix_unavailable(self) -> str | None:
+        """None when this model can take a clean prefix (it was trained with delay conditioning), else why, in one
+        line."""
+        ...
+
+    def predict_prefixed_chunk(self, obs: Observation, prefix: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """(B, Tp, 2) pixels continuing `prefix` (B, Tp, 2) pixels where `mask` (B, Tp) is 1 (returned there as given);
+        an all-zero mask samples as predict_action_chunk does."""
+        ...
+
+
+@runtime_checkable
+class CorrectionHead(Protocol):
+    """A2C2's correction head (Sendai et al. 2025, arXiv 2509.23224): every control step, a residual added to the
+    action the executing chunk planned for it, from the newest observation, that action and the chunk's age."""
+
+    def correct(self, obs: Observation, actions: np.ndarray, ages: np.ndarray, indices: np.ndarray) -> np.ndarray:
+        """(B, 2) pixels: `actions` (B, 2) pixels corrected, given the observation windows (as a chunk request has
+        them), each chunk's age `ages` (B,) (steps since its observation) and the action's index in it `indices`
+        (B,)."""
+        ...
+
+    def base_mismatch(self, policy: ChunkPolicy) -> str | None:
+        """None when `policy` is the base this head was trained on, else why not, in one line."""
+        ...
+
+    def describe(self) -> dict[str, Any]: ...
 
 
 def example_observation(batch: int = 1, obs_horizon: int = 2, seed: int = 0) -> Observation:

@@ -26,7 +26,8 @@ from bcbench.analysis.results import realtime_records, sweep_label
 from bcbench.protocol import delay_setting, policy_label
 from bcbench.utils.io import atomic_path
 
-STYLE = {"naive": ("k", "o", "--"), "rtc": ("C3", "s", "-"), "bid": ("C2", "^", "-"), "ensemble": ("C0", "D", "-")}
+STYLE = {"naive": ("k", "o", "--"), "rtc": ("C3", "s", "-"), "bid": ("C2", "^", "-"), "ensemble": ("C0", "D", "-"),
+         "prefix": ("C1", "v", "-"), "correction": ("C4", "P", "-")}
 TABLE_DELAYS = (0, 1, 2, 4, 6, 8)
 
 

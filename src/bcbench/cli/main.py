@@ -17,12 +17,12 @@ from typing import Any
 from bcbench.cli import data, wallclock
 from bcbench.cli.choose import cmd_choose  # noqa: F401  (a handler, found by name in main)
 from bcbench.cli.parser import build_parser
-from bcbench.cli.policies import load_eval_policy, load_weak, sampler_of, strategy_config
+from bcbench.cli.policies import load_eval_policy, load_head, load_weak, sampler_of, strategy_config
 from bcbench.errors import BCBenchError
 from bcbench.protocol import strategy_label
 from bcbench.stats import fmt_estimate, fmt_share
 from bcbench.utils.args import EXIT_USAGE
-from bcbench.utils.io import write_json
+from bcbench.utils.io import read_json, write_json
 from bcbench.utils.system import git_commit
 
 EXIT_INTERRUPTED = 130
@@ -40,7 +40,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
                      execution_horizon=args.execution_horizon, strategy=strategy_config(args, args.strategy))
     policy, default_out = load_eval_policy(args)
     out = Path(args.out) if args.out else default_out
-    result = evaluate(policy, cfg, out, progress=not args.quiet, weak=load_weak(args, policy))
+    result = evaluate(policy, cfg, out, progress=not args.quiet, weak=load_weak(args, policy), head=load_head(args))
     s = result["summary"]
     print(f"{policy.name}: {s['n']} episodes from seed {cfg.seed_start}{ran_text(policy)}")
     n = s["n"]  # shares with Wilson intervals (a bootstrap gives [0, 0] at 0%)
@@ -122,7 +122,11 @@ def cmd_train(args: argparse.Namespace) -> int:
     print(f"{s['policy']} ({s['preset']}): stopped ({s['stopped']}) at step {s['step']}/{s['total_steps']} "
           f"= {s['epochs']:.2f} epochs; {sps} samples/s on {s['device']} ({s['threads']} threads, {s['precision']})")
     print(f"  validation loss {s['val_loss']:.5f} (best {s['best_val_loss']:.5f}); parameters {s['parameters']:,}")
-    print(f"  evaluate: bcbench eval --checkpoint {run_dir} --episodes 40")
+    if s["policy"] == "correction":  # a head runs beside its base (bcbench.policies.correction)
+        base = read_json(Path(run_dir) / "run.json")["config"]["base"]
+        print(f"  sweep: bcbench realtime --checkpoint {base} --strategy naive correction --correction {run_dir}")
+    else:
+        print(f"  evaluate: bcbench eval --checkpoint {run_dir} --episodes 40")
     return 0
 
 
@@ -203,12 +207,16 @@ def cmd_realtime(args: argparse.Namespace) -> int:
         return wallclock.cmd_realtime_wallclock(args)
     strategies = sorted(dict.fromkeys(args.strategy), key=lambda k: k != "naive")  # naive first: the others' bar
     configs = [strategy_config(args, k, several=True) for k in strategies]  # options checked before any episode
+    if args.correction and "correction" not in strategies:
+        raise BCBenchError("--correction goes with --strategy correction")
     policy, default_out = load_eval_policy(args)
     weak = load_weak(args, policy) if "bid" in strategies else None
+    head = load_head(args) if "correction" in strategies else None
     from bcbench.evaluation.strategies import Strategy
 
     # each strategy can run on this policy: checked before hours of episodes
-    built = {k: Strategy(c, policy, weak if k == "bid" else None) for k, c in zip(strategies, configs, strict=True)}
+    built = {k: Strategy(c, policy, weak if k == "bid" else None, head if k == "correction" else None)
+             for k, c in zip(strategies, configs, strict=True)}
     measured: dict[str, LatencySource] = {}
     if args.measured and len(strategies) > 1:  # timed together, before any episode (latency_sources says why)
         from statistics import median
@@ -237,6 +245,7 @@ def cmd_realtime(args: argparse.Namespace) -> int:
                         progress=not args.quiet, max_steps=args.max_steps, seed_start=args.seed_start,
                         execution_horizon=args.execution_horizon, strategy=strategy,
                         weak=weak if kind == "bid" else None, measured_source=measured.get(kind),
+                        head=head if kind == "correction" else None,
                         on_setting=partial(_write_newest, where), done=done)  # each setting's file as it finishes
         print(f"{policy.name}, strategy {kind}: score under real-time execution ({args.episodes} episodes each)")
         for name, r in results.items():

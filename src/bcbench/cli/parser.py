@@ -371,6 +371,7 @@ def _add_strategy_args(p: argparse.ArgumentParser, sweep: bool = False) -> None:
     _field(p, "--bid-modes", StrategyConfig, type=_positive_int, metavar="K")
     _field(p, "--bid-weak", StrategyConfig, metavar="RUN_DIR")
     _field(p, "--ensemble-decay", StrategyConfig, type=_number(float, 0), metavar="M")
+    _field(p, "--correction", StrategyConfig, metavar="RUN_DIR")
 
 
 def _add_eval_command(sub: Any) -> None:

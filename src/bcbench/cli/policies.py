@@ -93,7 +93,20 @@ def strategy_config(args: argparse.Namespace, kind: str, several: bool = False) 
     from bcbench.evaluation.config import StrategyConfig
 
     return StrategyConfig(kind, args.rtc_max_guidance, args.rtc_jacobian, args.bid_samples, args.bid_modes,
-                          args.bid_weak if kind == "bid" or not several else None, args.ensemble_decay)
+                          args.bid_weak if kind == "bid" or not several else None, args.ensemble_decay,
+                          args.correction if kind == "correction" or not several else None)
+
+
+def load_head(args: argparse.Namespace) -> Any:
+    """A2C2's correction head (--correction RUN_DIR), in torch on the policy's device (it is small; its base's
+    encoder runs beside the policy's graphs); checked against the policy by the strategy."""
+    if not args.correction:
+        return None
+    if not args.checkpoint:
+        raise BCBenchError("--correction goes with the trained --checkpoint it was trained on")
+    from bcbench.policies.checkpoint import load_correction
+
+    return load_correction(args.correction, device=args.device)
 
 
 def load_weak(args: argparse.Namespace, policy: Any) -> Any:

@@ -8,7 +8,8 @@ from bcbench.errors import BCBenchError
 from bcbench.protocol import CONTROL_DT_S, TEST_SEED_START
 
 EXECUTIONS = ("sync", "blocking", "async")  # how the world moves while the policy computes (see the controller)
-STRATEGIES = ("naive", "rtc", "bid", "ensemble")  # what is done with chunks across re-plans (see the controller)
+# what is done with chunks across re-plans (see the controller and bcbench.evaluation.strategies)
+STRATEGIES = ("naive", "rtc", "bid", "ensemble", "prefix", "correction")
 PROFILES = ("a100",)  # hardware latency profiles (bcbench.evaluation.latency_sources holds their times)
 
 
@@ -40,7 +41,9 @@ class StrategyConfig:
     strategy: str = "naive"
     """naive (each chunk on its own), rtc (Real-Time Chunking: guided inpainting of the new chunk towards the one
     executing; flow under torch, Diffusion Policy under every backend), bid (Bidirectional Decoding: the best of
-    N sampled chunks) or ensemble (ACT's temporal ensembling of every chunk's action for the step)"""
+    N sampled chunks), ensemble (ACT's temporal ensembling of every chunk's action for the step), prefix
+    (training-time RTC: a model trained with delay conditioning continues the actions the delay executes) or
+    correction (A2C2: a trained correction head adds a residual to every step's action)"""
     rtc_max_guidance: float = 5.0
     """RTC: the guidance weight's clip beta (Black et al. 2025, Sec. 4.2; their default 5; 0 = no guidance)"""
     rtc_jacobian: bool = True
@@ -56,6 +59,9 @@ class StrategyConfig:
     forward term of the positives only"""
     ensemble_decay: float = 0.01
     """ensemble: w_i = exp(-m i) over the chunks predicting a step, i = 0 the oldest (ACT's m, Zhao et al. 2023)"""
+    correction: str | None = None
+    """correction: the correction head's run (`bcbench train --policy correction --set base=RUN_DIR`), trained on
+    the policy being run as its frozen base"""
 
     def variant_extra(self) -> dict[str, bool]:
         """What a sweep's record adds to its variant beyond the strategy's name: RTC's form when not the paper's."""
@@ -70,6 +76,9 @@ class StrategyConfig:
             raise BCBenchError(f"--bid-samples and --bid-modes must be >= 1, got {self.bid_samples}, {self.bid_modes}")
         if self.bid_weak is not None and self.strategy != "bid":
             raise BCBenchError("--bid-weak goes with --strategy bid")
+        if (self.correction is None) != (self.strategy != "correction"):
+            raise BCBenchError("--strategy correction needs its head, --correction RUN_DIR, and --correction goes with "
+                               "--strategy correction only")
 
 
 @dataclass

@@ -23,8 +23,13 @@ Strategies (`strategy`, bcbench.evaluation.strategies) decide what is done with 
 execution mode. Each received chunk keeps its origin (the step at which its index chunk_start executes: the
 request's step, or its arrival under blocking). At a request the chunk executing is aligned to the new chunk's
 indices (the target) with Real-Time Chunking's soft mask: 1 for the actions that execute before the new chunk
-arrives (the past ones and the d of the delay: the frozen prefix), decaying over the rest of the overlap. RTC
-and BID read them; ensembling averages, at each step, every received chunk's action for it.
+arrives (the past ones and the d of the delay: the frozen prefix), decaying over the rest of the overlap. RTC,
+BID and the prefix strategy read them; ensembling averages, at each step, every received chunk's action for it.
+
+Per-step hook: a strategy with one (`Strategy.per_step`: A2C2's correction head) is called once per step, batched
+over the environments that take an action from their queue, with their current observation windows, those planned
+actions, the age of the chunk they come from (steps since its observation) and their index in it; what it returns
+is executed (and held, should the queue run dry). Environments holding their last target are not corrected.
 
 Each environment also owns its noise stream: a torch.Generator seeded from (the policy's noise seed, the
 episode's seed), handed to the policy with the batch (`obs["generators"]`, one per row). A stochastic
@@ -65,6 +70,7 @@ class _Chunk:
     arrival: int
     chunk: np.ndarray  # (Tp, 2) pixels
     actions: list[np.ndarray]  # what it puts in the queue
+    observed: int = 0  # the step of the observation it was computed from (its age is counted from here)
 
 
 def async_actions_needed(chunk_start: int, d: int, s: int | None) -> int:
@@ -231,15 +237,32 @@ class ChunkedController:
             delays = [self._delay_now(i) for i in need]
             for i, d, chunk in zip(need, delays, self._plan(need, delays), strict=True):
                 self._receive(i, chunk, d)
-        out = {}
+        out, planned = {}, []
         for i in env_ids:
             if self._queue[i]:
                 self._last[i] = self._queue[i].popleft()
+                planned.append(i)
                 if self.strategy.kind == "ensemble":
                     self._last[i] = self._ensembled(i)
+        if planned and self.strategy.per_step:
+            self._correct(planned)
+        for i in env_ids:
             out[i] = self._last[i]  # an empty queue (waiting for a chunk) holds the last target
             self._step[i] += 1
         return out
+
+    def _correct(self, env_ids: list[int]) -> None:
+        """The per-step hook on this step's planned actions, one batched call (module docstring)."""
+        chunks = [self._received[i][-1] for i in env_ids]  # the executing chunk of each (its actions fill the queue)
+        ages = np.array([self._step[i] - c.observed for i, c in zip(env_ids, chunks, strict=True)])
+        index = np.array([self.chunk_start + self._step[i] - c.origin for i, c in zip(env_ids, chunks, strict=True)])
+        actions = np.stack([self._last[i] for i in env_ids]).astype(np.float32)  # (B, 2)
+        corrected = self.strategy.correct(self.stacked_obs(env_ids), actions, ages, index)
+        if corrected.shape != actions.shape or not np.isfinite(corrected).all():
+            raise BCBenchError(f"the correction head returned {corrected.shape} or non-finite actions for "
+                               f"{actions.shape}")
+        for i, a in zip(env_ids, corrected, strict=True):
+            self._last[i] = a
 
     def _ensembled(self, i: int) -> np.ndarray:
         """ACT's temporal ensemble of every received chunk's action for this step (the queue's chunk among them)."""
@@ -255,7 +278,7 @@ class ChunkedController:
             self._next_delay[i] = self._checked_delay(i)
             start, end = start + d, start + d + actions_executed(self.action_horizon, d, self.execution_horizon)
         self.delays.append(d)
-        planned = _Chunk(self._origin(i, d), self._step[i] + d, chunk, list(chunk[start:end]))
+        planned = _Chunk(self._origin(i, d), self._step[i] + d, chunk, list(chunk[start:end]), self._step[i])
         if d == 0:
             self._queue[i] = deque(planned.actions)
             self._received[i].append(planned)

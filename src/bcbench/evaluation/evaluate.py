@@ -26,7 +26,7 @@ from bcbench.evaluation.config import EvalConfig
 from bcbench.evaluation.controller import ChunkedController
 from bcbench.evaluation.latency_sources import LatencySource
 from bcbench.evaluation.strategies import Strategy
-from bcbench.interface import ChunkPolicy
+from bcbench.interface import ChunkPolicy, CorrectionHead
 from bcbench.stats import score_summary
 from bcbench.utils.io import write_json
 from bcbench.utils.system import provenance
@@ -62,15 +62,16 @@ def _split(items: dict[int, Any] | list[Any], n: int, key=lambda x: x) -> list[A
 
 
 def run_episodes(policy: ChunkPolicy, cfg: EvalConfig, out_dir: Path | None = None, progress: bool = True,
-                 weak: ChunkPolicy | None = None, source: LatencySource | None = None
-                 ) -> tuple[list[EpisodeResult], dict[str, Any]]:
+                 weak: ChunkPolicy | None = None, source: LatencySource | None = None,
+                 head: CorrectionHead | None = None) -> tuple[list[EpisodeResult], dict[str, Any]]:
     """Run cfg.episodes closed-loop episodes; returns per-episode results and timing counters. `weak`: BID's
     weaker policy (cfg.strategy.bid_weak, loaded by the caller); `source`: cfg's latency source, already resolved
-    (a sweep that looked at its delays first: measured calls are then not timed twice)."""
+    (a sweep that looked at its delays first: measured calls are then not timed twice); `head`: the correction
+    head of --strategy correction (cfg.strategy.correction, loaded by the caller)."""
     n_workers = max(1, min(cfg.workers or os.cpu_count() or 1, cfg.episodes))
     results = {i: EpisodeResult(episode=i, seed=cfg.seed_start + i) for i in range(cfg.episodes)}
     source = source or LatencySource.parse(cfg.latency, cfg.latency_ms)
-    strategy = Strategy(cfg.strategy, policy, weak)  # checked before any simulator starts
+    strategy = Strategy(cfg.strategy, policy, weak, head)  # checked before any simulator starts
     source.resolve(policy, strategy)  # measured: timed now, before any simulator runs beside it
     controller = ChunkedController(policy, cfg.action_horizon, cfg.execution,
                                    source.delay_fn({i: r.seed for i, r in results.items()}), cfg.execution_horizon,
@@ -134,11 +135,11 @@ def run_episodes(policy: ChunkPolicy, cfg: EvalConfig, out_dir: Path | None = No
 
 def evaluate(policy: ChunkPolicy, cfg: EvalConfig, out_dir: str | Path | None = None, progress: bool = True,
              extra: dict[str, Any] | None = None, weak: ChunkPolicy | None = None,
-             source: LatencySource | None = None) -> dict[str, Any]:
-    """Evaluate and (if out_dir) write `eval.json` there atomically; returns the result dict (`weak`, `source`:
-    as for run_episodes)."""
+             source: LatencySource | None = None, head: CorrectionHead | None = None) -> dict[str, Any]:
+    """Evaluate and (if out_dir) write `eval.json` there atomically; returns the result dict (`weak`, `source`,
+    `head`: as for run_episodes)."""
     out = Path(out_dir) if out_dir is not None else None
-    episodes, timing = run_episodes(policy, cfg, out, progress, weak, source)
+    episodes, timing = run_episodes(policy, cfg, out, progress, weak, source, head)
     summary = score_summary(
         np.array([e.score for e in episodes]), np.array([e.success for e in episodes]),
         np.array([e.final_coverage for e in episodes]),

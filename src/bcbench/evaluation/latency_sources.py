@@ -4,8 +4,9 @@ The control loop runs at 10 Hz (0.1 s per environment step), so a call that take
 d = ceil(L / 0.1) steps (`steps_for`). L comes from one of:
 - a fixed number of milliseconds (`--latency-ms 250`, d = 3);
 - `measured`: the policy's own call times on this machine, timed before the episodes with the backend in
-  use and through the execution strategy (RTC's backward passes, BID's N samples and selection count), one
-  drawn per call (each episode draws from its own stream, seeded by its seed);
+  use and through the execution strategy (RTC's backward passes, BID's N samples and selection, the correction
+  head's per-step calls while a chunk computes count: Strategy.timed_request), one drawn per call (each episode
+  draws from its own stream, seeded by its seed);
 - `profile:NAME`: a named hardware profile; `a100` holds the study's A100 inference times.
 How the world moves meanwhile (sync, blocking, async) is the controller's business
 (`bcbench.evaluation.controller`).
@@ -84,8 +85,7 @@ def interleaved_request_ms(runner: ChunkPolicy, strategies: dict[str, Strategy],
     weak_generators = [episode_generator(WEAK_STREAM, 0)]
 
     def request(s: Strategy) -> float:
-        s.request(obs, target, weights, weak_generators if s.weak is not None else None)
-        return s.last_compute_s * 1e3
+        return s.timed_request(obs, target, weights, weak_generators if s.weak is not None else None) * 1e3
 
     for s in strategies.values():
         for _ in range(warmup):
@@ -140,7 +140,7 @@ class LatencySource:
             self.ms = profile_ms(self.name, runner.name, sampler_steps(runner))
         elif self.kind == "measured" and not self.samples_ms:
             obs, target, weights = timed_request_inputs(runner, strategy.uses_target)
-            stats = time_calls(lambda: strategy.request(obs, target, weights, None), TimingConfig(),
+            stats = time_calls(lambda: strategy.timed_request(obs, target, weights, None), TimingConfig(),
                                clock=lambda: strategy.last_compute_s, what=f"{runner.name} ({strategy.kind})")
             self.samples_ms, self.contention = stats["samples_ms"], stats["cpu_contention"]
 

@@ -18,7 +18,7 @@ from bcbench.evaluation.controller import actions_executed, async_actions_needed
 from bcbench.evaluation.evaluate import EvalConfig, evaluate
 from bcbench.evaluation.latency_sources import LatencySource, profile_ms, sampler_steps, steps_for
 from bcbench.evaluation.strategies import Strategy
-from bcbench.interface import ChunkPolicy
+from bcbench.interface import ChunkPolicy, CorrectionHead
 from bcbench.protocol import CONTROL_DT_S, SYNC_SETTING, delay_setting
 from bcbench.utils.io import read_json
 from bcbench.utils.system import provenance
@@ -44,8 +44,8 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
           skip_missing_profiles: bool = False, done: dict[str, dict[str, Any]] | None = None,
           on_setting: Callable[[dict[str, dict[str, Any]]], None] | None = None,
           execution_horizon: int | None = None, strategy: StrategyConfig | None = None,
-          weak: ChunkPolicy | None = None, measured_source: LatencySource | None = None
-          ) -> dict[str, dict[str, Any]]:
+          weak: ChunkPolicy | None = None, measured_source: LatencySource | None = None,
+          head: CorrectionHead | None = None) -> dict[str, dict[str, Any]]:
     """Score against delay d for each execution mode (sync as the d = 0 reference), plus the policy's score at
     its measured latency on this machine and under each hardware profile: evaluation results by setting.
     `done`: settings finished by an interrupted sweep (kept, not rerun); `on_setting(results so far)` is called
@@ -53,7 +53,8 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
     profile or measured setting whose every call takes the d of a fixed setting already swept reuses its episodes
     (`fixed_twin`): a fast policy's A100 and measured settings cost no episodes.
     `execution_horizon`: s of the async settings (see bcbench.evaluation.controller); `strategy` (and BID's
-    `weak` policy): how consecutive chunks are joined, in every setting, sync included. `measured_source`: the
+    `weak` policy, the correction `head`): how consecutive chunks are joined, in every setting, sync included.
+    `measured_source`: the
     measured setting's calls, timed by the caller (e.g. interleaved with other strategies'); else timed here."""
     if execution_horizon is not None:  # checked before hours of episodes
         EvalConfig(execution="async", execution_horizon=execution_horizon)
@@ -84,13 +85,13 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
             source = LatencySource.parse(cfg.latency, None)
             if source.kind == "measured" and measured_source is not None:
                 source = copy.deepcopy(measured_source)  # timed by the caller: resolve keeps its calls
-            source.resolve(policy, Strategy(cfg.strategy, policy, weak))
+            source.resolve(policy, Strategy(cfg.strategy, policy, weak, head))
             twin = fixed_twin(source, execution, out)
         if twin is not None:
             out[name] = same_episodes(out[twin], twin, name, cfg, source)
         else:
             out[name] = evaluate(policy, cfg, None, progress=progress, extra={"realtime": {"setting": name}},
-                                 weak=weak, source=source)
+                                 weak=weak, source=source, head=head)
         if on_setting is not None:
             on_setting(out)
     return out

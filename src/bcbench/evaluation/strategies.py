@@ -11,6 +11,12 @@ the request and times it, so a strategy's own extra compute is part of a measure
   plus forward contrast (distance to the other strong candidates minus distance to a weaker policy's).
 - ensemble: temporal ensembling (ACT, Zhao et al. 2023, Sec. 3.3): each executed action is the average of every
   received chunk's prediction for that step, weights exp(-m i) with i = 0 the oldest; in the controller.
+- prefix: training-time Real-Time Chunking (Black, Ren, Equi, Levine 2025, arXiv 2512.05964): a model trained with a
+  simulated delay (`delay_train`, bcbench.policies.prefix) is given the actions the delay executes (the frozen part
+  of the controller's target from the current step on) as a clean prefix; no guidance, naive's cost.
+- correction: A2C2 (Sendai et al. 2025, arXiv 2509.23224): requests are naive; every control step a trained
+  correction head (bcbench.policies.correction) adds a residual to the action the executing chunk planned for it,
+  from the newest observation and the chunk's age: the controller's per-step hook (`Strategy.correct`).
 """
 
 from __future__ import annotations
@@ -24,7 +30,16 @@ import numpy as np
 
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.config import StrategyConfig
-from bcbench.interface import CandidatePolicy, ChunkPolicy, GuidedPolicy, Observation, SelfTimedPolicy
+from bcbench.interface import (
+    CandidatePolicy,
+    ChunkPolicy,
+    CorrectionHead,
+    GuidedPolicy,
+    Observation,
+    PrefixPolicy,
+    SelfTimedPolicy,
+)
+from bcbench.protocol import CONTROL_DT_S
 
 if TYPE_CHECKING:  # the controller itself runs on numpy; generators only pass through to the policy
     import torch
@@ -95,11 +110,21 @@ def ensemble_action(predictions: list[np.ndarray], decay: float) -> np.ndarray:
     return (np.tensordot(w, np.stack(predictions), axes=1) / w.sum()).astype(np.float32)
 
 
-class Strategy:
-    """Makes each request under a strategy and records its compute time (`last_compute_s`), for measured latency."""
+def prefix_mask(weights: np.ndarray, chunk_start: int) -> np.ndarray:
+    """The clean prefix of training-time RTC from the controller's soft mask (B, Tp): the frozen actions from the
+    current step on (1 exactly on the frozen part: the d actions the delay executes), none before chunk_start (past
+    actions never execute, and the model was trained to generate them: bcbench.policies.prefix)."""
+    k = np.arange(weights.shape[-1])
+    return ((weights == 1.0) & (k >= chunk_start)).astype(np.float32)
 
-    def __init__(self, cfg: StrategyConfig, policy: ChunkPolicy, weak: ChunkPolicy | None = None) -> None:
-        self.cfg, self.kind, self.policy, self.weak = cfg, cfg.strategy, policy, weak
+
+class Strategy:
+    """Makes each request under a strategy and records its compute time (`last_compute_s`), for measured latency;
+    `correct` is the per-step hook (the correction head), timed in `step_compute_s`."""
+
+    def __init__(self, cfg: StrategyConfig, policy: ChunkPolicy, weak: ChunkPolicy | None = None,
+                 head: CorrectionHead | None = None) -> None:
+        self.cfg, self.kind, self.policy, self.weak, self.head = cfg, cfg.strategy, policy, weak, head
         if self.kind == "rtc":
             if not isinstance(policy, GuidedPolicy):
                 raise BCBenchError(f"--strategy rtc: {policy.name} has no guided sampler (flow and Diffusion Policy "
@@ -112,12 +137,36 @@ class Strategy:
         if weak is not None and (self.kind != "bid" or (weak.pred_horizon, weak.chunk_start)
                                  != (policy.pred_horizon, policy.chunk_start)):
             raise BCBenchError("a weak policy goes with --strategy bid and must predict the same chunks as the policy")
+        if self.kind == "prefix":
+            if not isinstance(policy, PrefixPolicy):
+                raise BCBenchError(f"--strategy prefix: {policy.name} cannot continue a clean prefix (a flow or "
+                                   "Diffusion Policy run trained with delay conditioning can)")
+            reason = policy.prefix_unavailable()
+            if reason:
+                raise BCBenchError(f"--strategy prefix: {reason}")
+        self._check_head(policy, head)
         self.last_compute_s = self._compute = self._calls_wall = 0.0
+        self.step_compute_s: list[float] = []  # every per-step hook call's time (the correction head)
+
+    def _check_head(self, policy: ChunkPolicy, head: CorrectionHead | None) -> None:
+        if self.kind == "correction" and head is None:
+            raise BCBenchError("--strategy correction needs its trained head: --correction RUN_DIR")
+        if head is not None:
+            if self.kind != "correction":
+                raise BCBenchError("a correction head goes with --strategy correction")
+            reason = head.base_mismatch(policy)
+            if reason:
+                raise BCBenchError(f"--strategy correction: {reason}")
 
     @property
     def uses_target(self) -> bool:
-        """Whether requests need the executing chunk aligned to the new one (RTC, BID)."""
-        return self.kind in ("rtc", "bid")
+        """Whether requests need the executing chunk aligned to the new one (RTC, BID, the prefix)."""
+        return self.kind in ("rtc", "bid", "prefix")
+
+    @property
+    def per_step(self) -> bool:
+        """Whether the controller calls `correct` on every step's planned actions (the correction head)."""
+        return self.head is not None
 
     def describe(self) -> dict[str, Any]:
         out: dict[str, Any] = {"strategy": self.kind}
@@ -129,6 +178,12 @@ class Strategy:
             out.update(samples=self.cfg.bid_samples, modes=self.cfg.bid_modes, weak=self.cfg.bid_weak)
         if self.kind == "ensemble":
             out["decay"] = self.cfg.ensemble_decay
+        if self.head is not None:
+            out["head"] = self.head.describe()
+            if self.step_compute_s:  # what the hook cost per step in the episodes (batched over their envs)
+                out["per_step_ms"] = {"calls": len(self.step_compute_s),
+                                      "median": float(np.median(self.step_compute_s) * 1e3),
+                                      "max": float(np.max(self.step_compute_s) * 1e3)}
         return out
 
     def _timed(self, policy: ChunkPolicy, call: Callable[[], T]) -> T:
@@ -165,8 +220,36 @@ class Strategy:
             start = self.policy.chunk_start
             chunks = np.stack([bid_select(c, target[b], weights[b], self.cfg.bid_modes,
                                           None if weak is None else weak[b], start) for b, c in enumerate(cands)])
+        elif self.kind == "prefix":
+            mask = prefix_mask(np.asarray(weights), self.policy.chunk_start)
+            chunks = self._timed(self.policy, lambda: self.policy.predict_prefixed_chunk(obs, target, mask))
         else:
             chunks = self._timed(self.policy, lambda: self.policy.predict_action_chunk(obs))
         # the strategy's own work (selection) counts too: the wall time outside the policy calls
         self.last_compute_s = self._compute + (time.perf_counter() - t0 - self._calls_wall)
         return np.asarray(chunks)
+
+    def timed_request(self, obs: Observation, target: np.ndarray | None = None, weights: np.ndarray | None = None,
+                      weak_generators: list[torch.Generator] | None = None) -> float:
+        """What a measured latency times (seconds): the request and, with a per-step hook, the hook's calls while it
+        computes. The head runs every control step on the same CPU as the chunk's computation, so a call spanning
+        n = ceil(L / 0.1 s) steps (at least 1: the step that asks must act too) is charged n hook calls."""
+        chunks = self.request(obs, target, weights, weak_generators)
+        total = self.last_compute_s
+        if self.head is not None:
+            cs = self.policy.chunk_start
+            rows = len(chunks)
+            self.correct(obs, chunks[:, cs], np.zeros(rows, np.int64), np.full(rows, cs, np.int64))
+            step = self.step_compute_s.pop()  # a timing call, not an episode's step
+            total += max(1, math.ceil(total / CONTROL_DT_S - 1e-9)) * step
+        self.last_compute_s = total
+        return total
+
+    def correct(self, obs: Observation, actions: np.ndarray, ages: np.ndarray, indices: np.ndarray) -> np.ndarray:
+        """The per-step hook: (B, 2) actions the executing chunks planned for this step, corrected (A2C2); timed."""
+        assert self.head is not None
+        t = time.perf_counter()
+        out = np.asarray(self.head.correct(obs, actions, ages, indices), dtype=np.float32)
+        self.step_compute_s.append(self.head.last_compute_s if isinstance(self.head, SelfTimedPolicy)
+                                   else time.perf_counter() - t)
+        return out

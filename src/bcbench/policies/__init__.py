@@ -16,6 +16,7 @@ from bcbench.policies.bct import BCTConfig, BCTPolicy
 from bcbench.policies.bet import BeTConfig, BeTPolicy
 from bcbench.policies.cnn_mlp import CNNMLPConfig, CNNMLPPolicy
 from bcbench.policies.config import with_overrides
+from bcbench.policies.correction import CorrectionConfig, CorrectionPolicy
 from bcbench.policies.diffusion import DiffusionConfig, DiffusionPolicy
 from bcbench.policies.flow import FlowConfig, FlowPolicy
 from bcbench.policies.learned import BCPolicy
@@ -31,6 +32,21 @@ REGISTRY: dict[str, tuple[type, type]] = {
     "diffusion": (DiffusionConfig, DiffusionPolicy),
     "flow": (FlowConfig, FlowPolicy),
 }
+
+# Trained beside a policy, not policies themselves (not in REGISTRY: nothing lists, times or evaluates them alone):
+# `bcbench train --policy correction --set base=RUN_DIR` trains A2C2's head on a frozen base run.
+HEADS: dict[str, tuple[type, type]] = {"correction": (CorrectionConfig, CorrectionPolicy)}
+
+
+def trainable(name: str) -> tuple[type, type]:
+    """(Config class, Policy class) of what `bcbench train --policy NAME` trains: a registered policy or a head."""
+    if name in REGISTRY:
+        return REGISTRY[name]
+    if name in HEADS:
+        return HEADS[name]
+    raise BCBenchError(f"unknown policy '{name}' (registered: {', '.join(sorted(REGISTRY))}; heads: "
+                       f"{', '.join(HEADS)})")
+
 
 def is_learned(name: str) -> bool:
     return name in REGISTRY and issubclass(REGISTRY[name][1], BCPolicy)

@@ -24,8 +24,9 @@ from safetensors.torch import load_file, save_file
 from bcbench.data.normalizer import MinMaxNormalizer
 from bcbench.errors import BCBenchError
 from bcbench.interface import RunInfo
-from bcbench.policies import REGISTRY
+from bcbench.policies import HEADS, REGISTRY, trainable
 from bcbench.policies.config import config_from_dict
+from bcbench.policies.correction import CorrectionRunner
 from bcbench.policies.learned import PolicyRunner
 from bcbench.utils.io import read_json, sha256_file, write_json
 
@@ -110,16 +111,41 @@ def read_run(run_dir: str | Path) -> dict[str, Any]:
 
 def build_model(run: dict[str, Any]) -> torch.nn.Module:
     name = run["policy"]
-    if name not in REGISTRY:
+    if name not in REGISTRY and name not in HEADS:
         raise BCBenchError(f"run uses policy '{name}', which this bcbench does not know")
-    config_cls, policy_cls = REGISTRY[name]
-    return policy_cls(config_from_dict(config_cls, run["config"]))
+    config_cls, policy_cls = trainable(name)
+    config = config_from_dict(config_cls, run["config"])
+    if name in HEADS:  # a head is built on its frozen base run, loaded as evaluation loads it (EMA weights)
+        if not config.base:
+            raise BCBenchError(f"a {name} head needs its base run: --set base=RUN_DIR")
+        return policy_cls(config, load_runner(config.base))
+    return policy_cls(config)
+
+
+def load_correction(run_dir: str | Path, device: str = "cpu") -> CorrectionRunner:
+    """A2C2's correction head (`--correction RUN_DIR`) from its run's newest checkpoint, on its frozen base."""
+    run_dir = Path(run_dir)
+    run = read_run(run_dir)
+    if run["policy"] not in HEADS:
+        raise BCBenchError(f"--correction {run_dir} is a {run['policy']} run, not a correction head "
+                           "(bcbench train --policy correction)")
+    ckpt = latest_checkpoint(run_dir)
+    if ckpt is None:
+        raise BCBenchError(f"{run_dir} has no checkpoint yet")
+    model = build_model(run)
+    load_weights(ckpt, model)
+    norm = MinMaxNormalizer.from_dict(read_json(run_dir / "normalizer.json"))
+    return CorrectionRunner(model, norm, str(run_dir), device)
 
 
 def load_runner(run_dir: str | Path, use_ema: bool = True, device: str = "cpu") -> PolicyRunner:
     """A PolicyRunner (raw obs -> chunk in pixels) from a run's newest checkpoint."""
     run_dir = Path(run_dir)
     run = read_run(run_dir)
+    if run["policy"] in HEADS:
+        raise BCBenchError(f"{run_dir} is a {run['policy']} head, not a policy: run its base "
+                           f"(--checkpoint {run['config'].get('base')}) with --strategy correction "
+                           f"--correction {run_dir}")
     ckpt = latest_checkpoint(run_dir)
     if ckpt is None:
         raise BCBenchError(f"{run_dir} has no checkpoint yet")

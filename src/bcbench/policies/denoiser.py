@@ -24,6 +24,7 @@ from bcbench.errors import BCBenchError
 from bcbench.policies.config import OptimConfig, PolicyConfig
 from bcbench.policies.encoders import RESNET18_LAYERS, FrameFeatures, count_parameters
 from bcbench.policies.learned import BCPolicy
+from bcbench.policies.prefix import Prefix, check_delay_range
 from bcbench.policies.unet1d import ConditionalUnet1D
 
 
@@ -50,11 +51,18 @@ class DenoiserNetConfig(PolicyConfig):
     """sinusoidal diffusion-step (or flow-time) embedding size"""
     crop: int | None = 84
     """random crop size at training (centre crop at evaluation); None = no crop"""
+    delay_train: tuple[int, int] = (0, 0)
+    """training-time delay conditioning (training-time RTC, Black et al. 2025, arXiv 2512.05964;
+    bcbench.policies.prefix): (lo, hi) control steps; each training chunk draws d uniformly from lo..hi and its d
+    actions from the current step on are given clean and left out of the loss, which `--strategy prefix` then feeds
+    with the executing chunk's actions. hi > 0 adds a clean-position mask channel to the U-Net's input; (0, 0):
+    off, today's network exactly"""
     optim: OptimConfig = field(default_factory=_paper_optim)
 
     def __post_init__(self) -> None:
         super().__post_init__()
         self.encoder_layers, self.down_dims = tuple(self.encoder_layers), tuple(self.down_dims)
+        self.delay_train = check_delay_range(tuple(self.delay_train), self.obs_horizon, self.pred_horizon)
         if self.crop is not None and not 8 <= self.crop <= self.image_size:
             raise BCBenchError(f"crop must be in 8..{self.image_size} or None, got {self.crop}")
         if any(d % self.n_groups for d in self.down_dims) or self.encoder_width % 16:
@@ -76,8 +84,12 @@ class DenoiserPolicy(BCPolicy):
         super().__init__()
         self.config = c = config
         self.encoder = FrameFeatures("group", c.encoder_width, c.encoder_layers, c.crop)
-        self.unet = ConditionalUnet1D(2, c.obs_horizon * (self.encoder.out_dim + 2), c.step_embed_dim,
-                                      c.down_dims, c.kernel_size, c.n_groups)
+        # delay conditioning reads a clean-position mask beside the 2 action channels (bcbench.policies.prefix);
+        # without it the U-Net is Diffusion Policy's, parameter for parameter
+        self.delay_conditioned = c.delay_train[1] > 0
+        self.unet = ConditionalUnet1D(3 if self.delay_conditioned else 2, c.obs_horizon * (self.encoder.out_dim + 2),
+                                      c.step_embed_dim, c.down_dims, c.kernel_size, c.n_groups,
+                                      out_dim=2 if self.delay_conditioned else None)
 
     def encode(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:
         """image (B, To, 3, H, W), agent_pos (B, To, 2) -> global condition (B, To * (F + 2))."""
@@ -98,7 +110,30 @@ class DenoiserPolicy(BCPolicy):
         image, pos = obs["image"], obs["agent_pos"]
         with torch.no_grad():
             film = self.obs_film(image, pos)
-        return {"obs_film": (image, pos), "denoise": (torch.randn(batch, self.config.pred_horizon, 2), film)}
+        x = torch.randn(batch, self.config.pred_horizon, 3 if self.delay_conditioned else 2)  # (+ the mask channel)
+        return {"obs_film": (image, pos), "denoise": (x, film)}
+
+    def net_input(self, x: torch.Tensor, prefix: Prefix | None) -> torch.Tensor:
+        """What the U-Net reads for state x (B, Tp, 2): x itself, or for a delay-conditioned network [x with the prefix
+        imposed ; its mask] (an all-zero mask without a prefix)."""
+        if not self.delay_conditioned:
+            return x
+        if prefix is None:
+            return torch.cat([x, x.new_zeros(*x.shape[:-1], 1)], dim=-1)
+        return prefix.network_input(x)
+
+    def check_prefix(self, prefix: Prefix | None) -> None:
+        if prefix is not None and not self.delay_conditioned:
+            raise BCBenchError(f"{self.name} was trained without delay conditioning (delay_train = (0, 0)): it cannot "
+                               "take a clean prefix; train with --set delay_train=[LO,HI]")
+
+    def prefixed(self, model: Callable[[torch.Tensor, float], torch.Tensor], prefix: Prefix | None
+                 ) -> Callable[[torch.Tensor, float], torch.Tensor]:
+        """The denoiser of a sampler's loop with the prefix re-imposed at every network evaluation (identity for a
+        network without the mask channel)."""
+        if not self.delay_conditioned:
+            return model
+        return lambda x, t: model(self.net_input(x, prefix), t)
 
     def denoiser(self, obs: dict[str, torch.Tensor], times: Sequence[float]
                  ) -> tuple[Callable[[torch.Tensor, float], torch.Tensor], int, torch.device]:

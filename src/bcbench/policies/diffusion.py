@@ -20,6 +20,7 @@ from bcbench.errors import BCBenchError
 from bcbench.policies.config import OptimConfig, cpu_profile, pick_preset
 from bcbench.policies.denoiser import DenoiserNetConfig, DenoiserPolicy
 from bcbench.policies.guidance import Guide, inpaint_clean
+from bcbench.policies.prefix import Prefix, masked_mse, train_prefix
 from bcbench.policies.samplers import DEFAULT_SPACING, check_spacing, make_train_scheduler, plan, run_plan
 
 
@@ -95,12 +96,21 @@ class DiffusionPolicy(DenoiserPolicy):
         n_t = self.config.num_train_timesteps
         t = (self.train_draw(batch, torch.rand) * n_t).long().clamp_(max=n_t - 1)  # uniform over 0..n_t-1
         noisy = self.sqrt_ac[t, None, None] * action + self.sqrt_1m_ac[t, None, None] * noise
-        return F.mse_loss(self.unet(noisy, t, cond), noise)
+        if not self.delay_conditioned:
+            return F.mse_loss(self.unet(noisy, t, cond), noise)
+        # training-time RTC: a prefix of clean actions (as at timestep 0) in place of noise, left out of the loss;
+        # drawn after the noise and times, so those are what an unconditioned run draws
+        prefix = train_prefix(self, batch, self.config.delay_train, self.config.obs_horizon - 1)
+        return masked_mse(self.unet(prefix.network_input(noisy), t, cond), noise, prefix.mask)
 
-    def predict_action_chunk(self, obs: dict[str, torch.Tensor], guide: Guide | None = None) -> torch.Tensor:
+    def predict_action_chunk(self, obs: dict[str, torch.Tensor], guide: Guide | None = None,
+                             prefix: Prefix | None = None) -> torch.Tensor:
         """Denoise from pure noise; with `guide`, every clean estimate is inpainted towards the target (Real-Time
-        Chunking carried over to epsilon prediction without the Jacobian: bcbench.policies.guidance)."""
+        Chunking carried over to epsilon prediction without the Jacobian: bcbench.policies.guidance); with `prefix`
+        (a delay-conditioned network only), its actions are given clean at every step (bcbench.policies.prefix)."""
+        self.check_prefix(prefix)
         model, b, device = self.denoiser(obs, self.plan.timesteps)  # the observation is encoded once
+        model = self.prefixed(model, prefix)
         edit = None
         if guide is not None:
             ac = self.noise_scheduler.alphas_cumprod
@@ -109,4 +119,5 @@ class DiffusionPolicy(DenoiserPolicy):
                 return inpaint_clean(x0, float(ac[t]), guide)
 
         x = self.randn(obs, (b, self.config.pred_horizon, 2), device)  # (B, Tp, 2) pure noise
-        return run_plan(self.plan, model, x, lambda shape: self.randn(obs, shape, device), edit)
+        x = run_plan(self.plan, model, x, lambda shape: self.randn(obs, shape, device), edit)
+        return x if prefix is None else prefix.impose(x)  # the prefix is what executes: returned as given

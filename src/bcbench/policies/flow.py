@@ -25,6 +25,7 @@ from bcbench.errors import BCBenchError
 from bcbench.policies.denoiser import DenoiserNetConfig, DenoiserPolicy
 from bcbench.policies.diffusion import DiffusionConfig
 from bcbench.policies.guidance import Guide, guided_velocity
+from bcbench.policies.prefix import Prefix, masked_mse, train_prefix
 
 INTEGRATORS = ("euler", "midpoint")
 TIME_SCALE = 100.0  # t in [0, 1] enters the U-Net's sinusoidal step embedding as 100 t
@@ -91,14 +92,24 @@ class FlowPolicy(DenoiserPolicy):
             s = torch.distributions.Beta(torch.tensor(a), torch.tensor(b)).sample((action.shape[0],)).to(action.device)
         t = (1.0 - s).clamp(0.0, 1.0)  # (B,)
         x_t = (1 - t)[:, None, None] * noise + t[:, None, None] * action
-        return F.mse_loss(self.velocity(x_t, t, cond), action - noise)
+        if not self.delay_conditioned:
+            return F.mse_loss(self.velocity(x_t, t, cond), action - noise)
+        # training-time RTC: the prefix at flow time 1 (the clean actions), left out of the loss; drawn after the
+        # noise and times, so those are what an unconditioned run draws
+        prefix = train_prefix(self, batch, self.config.delay_train, self.config.obs_horizon - 1)
+        return masked_mse(self.velocity(prefix.network_input(x_t), t, cond), action - noise, prefix.mask)
 
-    def predict_action_chunk(self, obs: dict[str, torch.Tensor], guide: Guide | None = None) -> torch.Tensor:
-        """Integrate from noise; with `guide`, every velocity is Real-Time Chunking's guided one (policies.guidance)."""
+    def predict_action_chunk(self, obs: dict[str, torch.Tensor], guide: Guide | None = None,
+                             prefix: Prefix | None = None) -> torch.Tensor:
+        """Integrate from noise; with `guide`, every velocity is Real-Time Chunking's guided one (policies.guidance);
+        with `prefix` (a delay-conditioned network only), its actions are given clean at every step
+        (policies.prefix)."""
+        self.check_prefix(prefix)
         h = 1.0 / self.sampler_steps
         starts = [i * h for i in range(self.sampler_steps)]
         times = starts + ([t + 0.5 * h for t in starts] if self.sampler_kind == "midpoint" else [])
         model, b, device = self.denoiser(obs, [t * TIME_SCALE for t in times])  # the observation encoded once
+        model = self.prefixed(model, prefix)
 
         def v(x: torch.Tensor, t: float) -> torch.Tensor:
             if guide is None:
@@ -111,4 +122,5 @@ class FlowPolicy(DenoiserPolicy):
             if self.sampler_kind == "midpoint":
                 vel = v(x + 0.5 * h * vel, t + 0.5 * h)
             x = x + h * vel
-        return x.clamp(-1.0, 1.0)
+        x = x.clamp(-1.0, 1.0)
+        return x if prefix is None else prefix.impose(x)  # the prefix is what executes: returned as given

@@ -35,6 +35,7 @@ from bcbench.interface import Observation, RunInfo
 from bcbench.policies.config import config_to_dict
 from bcbench.policies.encoders import count_parameters
 from bcbench.policies.guidance import Guide
+from bcbench.policies.prefix import Prefix
 
 
 class BCPolicy(nn.Module):
@@ -53,6 +54,7 @@ class BCPolicy(nn.Module):
     guidable = False  # predict_action_chunk(obs, guide=...) samples towards a target (Real-Time Chunking)
     guidance_autograd = True  # that guidance takes a backward pass (an exported graph cannot run it)
     encodes_once = False  # obs["samples"] = n: n samples per observation row, the observation encoded once
+    standalone = True  # a policy of its own (False: a head run beside a base, e.g. A2C2's correction head)
 
     def call_graph(self, name: str, *args: torch.Tensor) -> Any:
         """Run one inference graph: the deployed (compiled) one if a backend is set, else this module's method."""
@@ -109,6 +111,11 @@ class BCPolicy(nn.Module):
             return draw((ref.shape[0], *shape), device=ref.device)
         g = batch["rng"]
         return draw((batch["global_batch"], *shape), generator=g, device=g.device)[batch["rows"]].to(ref.device)
+
+    def data_window(self) -> tuple[int, int, int]:
+        """The training windows' (observation frames, actions, action horizon): the config's horizons by default."""
+        c = self.config
+        return c.obs_horizon, c.pred_horizon, c.action_horizon
 
     def fit_data(self, train_ds: SequenceDataset) -> None:
         """Data-dependent set-up, once before a fresh run's first step (BeT fits its k-means bins); none by default."""
@@ -239,6 +246,29 @@ class PolicyRunner:
                           jacobian)
             chunk = self.model.predict_action_chunk(self.prepare(obs), guide=guide)  # (B, Tp, 2) normalised
             return self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()
+
+    def prefix_unavailable(self) -> str | None:
+        """Why the model cannot continue a clean prefix (`--strategy prefix`), or None when it can."""
+        if not getattr(self.model, "delay_conditioned", False):
+            trained = getattr(self.model.config, "delay_train", None)
+            return (f"{self.name} was trained without delay conditioning" + (f" (delay_train = {trained})" if trained
+                    else "") + ": train one with --set delay_train=[LO,HI] (flow or diffusion)")
+        return None
+
+    @torch.inference_mode()
+    def predict_prefixed_chunk(self, obs: Observation, prefix: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """Training-time RTC: a chunk continuing `prefix` (B, Tp, 2) pixels where `mask` (B, Tp) is 1."""
+        reason = self.prefix_unavailable()
+        if reason:
+            raise BCBenchError(reason)
+        with glue_threads(self.model):
+            actions = torch.as_tensor(np.array(prefix, dtype=np.float32), device=self.device)
+            given = Prefix(self.normalizer.normalize("action", actions),
+                           torch.as_tensor(np.array(mask, dtype=np.float32), device=self.device))
+            chunk = self.model.predict_action_chunk(self.prepare(obs), prefix=given)  # (B, Tp, 2) normalised
+            out = self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()
+        # the prefix is what executes: returned exactly as given (not through the normaliser's round trip)
+        return np.where(np.asarray(mask)[..., None] > 0, np.asarray(prefix, dtype=np.float32), out)
 
     @torch.inference_mode()
     def predict_candidates(self, obs: Observation, n: int) -> np.ndarray:

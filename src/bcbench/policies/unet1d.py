@@ -153,7 +153,10 @@ class ConditionalResidualBlock1D(nn.Module):
 
 class ConditionalUnet1D(nn.Module):
     def __init__(self, input_dim: int, global_cond_dim: int, step_embed_dim: int = 256,
-                 down_dims: tuple[int, ...] = (256, 512, 1024), kernel: int = 5, groups: int = 8) -> None:
+                 down_dims: tuple[int, ...] = (256, 512, 1024), kernel: int = 5, groups: int = 8,
+                 out_dim: int | None = None) -> None:
+        """`out_dim`: output channels when they differ from the input's (None: input_dim, Diffusion Policy's U-Net):
+        a delay-conditioned denoiser reads the actions and a clean-position mask (3 channels) and predicts 2."""
         super().__init__()
         self.step_embed_dim = step_embed_dim
         self.diffusion_step_encoder = nn.Sequential(
@@ -180,7 +183,7 @@ class ConditionalUnet1D(nn.Module):
             self.up_modules.append(nn.ModuleList([
                 block(cout * 2, cin), block(cin, cin), UpConv1d(cin)]))
         self.final_conv = nn.Sequential(Conv1dBlock(down_dims[0], down_dims[0], kernel, groups),
-                                        Conv1d(down_dims[0], input_dim, 1))
+                                        Conv1d(down_dims[0], out_dim or input_dim, 1))
 
     def residual_blocks(self) -> list[ConditionalResidualBlock1D]:
         """Every conditional block, in the order `forward` runs them."""
@@ -232,7 +235,7 @@ class ConditionalUnet1D(nn.Module):
         return self.final_conv(x).transpose(1, 2)
 
     def forward(self, sample: torch.Tensor, timestep: torch.Tensor, global_cond: torch.Tensor) -> torch.Tensor:
-        """sample (B, Tp, Da), timestep (B,) or scalar, global_cond (B, G) -> predicted noise (B, Tp, Da)."""
+        """sample (B, Tp, Da), timestep (B,) or scalar, global_cond (B, G) -> predicted noise (B, Tp, out_dim)."""
         x = sample.transpose(1, 2)  # (B, Da, Tp)
         if timestep.ndim == 0:
             timestep = timestep.expand(x.shape[0])

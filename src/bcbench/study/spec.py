@@ -18,6 +18,8 @@
     check_episodes = 100    # confirm: validation episodes of the twice-the-steps checks (>= 50)
     realtime = { delays = [1, 2, 4], execution = ["async"], profiles = ["a100"], measured = true,
                  strategies = ["naive", "rtc"], execution_horizon = 8, rtc_jacobian = false }
+                            # strategies: naive, rtc, bid, ensemble, or prefix (every swept run trained with
+                            # delay_train; bcbench.policies.prefix)
                             # the real-time sweep of the runs that ask for one (run key `realtime`): defaults
                             # [1, 2, 4, 8], both executions, no profile, measured, naive, s = 8 - d, the paper's RTC
 
@@ -332,7 +334,22 @@ def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
     for i, run in enumerate(runs):
         spec.runs.extend(_run_specs(i, run))
     _check_doubling(spec)
+    _check_strategies(spec)
     return spec
+
+
+def _check_strategies(spec: StudySpec) -> None:
+    """Every strategy a study sweeps runs on every run it sweeps: prefix on delay-conditioned runs only; a correction
+    head belongs to one base run, so a study does not sweep it."""
+    kinds = (spec.realtime or {}).get("strategies", [])
+    if "correction" in kinds:
+        raise BCBenchError("study.realtime.strategies: a correction head is trained on one base run; sweep it with "
+                           "bcbench realtime --checkpoint BASE --strategy correction --correction HEAD_RUN")
+    for r in spec.runs if "prefix" in kinds else []:
+        if r.realtime and not (r.learned and getattr(make_config(r.policy, r.config, r.overrides), "delay_train",
+                                                     (0, 0))[1] > 0):
+            raise BCBenchError(f"study.realtime.strategies has prefix, but run {r.label} is not trained with delay "
+                               "conditioning (set = { delay_train = [LO, HI] }, flow or diffusion)")
 
 
 def _check_doubling(spec: StudySpec) -> None:

@@ -29,7 +29,7 @@ from bcbench.data import MinMaxNormalizer, load_replay_buffer, make_datasets, re
 from bcbench.data.sequence import SequenceDataset
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.evaluate import EvalConfig, run_episodes
-from bcbench.policies import REGISTRY
+from bcbench.policies import trainable
 from bcbench.policies.checkpoint import (
     build_model,
     latest_checkpoint,
@@ -118,9 +118,7 @@ class Run:
 def new_run(policy: str, preset: str, overrides: dict[str, Any], out: str | Path | None,
             opts: TrainOptions) -> Path:
     """Create a run directory with its run.json; returns it (training starts with `train`)."""
-    if policy not in REGISTRY:
-        raise BCBenchError(f"unknown policy '{policy}' (registered: {', '.join(sorted(REGISTRY))})")
-    config_cls, _ = REGISTRY[policy]
+    config_cls, _ = trainable(policy)  # a registered policy, or a head trained beside one (policies.HEADS)
     if not hasattr(config_cls(), "optim"):
         raise BCBenchError(f"policy '{policy}' has nothing to train")
     config = with_overrides(config_cls.preset(preset), overrides)
@@ -166,10 +164,12 @@ def prepare(run_dir: str | Path, opts: TrainOptions) -> Run:
     buf = load_replay_buffer(resolve_dataset(opts.data))
     torch.manual_seed(meta["config"]["seed"])  # initialisation is part of the seeded run
     model = build_model(meta)
-    c, o = model.config, model.config.optim
+    o = model.config.optim
+    if opts.eval_every and not model.standalone:
+        raise BCBenchError(f"--eval-every rolls out a policy; a {model.name} head runs beside its base: score it with "
+                           "bcbench realtime --strategy correction")
     train_ds, val_ds, norm = make_datasets(buf, split.get("val_fraction", opts.val_fraction),
-                                           split.get("split_seed", opts.split_seed), c.obs_horizon, c.pred_horizon,
-                                           c.action_horizon)
+                                           split.get("split_seed", opts.split_seed), *model.data_window())
     if len(train_ds) < o.batch_size:
         raise BCBenchError(f"only {len(train_ds)} training windows for a batch of {o.batch_size}")
     steps_per_epoch = len(train_ds) // o.batch_size  # drop_last: every batch is full

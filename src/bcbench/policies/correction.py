@@ -1,0 +1,217 @@
+"""A2C2's correction head (Sendai, Alvarez, Matsushima, Matsuo, Iwasawa 2025, "Leave No Observation Behind: Real-time
+Correction for VLA Action Chunks", arXiv 2509.23224), on a frozen bcbench base policy.
+
+A chunk executes open loop: under a delay of d steps its actions were planned from an observation d or more steps
+old. The head restores some closed-loop reaction: every control step it reads the newest observation (through the
+base's own image encoder, frozen), the action the executing chunk planned for this step, the chunk's age (steps
+since its observation) and the action's index in the chunk, and returns a residual added to that action:
+
+    a_exec = a_plan + r_phi(f(o_now), a_plan, age / A, index / Tp)        r_phi an MLP, its last layer zero at start
+
+so an untrained head executes the base's actions exactly (tested). The base is never trained: its weights are not
+the head's parameters, not in its checkpoint, and its encoder's output is taken without gradient.
+
+Training (`bcbench train --policy correction --set base=RUN_DIR`, the flat loop): each sample is a demonstration
+window; a chunk start t0 (the window's current step), an age a ~ uniform{0..A}, the base's chunk sampled from the
+observation at t0 (the base's own prediction, with its sampler at `base_sampler` / `base_steps`, noise from the
+training step's generator), the head's input the observation at t0 + a and the base's planned action for t0 + a, the
+target the demonstration's action at t0 + a, loss the squared error of a_exec. The demonstration's own chunk at t0
+cannot stand in for the base's plan: its action for t0 + a *is* the target, so the residual would be zero.
+The windows hold obs_horizon + A frames (`data_window`), so the observation at t0 + a is in the sample.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from bcbench.data.normalizer import MinMaxNormalizer
+from bcbench.data.sequence import SequenceDataset
+from bcbench.errors import BCBenchError
+from bcbench.interface import ChunkPolicy, Observation
+from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile, pick_preset
+from bcbench.policies.encoders import FrameFeatures
+from bcbench.policies.learned import BCPolicy, PolicyRunner
+
+
+def _head_optim() -> OptimConfig:
+    return OptimConfig(optimizer="adamw", lr=1e-3, weight_decay=1e-6, schedule="cosine", warmup_steps=100, epochs=2,
+                       batch_size=64, checkpoint_every=200)
+
+
+@dataclass
+class CorrectionConfig(PolicyConfig):
+    """A2C2's correction head on a frozen base run (module docstring)."""
+
+    base: str = ""
+    """the frozen base policy's run folder (a trained diffusion, flow, bct or bet run, or a published model);
+    required"""
+    base_sampler: str | None = None
+    """the base's sampler while the head trains (None: the base's own); give the one it will run with (e.g. ddim)"""
+    base_steps: int | None = None
+    """the base's sampling steps while the head trains (None: its own; DP's default is 100 DDPM steps)"""
+    max_age: int = 14
+    """A: the oldest chunk age trained, in control steps (at most pred_horizon - obs_horizon, the last action of a
+    chunk)"""
+    hidden: tuple[int, ...] = (256, 256)
+    """widths of the MLP's hidden layers (Mish)"""
+    optim: OptimConfig = field(default_factory=_head_optim)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.hidden = tuple(self.hidden)
+        if not 0 <= self.max_age <= self.pred_horizon - self.obs_horizon:
+            top = self.pred_horizon - self.obs_horizon
+            raise BCBenchError(f"max_age must be in 0..pred_horizon - obs_horizon ({top}), got {self.max_age}")
+        if not self.hidden or min(self.hidden) < 1:
+            raise BCBenchError(f"hidden must list layer widths >= 1, got {self.hidden}")
+        if self.base_steps is not None and self.base_steps < 1:
+            raise BCBenchError(f"base_steps must be >= 1, got {self.base_steps}")
+
+    @classmethod
+    def preset(cls, name: str) -> CorrectionConfig:
+        def quick() -> CorrectionConfig:
+            return cls(hidden=(128, 128))
+
+        def cpu() -> CorrectionConfig:
+            # not yet chosen on validation seeds: 8 epochs x 64 at lr 1e-3 (Push-T: 382 windows of 16 frames a batch
+            # of 64 apart, so 3,056 steps, 0.20 M samples); every step samples the base's chunk for its batch
+            return cpu_profile(cls(), epochs=8, batch_size=64, lr=1e-3, warmup_steps=100)
+
+        return pick_preset("correction", name, {"quick": quick, "cpu": cpu, "paper": lambda: cls(hidden=(512, 512))})
+
+
+def sha_digest(sha256: str | None) -> torch.Tensor:
+    """A hex sha256 as 32 bytes (zeros when unknown), a buffer the checkpoint keeps."""
+    return torch.tensor(list(bytes.fromhex(sha256)) if sha256 else [0] * 32, dtype=torch.uint8)
+
+
+class CorrectionPolicy(BCPolicy):
+    """The head's MLP, with its frozen base held outside the module tree (not a parameter, buffer or submodule)."""
+
+    name = "correction"
+    standalone = False  # not a policy of its own: it runs beside its base (--strategy correction)
+
+    def __init__(self, config: CorrectionConfig, base: PolicyRunner | None = None) -> None:
+        super().__init__()
+        self.config = c = config
+        if base is None:
+            raise BCBenchError("a correction head is built on its base: --set base=RUN_DIR (a trained run)")
+        m = base.model
+        if (m.config.obs_horizon, m.config.pred_horizon) != (c.obs_horizon, c.pred_horizon):
+            raise BCBenchError(f"the base {c.base} has horizons ({m.config.obs_horizon}, {m.config.pred_horizon}), the "
+                               f"head ({c.obs_horizon}, {c.pred_horizon}): set the head's to the base's")
+        if not isinstance(getattr(m, "encoder", None), FrameFeatures):
+            raise BCBenchError(f"the base {c.base} ({m.name}) has no per-frame image encoder to read features from "
+                               "(diffusion, flow, bct and bet have one)")
+        if c.base_sampler or c.base_steps:
+            if not m.samplers:
+                raise BCBenchError(f"base_sampler/base_steps apply to a generative base, not to {m.name}")
+            m.set_sampler(c.base_sampler or m.sampler_kind, c.base_steps or m.sampler_steps)
+        m.eval().requires_grad_(False)
+        self._base = (base,)  # a tuple: nn.Module registers no submodule, so nothing of the base trains or is saved
+        feat = c.obs_horizon * (m.encoder.out_dim + 2)
+        dims = [feat + 4, *c.hidden]  # features, planned action (2), age, index
+        layers: list[nn.Module] = []
+        for a, b in itertools.pairwise(dims):
+            layers += [nn.Linear(a, b), nn.Mish()]
+        last = nn.Linear(dims[-1], 2)
+        nn.init.zeros_(last.weight)  # zero residual until trained: the head starts as the base itself
+        nn.init.zeros_(last.bias)
+        self.mlp = nn.Sequential(*layers, last)
+        self.register_buffer("base_digest", sha_digest(base.info.weights_sha256))  # which base weights it learned on
+
+    @property
+    def base(self) -> PolicyRunner:
+        return self._base[0]
+
+    def _apply(self, fn: Any, recurse: bool = True) -> Any:  # .to(device) and casts reach the base too
+        self.base.model._apply(fn)
+        return super()._apply(fn, recurse)
+
+    def trained_on(self) -> str | None:
+        """The sha256 of the base weights this head was trained on (from its checkpoint once loaded)."""
+        raw = bytes(self.base_digest.cpu().tolist())
+        return raw.hex() if any(raw) else None
+
+    def data_window(self) -> tuple[int, int, int]:
+        return self.config.obs_horizon + self.config.max_age, self.config.pred_horizon, self.config.action_horizon
+
+    def fit_data(self, train_ds: SequenceDataset) -> None:
+        """The head reads the base's normalised units: refuse data normalised otherwise (another split or dataset)."""
+        if train_ds.normalizer.to_dict() != self.base.normalizer.to_dict():
+            raise BCBenchError(f"this run's training split is normalised differently from the base's "
+                               f"({self.config.base}): train the head on the base's dataset and split")
+
+    def features(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:
+        """The base encoder's features of an observation window: (B, To, 3, H, W), (B, To, 2) -> (B, To (F + 2))."""
+        with torch.no_grad():
+            return torch.cat([self.base.model.encoder(image), agent_pos], dim=-1).flatten(1).detach()
+
+    def residual(self, feats: torch.Tensor, action: torch.Tensor, age: torch.Tensor, index: torch.Tensor
+                 ) -> torch.Tensor:
+        """r_phi: feats (B, G), planned action (B, 2) normalised, age and index (B,) -> residual (B, 2) normalised."""
+        c = self.config
+        scalars = torch.stack([age.float() / max(1, c.max_age), index.float() / c.pred_horizon], dim=-1)  # (B, 2)
+        return self.mlp(torch.cat([feats, action, scalars.to(feats.dtype)], dim=-1))
+
+    def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        c, image, pos, action = self.config, batch["image"], batch["agent_pos"], batch["action"]  # (B, To + A, ...)
+        to, cs = c.obs_horizon, c.obs_horizon - 1
+        seeds = (self.train_draw(batch, torch.rand) * 2 ** 62).long().tolist()  # the base's noise: one stream a row
+        gens = [torch.Generator(device=image.device).manual_seed(s) for s in seeds]
+        with torch.no_grad():
+            plan = self.base.model.predict_action_chunk({"image": image[:, :to], "agent_pos": pos[:, :to],
+                                                         "generators": gens})  # (B, Tp, 2), from t0's observation
+        age = (self.train_draw(batch, torch.rand) * (c.max_age + 1)).long().clamp_(max=c.max_age)  # (B,)
+        rows = torch.arange(len(age), device=age.device)
+        window = age[:, None] + torch.arange(to, device=age.device)  # (B, To): the frames ending at t0 + a
+        feats = self.features(image[rows[:, None], window], pos[rows[:, None], window])
+        index = cs + age
+        planned = plan[rows, index].float()  # (B, 2): the base's action for step t0 + a
+        return F.mse_loss(planned + self.residual(feats, planned, age, index), action[rows, index])
+
+    def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+        raise BCBenchError("a correction head is not a policy: run its base with --strategy correction "
+                           "--correction DIR")
+
+
+class CorrectionRunner:
+    """The head on raw observations and pixel actions, for the controller's per-step hook (a CorrectionHead)."""
+
+    def __init__(self, model: CorrectionPolicy, normalizer: MinMaxNormalizer, run_dir: str,
+                 device: str | torch.device = "cpu") -> None:
+        self.model = model.to(device).eval()
+        self.normalizer, self.run_dir, self.device = normalizer, run_dir, torch.device(device)
+
+    def base_mismatch(self, policy: ChunkPolicy) -> str | None:
+        trained = self.model.trained_on()
+        info = getattr(policy, "info", None)
+        theirs = getattr(info, "weights_sha256", None)
+        if trained is None or theirs != trained:
+            return (f"the head {self.run_dir} was trained on the base {self.model.config.base} (weights "
+                    f"{(trained or 'unknown')[:12]}), not on this policy (weights {(theirs or 'unknown')[:12]})")
+        return None
+
+    @torch.inference_mode()
+    def correct(self, obs: Observation, actions: np.ndarray, ages: np.ndarray, indices: np.ndarray) -> np.ndarray:
+        prepared = self.model.base.prepare(obs)  # image (B, To, 3, H, W) in [0, 1], agent_pos normalised
+        feats = self.model.features(prepared["image"].to(self.device), prepared["agent_pos"].to(self.device))
+        planned = torch.as_tensor(np.asarray(actions, dtype=np.float32), device=self.device)  # (B, 2) pixels
+        ages_t, index_t = torch.as_tensor(ages, device=self.device), torch.as_tensor(indices, device=self.device)
+        res = self.model.residual(feats, self.normalizer.normalize("action", planned), ages_t, index_t)
+        zero = torch.zeros_like(res)
+        # the residual in pixels: exactly 0 for a zero residual, so an untrained head returns the plan bit for bit
+        delta = self.normalizer.unnormalize("action", res) - self.normalizer.unnormalize("action", zero)
+        return (planned + delta.float()).cpu().numpy()
+
+    def describe(self) -> dict[str, Any]:
+        c = self.model.config
+        return {"run_dir": self.run_dir, "base": c.base, "base_weights_sha256": self.model.trained_on(),
+                "parameters": self.model.num_parameters(), "max_age": c.max_age, "hidden": list(c.hidden)}

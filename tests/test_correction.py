@@ -1,0 +1,180 @@
+"""A2C2's correction head (`bcbench train --policy correction`, `--strategy correction`): an untrained head is the
+base exactly, the base stays frozen, the controller's per-step hook and its cost in the measured latency."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from bcbench.errors import BCBenchError
+from bcbench.evaluation.config import EvalConfig, StrategyConfig
+from bcbench.evaluation.latency_sources import LatencySource
+from bcbench.evaluation.strategies import Strategy
+from bcbench.policies.checkpoint import build_model, load_correction, load_runner
+from bcbench.policies.config import config_to_dict
+from bcbench.policies.correction import CorrectionConfig, CorrectionRunner
+from bcbench.training.loop import TrainOptions, new_run, train
+from bcbench.utils.io import read_json
+from tests.test_strategies import Planned, _drive, _runner, _same
+from tests.tiny import tiny_overrides
+
+
+def _head_overrides(base: Path, **extra) -> dict:
+    return {"base": str(base), "hidden": [8], "max_age": 6, "base_sampler": "ddim", "base_steps": 2,
+            "optim.batch_size": 4, "optim.log_every": 1, "optim.checkpoint_every": 2, "optim.warmup_steps": 0,
+            "optim.max_steps": 3, "optim.precision": "fp32", **extra}
+
+
+@pytest.fixture(scope="module")
+def base_run(synthetic_zarr, tmp_path_factory) -> Path:
+    """A tiny Diffusion Policy trained two steps on the synthetic data: the frozen base."""
+    opts = TrainOptions(data=str(synthetic_zarr), threads=1, progress=False, device="cpu")
+    run = new_run("diffusion", "quick", {**tiny_overrides("diffusion", max_steps=2), "optim.precision": "fp32"},
+                  tmp_path_factory.mktemp("base") / "dp", opts)
+    train(run, opts)
+    return run
+
+
+def _untrained_head(base: Path) -> CorrectionRunner:
+    cfg = CorrectionConfig.preset("quick")
+    cfg.base, cfg.hidden, cfg.max_age = str(base), (8,), 6
+    model = build_model({"policy": "correction", "config": config_to_dict(cfg)})
+    return CorrectionRunner(model, model.base.normalizer, "untrained")
+
+
+def test_an_untrained_head_executes_the_base_exactly_episode_by_episode(base_run):
+    from bcbench.evaluation.evaluate import evaluate
+
+    base, head = load_runner(base_run), _untrained_head(base_run)
+    base.model.set_sampler("ddim", 2)
+    for execution, d in (("sync", 0), ("async", 2), ("blocking", 2)):  # step by step, every action equal
+        naive = _drive(base, "naive", execution, d, seed=5)
+        assert _same(_drive(base, "correction", execution, d, seed=5, head=head, correction="untrained"), naive)
+    runs = {}
+    for kind in ("naive", "correction"):  # and in the simulator, episode by episode
+        cfg = EvalConfig(episodes=2, max_steps=20, workers=1, execution="async", latency_ms=250,
+                         strategy=StrategyConfig(kind, correction="untrained" if kind == "correction" else None))
+        runs[kind] = evaluate(base, cfg, None, progress=False, head=head if kind == "correction" else None)
+    assert [e["final_state"] for e in runs["naive"]["episodes"]] == [e["final_state"]
+                                                                     for e in runs["correction"]["episodes"]]
+    timing = runs["correction"]["summary"]["strategy"]
+    assert timing["head"]["run_dir"] == "untrained" and timing["per_step_ms"]["calls"] > 10  # recorded per step
+
+
+def test_the_head_trains_on_a_frozen_base_and_then_acts(base_run, synthetic_zarr, tmp_path):
+    opts = TrainOptions(data=str(synthetic_zarr), threads=1, progress=False, device="cpu",
+                        callbacks=(lambda r: seen.update(run=r),))
+    seen: dict = {}
+    run = new_run("correction", "quick", _head_overrides(base_run), tmp_path / "head", opts)
+    summary = train(run, opts)
+    model = seen["run"].model
+    assert summary["step"] == 3  # and the head alone trained: the base is none of its parameters
+    assert summary["parameters"] == sum(p.numel() for p in model.mlp.parameters()) < model.base.model.num_parameters()
+    frozen = load_runner(base_run).model.state_dict()
+    assert all(torch.equal(v, frozen[k]) for k, v in model.base.model.state_dict().items())  # untouched
+    assert {k.split(".")[0] for k in model.state_dict()} == {"mlp", "base_digest"}  # nothing of the base saved
+    head = load_correction(run)
+    base = load_runner(base_run)
+    assert head.model.trained_on() == base.info.weights_sha256
+    assert head.model.mlp[-1].weight.abs().sum() > 0  # trained: the residual is no longer zero
+    base.model.set_sampler("ddim", 2)
+    naive = _drive(base, "naive", "async", 2, seed=5)
+    for execution in ("async", "blocking"):  # d = 0 is sync, for a head that acts
+        sync = _drive(base, "correction", "sync", seed=5, head=head, correction=str(run))
+        assert _same(_drive(base, "correction", execution, 0, seed=5, head=head, correction=str(run)), sync)
+    assert not _same(_drive(base, "correction", "async", 2, seed=5, head=head, correction=str(run)), naive)
+    assert read_json(run / "run.json")["config"]["base"] == str(base_run)
+
+
+class Recording:
+    """A correction head that records what the controller gives it and corrects nothing."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+
+    def correct(self, obs, actions, ages, indices):
+        self.calls.append((actions.copy(), ages.copy(), indices.copy()))
+        return actions
+
+    def base_mismatch(self, policy):
+        return None
+
+    def describe(self):
+        return {"name": "recording"}
+
+
+@pytest.mark.parametrize(("execution", "d"), [("sync", 0), ("async", 3), ("blocking", 2)])
+def test_the_head_gets_every_planned_action_with_its_chunks_age_and_index(execution, d):
+    head = Recording()
+    acts = _drive(Planned(), "correction", execution, d, steps=40, head=head, correction="x")
+    # steps where the agent holds its last target (waiting for a chunk) are not corrected: async holds for the first
+    # chunk's delay only (later ones arrive just in time), blocking for every chunk's
+    assert len(head.calls) == {"sync": 40, "async": 40 - d, "blocking": 40 - 4 * d}[execution]
+    planned_steps = []
+    for actions, ages, indices in head.calls:
+        assert actions.shape == (1, 2) and ages.shape == indices.shape == (1,)
+        planned_steps.append(actions[0, 0])  # Planned: entry j of a call at step t plans step t + j
+        if execution == "blocking":  # observed at the request, executed from its arrival d steps later
+            assert ages[0] == indices[0] + d and 0 <= indices[0] < 8
+        else:  # chunk_start 0: the index is the age; async skips the d actions in the past
+            assert ages[0] == indices[0] and d <= ages[0] < 8
+    if execution != "blocking":  # every step from the first chunk's arrival on, each with the action planned for it
+        assert planned_steps == list(range(40 - len(head.calls), 40))
+    assert all(acts[t][0] == t for t in range(40 - len(head.calls), 40)) or execution == "blocking"
+
+
+def test_the_heads_per_step_cost_is_in_the_measured_latency():
+    class Clocked:
+        name, obs_horizon, pred_horizon, action_horizon, chunk_start = "clocked", 2, 16, 8, 1
+
+        def __init__(self, s: float) -> None:
+            self.s, self.last_compute_s = s, 0.0
+
+        def predict_action_chunk(self, obs):
+            self.last_compute_s = self.s
+            return np.zeros((len(obs["agent_pos"]), 16, 2), np.float32)
+
+        def describe(self):
+            return {"name": self.name}
+
+    class Timed(Recording):
+        last_compute_s = 0.005  # reports 5 ms a step (a SelfTimedPolicy)
+
+    def measured(seconds: float) -> float:
+        src, policy = LatencySource("measured"), Clocked(seconds)
+        src.resolve(policy, Strategy(StrategyConfig("correction", correction="x"), policy, head=Timed()))
+        return float(np.median(src.samples_ms))
+
+    assert measured(0.03) == pytest.approx(35.0, abs=0.5)  # one step: the chunk and one head call
+    assert measured(0.25) == pytest.approx(265.0, abs=0.5)  # three steps, a head call in each
+
+
+def test_heads_that_cannot_run_say_why_in_one_line(base_run, synthetic_zarr, tmp_path, capsys):
+    from bcbench.cli.main import main
+
+    head = _untrained_head(base_run)
+    with pytest.raises(BCBenchError, match=r"was trained on the base .* not on this policy"):
+        Strategy(StrategyConfig("correction", correction="x"), _runner("diffusion"), head=head)
+    with pytest.raises(BCBenchError, match="needs its trained head"):
+        Strategy(StrategyConfig("correction", correction="x"), _runner("diffusion"))
+    with pytest.raises(BCBenchError, match="--strategy correction needs its head"):
+        StrategyConfig("correction")
+    with pytest.raises(BCBenchError, match="goes with --strategy correction"):
+        Strategy(StrategyConfig(), _runner("diffusion"), head=head)
+    opts = TrainOptions(data=str(synthetic_zarr), threads=1, progress=False, device="cpu", eval_every=1)
+    with pytest.raises(BCBenchError, match="--eval-every rolls out a policy"):
+        train(new_run("correction", "quick", _head_overrides(base_run), tmp_path / "h", opts), opts)
+    with pytest.raises(BCBenchError, match="is a correction head, not a policy"):
+        load_runner(tmp_path / "h")
+    with pytest.raises(BCBenchError, match="needs its base run"):
+        build_model({"policy": "correction", "config": config_to_dict(CorrectionConfig())})
+    common = ["realtime", "--checkpoint", str(base_run), "--episodes", "1", "--delays", "1", "--execution", "async",
+              "--max-steps", "5", "--quiet", "--out", str(tmp_path / "rt")]
+    for extra, message in ((["--strategy", "correction"], "--strategy correction needs its head"),
+                           (["--strategy", "naive", "--correction", str(tmp_path / "h")], "goes with --strategy")):
+        assert main([*common, *extra]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0]
