@@ -64,7 +64,9 @@ def main() -> None:
     sync, naive = averaged(loaded["sync"]), averaged(loaded["naive"])
     s, a = _mean(sync), _mean(naive)
     print(f"replicates per group: {counts}")
-    print(f"naive sync {s:.3f}, naive at the delay {a:.3f}: loss {s - a:.3f} (naive at its default horizon)")
+    d, dlo, dhi, _ = paired_bootstrap(naive, [sync])
+    print(f"naive sync {s:.3f}, naive at the delay {a:.3f}: loss {s - a:.3f} (naive at its default horizon; "
+          f"{d:+.3f} [{dlo:+.3f}, {dhi:+.3f}] against sync)")
     naive_s = averaged(loaded["naive_s"]) if "naive_s" in loaded else None
     if naive_s is not None:
         print("  1. " + _step("naive at the strategy's horizon", naive_s, naive, sync, naive, None))

@@ -4,6 +4,9 @@ named by their sha256, and every decision a test-seed result informed listed whe
 from __future__ import annotations
 
 import json
+import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -109,3 +112,51 @@ def test_the_committed_confirm_report_prints_its_test_informed_decisions():
     assert len(combine["test_informed"]) >= 5
     for e in combine["test_informed"]:
         assert e["decision"] in provenance
+
+
+# a sentence that says a strategy keeps or recovers a score (issue 74: it names the training seeds it rests on)
+CLAIM = re.compile(r"keeps (its|the) sync score|gets back [0-9]+%|recovers [0-9]+%|takes back [0-9]+%")
+
+
+def test_every_real_time_claim_says_how_many_trained_models_it_rests_on():
+    for doc in ("README.md", "docs/realtime.md", "docs/results.md"):
+        for n, line in enumerate((ROOT / doc).read_text().splitlines(), 1):
+            if CLAIM.search(line):
+                assert "training seed" in line, f"{doc}:{n}: {line}"
+
+
+def _recovery(policy: str, d: int, naive: str, at_horizon: str, strategy: str) -> dict[str, str]:
+    """scripts/recovery.py's three steps over the committed replicates: {"loss", "step1", "step2", "total"}, each the
+    text a reader would quote (a difference and its interval, or a share and its interval)."""
+    r = ROOT / "results" / "strategies-replicates" / policy
+    out = subprocess.run([sys.executable, str(ROOT / "scripts" / "recovery.py"),
+                          "--sync", f"{r}/seed*/naive-d8/realtime-sync.json",
+                          "--naive", f"{r}/seed*/{naive}/realtime-async-d{d}.json",
+                          "--naive-at-horizon", f"{r}/seed*/{at_horizon}/realtime-async-d{d}.json",
+                          f"{r}/seed*/{strategy}/realtime-async-d{d}.json"],
+                         capture_output=True, text=True, check=True).stdout
+    interval, share = r"[+-]\d\.\d{3} \[[+-]\d\.\d{3}, [+-]\d\.\d{3}\]", r"-?\d+% \[-?\d+, -?\d+\]"
+    lines = out.splitlines()
+    loss = re.search(rf"({interval}) against sync", lines[1])
+    step1, step2, total = lines[2], lines[3], lines[4]
+    return {"loss": loss.group(1),
+            "step1_sync": re.search(rf"({interval}) against sync", step1).group(1),
+            "step1_share": re.search(rf"({share}) of naive's loss", step1).group(1),
+            "step2": re.search(rf"({interval}) over the step before", step2).group(1),
+            "step2_share": re.search(rf"({share}) of naive's loss", step2).group(1),
+            "total_sync": re.search(rf"({interval}) against sync", total).group(1),
+            "total_share": re.search(rf"({share}) of naive's loss", total).group(1)}
+
+
+def test_the_readmes_real_time_numbers_regenerate_with_their_horizon_split():
+    """The README's d = 4 retention and d = 8 recoveries, each split into the horizon's step and the method's, are what
+    scripts/recovery.py computes from the committed replicate records."""
+    readme = " ".join((ROOT / "README.md").read_text().split())
+    dp4 = _recovery("dp-ddim10", 4, "naive-d4", "naive-d4-s8", "rtc-d4/rtc")
+    for key in ("loss", "step1_sync", "step2", "total_sync"):
+        assert dp4[key] in readme, (key, dp4[key])
+    for policy in ("dp-ddim10", "flow-euler10"):
+        d8 = _recovery(policy, 8, "naive-d8", "naive-d8-s7", "rtc-d8/rtc")
+        for key in ("step1_share", "step2_share", "total_share"):
+            assert d8[key] in readme, (policy, key, d8[key])
+    assert "one trained model per policy (training seed 0) with 3 noise replicates" in readme

@@ -385,9 +385,10 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     html_path = out / "report.html"
     with atomic_path(html_path) as tmp:
         choose = control_loop_rows(settings, realtime, margin, paired)
-        top = ((_img(FIG5, fig5, "lead", _lead_height(lead, len(choose))) if fig5 else "")
+        under = _informed_sentence(informed) if informed else ""
+        top = ((_img(FIG5, fig5, "lead", _lead_height(lead, choose, under)) if fig5 else "")
                + "<h2>Which policy for my control loop</h2>" + _html_table(CHOOSE_HEADER, choose)
-               + (f"<p>{html.escape(_informed_sentence(informed))}</p>" if informed else "")
+               + (f"<p>{html.escape(under)}</p>" if under else "")
                + ("<h2>Machines</h2>" + _html_table(MACHINES_HEADER, machines) if machines else ""))
         tail = (f"<h2>How to read the numbers</h2><p>{html.escape(intro)}</p><h2>Provenance</h2><ul>"
                 + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
@@ -409,12 +410,15 @@ def _img(title: str, path: Path, cls: str = "", style: str = "") -> str:
             f"src='data:image/png;base64,{base64.b64encode(path.read_bytes()).decode()}'>")
 
 
-def _lead_height(intro: str, table_rows: int) -> str:
+def _lead_height(intro: str, rows: list[list[str]], under: str = "") -> str:
     """Figure 5's height cap, so that it and the choice table fit the first screen: 46% of the window less what a
-    table of more than 5 rows (about 24 px each) and an introduction of more than 3 lines (about 22 px per 170
-    characters at a laptop's width) take, never below a quarter of the window."""
-    extra = 24 * max(0, table_rows - 5) + 22 * max(0, -(-len(intro) // 170) - 3)
-    return f"max-height:max(25vh, calc(46vh - {extra}px))" if extra else ""
+    table of more than 5 rows (about 24 px each, 18 px more for each further line a long row wraps to, about 150
+    characters a line at a laptop's width), an introduction of more than 3 lines and a sentence under the table
+    (about 22 px per 170 characters) take, never below 18% of the window (the table, the answer, comes first)."""
+    wrapped = sum(-(-sum(len(c) for c in r) // 150) - 1 for r in rows)
+    extra = (24 * max(0, len(rows) - 5) + 18 * wrapped + 22 * max(0, -(-len(intro) // 170) - 3)
+             + 22 * -(-len(under) // 170))
+    return f"max-height:max(18vh, calc(46vh - {extra}px))" if extra else ""
 
 
 def _findings_html(findings: list[Finding], rules_intro: str) -> str:
