@@ -70,6 +70,9 @@ def test_the_highest_committed_score_at_its_own_delay_wins_and_live_scores_do_no
     assert pick["chosen"] == "fast" and pick["runner_up"] == "slow"
     assert pick["line"].startswith("At 10 Hz on Test CPU: use fast (default, fast): score 0.755")
     assert "median 5.0 ms, p99 6.0 ms" in pick["line"] and "leads it by +0.050" in pick["line"]
+    # a runner-up the paired interval cannot tell from the choice is not said to be behind it
+    tie = choice([_row("p", 1, 0.70), _row("q", 1, 0.70)], 10.0, "X")["line"]
+    assert "not told apart from the choice" in tie and "leads it" not in tie
     # nothing swept at these delays: ranked on the committed sync score, and the line says so
     assert choice([_row("a", 3, None, 0.6), _row("b", 3, None, 0.7)], 10.0, "X")["chosen"] == "b"
     assert "no committed sweep" in choice([_row("a", 3, None, 0.6)], 10.0, "X")["line"]
@@ -163,7 +166,8 @@ def test_choose_end_to_end_with_a_users_plugin(knn_site, synthetic_zarr, tmp_pat
                            "--episodes", "2", "--calls", "3", "--out", str(out), "--quiet"],
                           capture_output=True, text=True, env=env, timeout=600, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.startswith("At 10 Hz on ") and ": use bct-cpu (cpu, " in proc.stdout.splitlines()[0]
+    first = proc.stdout.splitlines()[0]  # a miniature's setting says its size
+    assert proc.stdout.startswith("At 10 Hz on ") and ": use bct-cpu (cpu; 1/4 width (1.12 M), " in first
     knn = next(line for line in proc.stdout.splitlines() if line.startswith("knn "))
     assert "scored live, 2 episodes (wide interval)" in knn
     record = json.loads((out / "choose.json").read_text())

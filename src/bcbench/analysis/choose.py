@@ -206,7 +206,9 @@ def choice(rows: list[dict[str, Any]], rate_hz: float, cpu: str) -> dict[str, An
         if basis == "realtime":
             est, lo, hi, n = paired_bootstrap(best["realtime"]["seeds"], [second["realtime"]["seeds"]])
             gap = {"value": est, "ci95": [lo, hi], "pairs": n}
-            line += f"; the choice leads it by {est:+.3f} [{lo:+.3f}, {hi:+.3f}], paired over {n} test seeds"
+            ahead = "the choice leads it by" if lo > 0 else "not told apart from the choice (choice minus it"
+            line += (f"; {ahead} {est:+.3f} [{lo:+.3f}, {hi:+.3f}]{'' if lo > 0 else ')'}, paired over {n} test "
+                     "seeds")
     return {"line": line, "chosen": best["label"], "runner_up": second["label"] if second else None,
             "basis": basis, "gap": gap}
 

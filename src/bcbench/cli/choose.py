@@ -49,7 +49,7 @@ def cmd_choose(args: argparse.Namespace) -> int:
                                  if model else (100_000, 300))
         say(f"  re-scoring {label} on {cfg.episodes} test episodes from seed {seed_start}")
         m = {"label": label, "policy": model.policy if model else policy.name,
-             "setting": model.setting if model else "as given", "source": str(model.folder) if model else label,
+             "setting": _sized_setting(model) if model else "as given", "source": str(model.folder) if model else label,
              **timing["policies"][label],
              "live": rescore(policy, cfg.episodes, seed_start, max_steps, progress=False)}
         rows.append(with_evidence(m, model, records, root, cfg.rate_hz))
@@ -71,3 +71,15 @@ def cmd_choose(args: argparse.Namespace) -> int:
     print(console_table(record))
     print(f"page: {paths['html']}  (Markdown: {paths['markdown']}; record: {paths['json']})")
     return 0
+
+
+def _sized_setting(model: Any) -> str:
+    """The published setting with the network's size where it is not the study's ("DDIM-10; 1/4 width (5.33 M)"):
+    a folder named resnet50-cpu is a miniature, and the table says so (issue 74)."""
+    from bcbench.reference import sized_label
+    from bcbench.utils.io import read_json
+
+    run = model.folder / "run.json"
+    cfg = read_json(run).get("config") if run.is_file() else None
+    size = sized_label("", model.policy, int(model.record.get("parameters") or 0), cfg).lstrip(", ")
+    return f"{model.setting}; {size}" if size else model.setting
