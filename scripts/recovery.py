@@ -8,10 +8,10 @@ last-bit differences between CPUs).
     python scripts/recovery.py --sync A/naive/realtime-sync.json --naive A/naive/realtime-async-d8.json \
         [--naive-at-horizon A/naive-s7/realtime-async-d8.json] B/rtc/realtime-async-d8.json
 
-With --naive-at-horizon (naive at the strategy's execution horizon s) every setting is read in three steps:
-  1. naive at the default horizon (the loss: naive minus sync);
-  2. naive at s minus naive at the default horizon (what the horizon alone buys);
-  3. the setting minus naive at s (what the method adds at that horizon);
+With --naive-at-horizon (naive at the strategy's execution horizon s) every setting is read from the loss, naive at
+the default horizon minus sync (the first line), in two steps:
+  1. naive at s minus naive at the default horizon (what the horizon alone buys);
+  2. the setting minus naive at s (what the method adds at that horizon);
 and the total, the setting minus naive at the default horizon. A retention claim (a setting within the margin of
 sync) reads the same steps, each against sync.
 

@@ -56,9 +56,13 @@ def test_figure3_says_when_nothing_is_timed_rather_than_draw_empty_axes(study, u
 
 def test_figure_5_gives_up_height_to_a_longer_table_or_introduction():
     """A report with more policies (more rows in the choice table) or a longer introduction (a combined report names
-    every machine) shrinks Figure 5 so that the table still ends in the first screen, never below a quarter of it."""
+    every machine), rows that wrap (long names with their sizes) or a sentence under the table shrinks Figure 5 so
+    that the table still ends in the first screen, never below 18% of it."""
     from bcbench.analysis.report import _lead_height
 
-    assert _lead_height("x" * 300, 5) == ""  # the class's 46vh
-    assert _lead_height("x" * 300, 8) == "max-height:max(25vh, calc(46vh - 72px))"
-    assert _lead_height("x" * 700, 5) == "max-height:max(25vh, calc(46vh - 44px))"  # 5 lines of 170 characters
+    row = ["policy", "setting", "score"]  # one line
+    assert _lead_height("x" * 300, [row] * 5) == ""  # the class's 46vh
+    assert _lead_height("x" * 300, [row] * 8) == "max-height:max(18vh, calc(46vh - 72px))"
+    assert _lead_height("x" * 700, [row] * 5) == "max-height:max(18vh, calc(46vh - 44px))"  # 5 lines of 170 characters
+    assert _lead_height("x" * 300, [row] * 4 + [["y" * 200]]) == "max-height:max(18vh, calc(46vh - 18px))"  # 2 lines
+    assert _lead_height("x" * 300, [row] * 5, "z" * 100) == "max-height:max(18vh, calc(46vh - 22px))"  # a sentence

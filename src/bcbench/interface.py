@@ -170,13 +170,13 @@ class RunInfo:
     checkpoint: str | None = None
     weights: str | None = None  # "ema" or "raw"
     preset: str | None = None
-    weights_sha256: str | None = None  # of the weights file loaded: which model a record ran, whatever its folder
-    normalizer_sha256: str | None = None  # of its normalizer.json (the same weights with other statistics differ)
     sampler: str | None = None
     steps: int | None = None
     spacing: str | None = None
     mode: str | None = None  # bcbench.modes.MODES; None: never switched (the fast form)
     deployment: dict[str, Any] | None = None
+    weights_sha256: str | None = None  # of the weights file loaded: which model a record ran, whatever its folder
+    normalizer_sha256: str | None = None  # of its normalizer.json (the same weights with other statistics differ)
 
     def describe(self) -> dict[str, Any]:
         """The fields that are set, for result files (the keys records have always used)."""

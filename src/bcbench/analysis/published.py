@@ -137,7 +137,15 @@ def sweep_records(results_dir: str | Path) -> list[tuple[Path, dict[str, Any]]]:
     return out
 
 
+# strategies whose sweeps a published model alone cannot rerun: a correction head, or weights trained for `prefix`
+UNPUBLISHED_PARTS = ("correction", "prefix")
+
+
 def _same_weights(policy: dict[str, Any], model: Published) -> bool:
+    """A record ran this model's weights: by their sha256 where the record names it (issue 74), else (older records)
+    by the run folder's name, checkpoint step and EMA/raw weights."""
+    if policy.get("weights_sha256"):
+        return policy["weights_sha256"] == (model.record.get("file") or {}).get("sha256")
     src = model.record.get("source") or {}
     run_dir = str(policy.get("run_dir") or "").rstrip("/")
     named = run_dir.rsplit("/", 1)[-1] == src.get("run") or run_dir.endswith(f"models/{model.name}")
@@ -160,6 +168,9 @@ def sweeps_of(model: Published, records: list[tuple[Path, dict[str, Any]]]) -> l
         if sampler and (policy.get("sampler"), policy.get("steps")) != (sampler, steps):
             continue
         variant = (data.get("study") or {}).get("variant") or {}
+        strategy = (cfg.get("strategy") or {})
+        if variant.get("strategy") in UNPUBLISHED_PARTS or strategy.get("bid_weak"):
+            continue  # needs a part models/ does not hold (a head, delay-trained weights, a weak policy)
         asyncs = [s for k, s in data["settings"].items() if k.startswith("realtime-async-d")]
         horizon = (asyncs[0].get("eval_config") or {}).get("execution_horizon") if asyncs else None
         out.append(Sweep(f, variant.get("strategy") or "naive", horizon, data["settings"]))

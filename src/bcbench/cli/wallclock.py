@@ -107,7 +107,8 @@ class SpawnedServer:
 def _check_wallclock_args(args: argparse.Namespace) -> None:
     given = [f"--{k}" for k, v in REALTIME_DEFAULTS.items() if getattr(args, k) != v]
     given += [f for f, on in (("--profile", args.profile), ("--measured", args.measured), ("--resume", args.resume),
-                              ("--bid-weak", args.bid_weak)) if on]
+                              ("--bid-weak", args.bid_weak), ("--correction", getattr(args, "correction", None)))
+              if on]
     if given:
         raise BCBenchError(f"--wall-clock runs async naive execution at the real delay: {', '.join(given)} "
                            "do not apply to it")

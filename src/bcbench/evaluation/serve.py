@@ -52,6 +52,11 @@ class PolicyServer:
             self.refused += 1
             print(f"bcbench serve: refused request {rid}: {exc}", file=sys.stderr, flush=True)
             return error(rid, str(exc))
+        except Exception as exc:
+            self.refused += 1
+            first = (str(exc).strip().splitlines() or [""])[0]
+            print(f"bcbench serve: request {rid} failed: {type(exc).__name__}: {first}", file=sys.stderr, flush=True)
+            return error(rid, f"the policy failed: {type(exc).__name__}: {first}")
         self.served += 1
         answer.update(id=rid, received_at=received, sent_at=time.time())
         if "sent_at" in message:
@@ -121,7 +126,11 @@ def serve(policy: ChunkPolicy, bind: str, server_info: dict[str, Any] | None = N
                 continue
             frames = sock.recv_multipart()
             answer = server.handle(frames[0]) if len(frames) == 1 else error(None, "one frame per message")
-            sock.send(encode(answer))
+            try:
+                payload = encode(answer)
+            except Exception as exc:
+                payload = encode(error(answer.get("id"), f"the answer could not be encoded: {type(exc).__name__}"))
+            sock.send(payload)
     finally:
         if main_thread:
             signal.signal(signal.SIGTERM, previous)

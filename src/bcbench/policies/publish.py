@@ -15,6 +15,7 @@ state, no pickle, nothing that runs code when loaded.
 from __future__ import annotations
 
 import math
+import os
 import shutil
 from pathlib import Path
 from typing import Any
@@ -77,8 +78,8 @@ def _history(out: Path) -> list[dict[str, Any]]:
     if not meta.is_file():
         return []
     old = read_json(meta)
-    entry = {"sha256": old["file"]["sha256"], "source": old.get("source"), "scores": (old.get("scores") or {}).get(
-        "file"), "published_at_commit": old.get("published_at_commit")}
+    entry = {"sha256": (old.get("file") or {}).get("sha256"), "source": old.get("source"),
+             "scores": (old.get("scores") or {}).get("file"), "published_at_commit": old.get("published_at_commit")}
     return [*old.get("history", []), entry]
 
 
@@ -91,7 +92,8 @@ def publish(run_dir: str | Path, out: str | Path, scores: str | Path, force: boo
     `history`."""
     run_dir, out = Path(run_dir), Path(out)
     commit = git_commit()
-    if out.resolve().parent == MODELS_DIR and (commit is None or commit.endswith("-dirty")):
+    declared = bool(os.environ.get("BCBENCH_COMMIT"))  # a copied tree's declared commit, not one git checked
+    if out.resolve().parent == MODELS_DIR and (commit is None or commit.endswith("-dirty") or declared):
         raise BCBenchError(f"{out} is a published model folder: publish from a clean, committed tree (this one is "
                            f"{commit or 'not a git checkout'}), so its model.json names the code that wrote it")
     run = read_run(run_dir)
@@ -112,8 +114,8 @@ def publish(run_dir: str | Path, out: str | Path, scores: str | Path, force: boo
                  "sha256": sha256_file(file), "dtype": "fp32"},
         "scores": source, "published_at_commit": commit,
     }
-    history = _history(out) if force else []
-    if history:
+    history = [h for h in (_history(out) if force else []) if h["sha256"] != record["file"]["sha256"]]
+    if history:  # the same weights published again add no entry
         record["history"] = history
     with atomic_dir(out, force=force) as staged:
         (staged / "checkpoints" / ckpt.name).mkdir(parents=True)

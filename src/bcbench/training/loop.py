@@ -144,8 +144,9 @@ def discard_new_run(run_dir: str | Path) -> None:
     """Undo `new_run` for a training that failed before its first checkpoint (unreadable data, say): its files go,
     and its folder too where nothing else is in it, so a failed start leaves nothing that looks like a run."""
     run_dir = Path(run_dir)
-    if (run_dir / "checkpoints").exists():
-        return
+    metrics = run_dir / "metrics.jsonl"
+    if (run_dir / "checkpoints").exists() or (metrics.exists() and metrics.stat().st_size > 0):
+        return  # it trained (a NaN stop or a failed rollout later on): what it logged is kept
     for name in ("run.json", "normalizer.json", "metrics.jsonl", "train_summary.json"):
         (run_dir / name).unlink(missing_ok=True)
     if run_dir.is_dir() and not any(run_dir.iterdir()):
