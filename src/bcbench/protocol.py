@@ -10,6 +10,8 @@
 
 from __future__ import annotations
 
+import math
+
 from bcbench.errors import BCBenchError
 
 TEST_SEED_START = 100_000
@@ -71,6 +73,14 @@ CONTROL_DT_S = 0.1  # Push-T's control period (10 Hz): a delay d is counted in t
 
 
 SYNC_SETTING = "realtime-sync"  # a real-time sweep's d = 0 reference, shared by every execution mode
+
+
+def delay_steps(latency_s: float, rate_hz: float | None = None) -> int:
+    """Control steps a call of `latency_s` seconds takes: ceil(L / 0.1 s), or ceil(L f) at another rate `rate_hz`,
+    with a hair of slack so that an exact multiple (0.2 s at 10 Hz) is not rounded up by floating point. The one
+    rounding every delay in bcbench goes through (simulated, measured, wall-clock, `bcbench choose`)."""
+    x = latency_s / CONTROL_DT_S if rate_hz is None else latency_s * rate_hz
+    return max(0, math.ceil(x - 1e-9))
 
 
 def delay_setting(execution: str, d: int) -> str:

@@ -16,7 +16,6 @@ ranked (its interval is too wide to rank on), and a model with no committed swee
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +32,7 @@ from bcbench.analysis.published import (
 from bcbench.analysis.realtime import highest_safe_rate, largest_safe_delay, rate_text, seed_scores, too_few_episodes
 from bcbench.analysis.results import Row
 from bcbench.modes import EXACT_MODES
+from bcbench.protocol import delay_steps as protocol_delay_steps
 from bcbench.stats import fmt_estimate, paired_bootstrap
 
 HEADER = ["policy", "setting", "score [95% CI]", "median ms, batch 1 (fastest exact mode)",
@@ -143,7 +143,7 @@ def control_loop_lines(rows: list[Row], realtime: dict[str, dict[str, Any]], mar
 
 def delay_steps(latency_ms: float, rate_hz: float) -> int:
     """Control steps a call of `latency_ms` takes at `rate_hz`: d = ceil(L f), at least 1 (a call takes time)."""
-    return max(1, math.ceil(latency_ms / 1e3 * rate_hz - 1e-9))
+    return max(1, protocol_delay_steps(latency_ms / 1e3, rate_hz))
 
 
 def strategy_at(sweeps: list[Sweep], d: int) -> dict[str, Any] | None:

@@ -14,11 +14,10 @@ is sent at, exactly as the model does, so a difference is not the observation's 
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 from bcbench.errors import BCBenchError
-from bcbench.protocol import CONTROL_DT_S
+from bcbench.protocol import delay_steps
 from bcbench.stats import paired_bootstrap
 from bcbench.utils.io import read_json
 
@@ -32,7 +31,7 @@ def simulated_d(record: dict[str, Any]) -> int | None:
     cfg = record.get("eval_config") or {}
     if cfg.get("execution") != "async" or cfg.get("latency_ms") is None:
         return None
-    return max(0, math.ceil(cfg["latency_ms"] / (CONTROL_DT_S * 1e3) - 1e-9))
+    return delay_steps(cfg["latency_ms"] / 1e3)
 
 
 def check_pair(wallclock: dict[str, Any], simulated: dict[str, Any]) -> None:

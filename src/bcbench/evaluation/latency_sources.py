@@ -14,7 +14,6 @@ How the world moves meanwhile (sync, blocking, async) is the controller's busine
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -28,7 +27,7 @@ from bcbench.evaluation.controller import WEAK_STREAM, episode_generator
 from bcbench.evaluation.strategies import Strategy, prefix_weights
 from bcbench.evaluation.timing import TimingConfig, time_calls
 from bcbench.interface import ChunkPolicy, example_observation, is_generative
-from bcbench.protocol import CONTROL_DT_S
+from bcbench.protocol import delay_steps
 from bcbench.reference import A100_DP_MS, A100_MS
 from bcbench.utils.system import CpuContention
 
@@ -49,7 +48,7 @@ def steps_for(latency_s: float) -> int:
     """Control steps a call of `latency_s` seconds takes: ceil(L / 0.1), 0 for no latency."""
     if latency_s < 0:
         raise BCBenchError(f"latency must be >= 0, got {latency_s * 1e3:g} ms")
-    return max(0, math.ceil(latency_s / CONTROL_DT_S - 1e-9))
+    return delay_steps(latency_s)
 
 
 def profile_ms(profile: str, policy: str, steps: int | None = None) -> float:

@@ -39,7 +39,7 @@ from bcbench.interface import (
     PrefixPolicy,
     SelfTimedPolicy,
 )
-from bcbench.protocol import CONTROL_DT_S
+from bcbench.protocol import delay_steps
 
 if TYPE_CHECKING:  # the controller itself runs on numpy; generators only pass through to the policy
     import torch
@@ -241,7 +241,7 @@ class Strategy:
             rows = len(chunks)
             self.correct(obs, chunks[:, cs], np.zeros(rows, np.int64), np.full(rows, cs, np.int64))
             step = self.step_compute_s.pop()  # a timing call, not an episode's step
-            total += max(1, math.ceil(total / CONTROL_DT_S - 1e-9)) * step
+            total += max(1, delay_steps(total)) * step
         self.last_compute_s = total
         return total
 
