@@ -133,7 +133,7 @@ def load_correction(run_dir: str | Path, device: str = "cpu") -> CorrectionRunne
     if ckpt is None:
         raise BCBenchError(f"{run_dir} has no checkpoint yet")
     model = build_model(run)
-    load_weights(ckpt, model)
+    load_weights(ckpt, model, ema=(ckpt / "ema.safetensors").exists())  # the EMA where it kept one, as load_runner
     norm = MinMaxNormalizer.from_dict(read_json(run_dir / "normalizer.json"))
     return CorrectionRunner(model, norm, str(run_dir), device)
 
