@@ -233,3 +233,9 @@ def test_a_delay_conditioned_run_records_its_range_and_sweeps_with_prefix(synthe
     err = capsys.readouterr().err.strip()
     assert rc == 2 and "\n" not in err and "trained without delay conditioning" in err
     assert not (tmp_path / "no").exists()
+    # a delay longer than the trained range would give the network a clean prefix it never saw: refused first
+    long = ["realtime", "--episodes", "1", "--delays", "1", "6", "--execution", "async", "--max-steps", "8", "--quiet"]
+    rc = main([*long, "--checkpoint", str(runs["delay"]), "--strategy", "prefix", "--out", str(tmp_path / "long")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "\n" not in err and "trained with delays 0-4" in err and "--delays 6" in err
+    assert not (tmp_path / "long").exists()

@@ -217,6 +217,11 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     # each strategy can run on this policy: checked before hours of episodes
     built = {k: Strategy(c, policy, weak if k == "bid" else None, head if k == "correction" else None)
              for k, c in zip(strategies, configs, strict=True)}
+    trained = tuple(getattr(getattr(getattr(policy, "model", None), "config", None), "delay_train", (0, 0)))
+    longer = [d for d in args.delays if d > trained[1]] if "prefix" in strategies and "async" in args.execution else []
+    if longer:  # a clean prefix longer than any the network saw in training: refused, not extrapolated silently
+        raise BCBenchError(f"--strategy prefix: this model was trained with delays {trained[0]}-{trained[1]} "
+                           f"(delay_train); --delays {' '.join(map(str, longer))} would give it a longer clean prefix")
     measured: dict[str, LatencySource] = {}
     if args.measured and len(strategies) > 1:  # timed together, before any episode (latency_sources says why)
         from statistics import median
