@@ -73,3 +73,17 @@ def cpu_unless_a_gpu_test(request: pytest.FixtureRequest, monkeypatch: pytest.Mo
     if request.node.get_closest_marker("gpu") is None:
         monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
         monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "")
+
+
+@pytest.fixture(scope="session")
+def knn_site(tmp_path_factory):
+    """The worked example plug-in (examples/knn_policy) installed with pip into a folder put on PYTHONPATH: the venv
+    itself stays as it is. Shared by the plug-in tests (tests/test_outside.py, tests/test_choose_command.py)."""
+    import subprocess
+    import sys
+
+    site = tmp_path_factory.mktemp("site")
+    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation", "--target",
+                    str(site), str(Path(__file__).resolve().parents[1] / "examples" / "knn_policy")],
+                   check=True, timeout=300)
+    return site

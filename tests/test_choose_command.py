@@ -144,15 +144,6 @@ def test_published_models_reproduce_their_committed_episodes(name):
     assert rep["seeds"] == [100000, 100001] and rep["verdict"] in ("exactly", "within"), rep
 
 
-@pytest.fixture(scope="module")
-def knn_site(tmp_path_factory):
-    """The worked example plug-in installed with pip into a folder put on PYTHONPATH (the venv stays as it is)."""
-    site = tmp_path_factory.mktemp("site")
-    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
-                    "--target", str(site), str(ROOT / "examples" / "knn_policy")], check=True, timeout=300)
-    return site
-
-
 def test_choose_end_to_end_with_a_users_plugin(knn_site, synthetic_zarr, tmp_path):
     """One small published model and the knn plug-in: the table and the page name the answer, the plug-in is
     scored live and labelled so (not ranked), and every file is written."""

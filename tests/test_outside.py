@@ -85,15 +85,6 @@ def test_a_study_mixes_an_outside_policy_with_built_in_ones(tmp_path):
         parse_spec({"run": [{"policy": GOOD, "eval": [{"sampler": "ddim"}]}]})
 
 
-@pytest.fixture(scope="module")
-def knn_site(tmp_path_factory):
-    """The worked example installed with pip (into a folder put on PYTHONPATH: the venv itself stays as it is)."""
-    site = tmp_path_factory.mktemp("site")
-    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
-                    "--target", str(site), str(ROOT / "examples" / "knn_policy")], check=True, timeout=300)
-    return site
-
-
 def _bcbench(site: Path, *args: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": f"{site}{os.pathsep}{ROOT / 'src'}"}
     return subprocess.run([sys.executable, "-m", "bcbench.cli", *args], capture_output=True, text=True, env=env,

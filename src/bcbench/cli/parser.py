@@ -226,9 +226,9 @@ def _add_choose_command(sub: Any) -> None:
     p.set_defaults(func="cmd_choose")
 
 
-def _add_realtime_command(sub: Any) -> None:
-    p = sub.add_parser("realtime", help="score under real-time execution: against delay, at measured latency, "
-                       "under a hardware profile")
+def _add_policy_source_args(p: argparse.ArgumentParser) -> None:
+    """Which policy a command runs: a baseline, plug-in or module:factory, or a trained run with its sampler setting
+    (realtime and serve take the same)."""
     p.add_argument("--policy", metavar="NAME", help="a baseline, a plug-in or module:factory (or --checkpoint)")
     _add_policy_arg(p)
     p.add_argument("--preset", "--config", dest="preset", default="quick", help=argparse.SUPPRESS)
@@ -236,6 +236,12 @@ def _add_realtime_command(sub: Any) -> None:
     p.add_argument("--sampler", choices=["ddpm", "ddim", "euler", "midpoint"], help="generative policies: sampler")
     p.add_argument("--steps", type=_positive_int, help="generative policies: steps")
     p.add_argument("--spacing", choices=["trailing", "leading"], help="diffusion: timestep spacing")
+
+
+def _add_realtime_command(sub: Any) -> None:
+    p = sub.add_parser("realtime", help="score under real-time execution: against delay, at measured latency, "
+                       "under a hardware profile")
+    _add_policy_source_args(p)
     p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help=argparse.SUPPRESS)
     p.add_argument("--seed", type=_nonneg_int, default=0, help="the policy's own random seed (default 0)")
     p.add_argument("--delays", type=_nonneg_int, nargs="+", default=[0, 1, 2, 4, 8], metavar="D",
@@ -283,14 +289,8 @@ def _add_wallclock_args(p: argparse.ArgumentParser) -> None:
 def _add_serve_command(sub: Any) -> None:
     p = sub.add_parser("serve", help="a policy server (ZeroMQ, msgpack): predict/describe/ping requests answered by "
                        "one policy, as a robot's computer would run it (docs/realtime.md, 'Wall-clock check')")
-    p.add_argument("--policy", metavar="NAME", help="a baseline, a plug-in or module:factory (or --checkpoint)")
-    _add_policy_arg(p)
-    p.add_argument("--preset", "--config", dest="preset", default="quick", help=argparse.SUPPRESS)
-    p.add_argument("--checkpoint", metavar="RUN_DIR", help="a trained run")
+    _add_policy_source_args(p)
     p.add_argument("--no-ema", action="store_true", help="use the raw weights even if the run kept an EMA")
-    p.add_argument("--sampler", choices=["ddpm", "ddim", "euler", "midpoint"], help="generative policies: sampler")
-    p.add_argument("--steps", type=_positive_int, help="generative policies: steps")
-    p.add_argument("--spacing", choices=["trailing", "leading"], help="diffusion: timestep spacing")
     p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="where the policy runs (default cpu)")
     p.add_argument("--seed", type=_nonneg_int, default=0, help="the policy's own random seed (default 0)")
     _add_backend_args(p)

@@ -178,16 +178,6 @@ def _print_run(record: dict[str, Any], out: Path) -> None:
     print(f"  record: {out / 'wallclock.json'}")
 
 
-def _mode_flags(mode: str | None) -> dict[str, Any]:
-    """--backend/--precision/--reference of an inference mode name (the server's resolved mode, `auto` included)."""
-    if mode in (None, "fast"):
-        return {"backend": "torch", "precision": "fp32", "reference": False}
-    if mode == "reference":
-        return {"backend": "torch", "precision": "fp32", "reference": True}
-    backend, _, precision = mode.partition("-")
-    return {"backend": backend, "precision": precision, "reference": False}
-
-
 def _simulated_twin(args: argparse.Namespace, record: dict[str, Any], out: Path) -> dict[str, Any] | None:
     """The simulated-delay record to compare with: --compare-with's, or run here (async at the rule's d), or None."""
     from bcbench.utils.io import read_json
@@ -216,7 +206,8 @@ def _simulated_twin(args: argparse.Namespace, record: dict[str, Any], out: Path)
         import torch
 
         torch.set_num_threads(int(threads))
-    vars(args).update(_mode_flags(record["policy"].get("mode")) if args.checkpoint else {})
+    if args.checkpoint:  # the server's resolved mode, by its name (`--backend` takes a mode's name: modes.mode_name)
+        vars(args).update(backend=record["policy"].get("mode") or "fast", precision="fp32", reference=False)
     policy, _ = load_eval_policy(args)  # in the server's resolved mode, so both ran the same computation
     cfg = EvalConfig(episodes=args.episodes, seed_start=args.seed_start, max_steps=args.max_steps, execution="async",
                      latency_ms=round(d * CONTROL_DT_S * 1e3, 6), execution_horizon=args.execution_horizon)

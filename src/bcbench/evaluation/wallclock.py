@@ -38,7 +38,7 @@ from bcbench.errors import BCBenchError
 from bcbench.evaluation.config import WallClockConfig
 from bcbench.evaluation.controller import actions_executed, async_actions_needed
 from bcbench.evaluation.latency_sources import steps_for
-from bcbench.evaluation.wire import decode, encode
+from bcbench.evaluation.wire import WireError, array, decode, encode
 from bcbench.utils.system import CpuContention, provenance
 
 
@@ -92,9 +92,13 @@ def checked(answer: dict[str, Any]) -> dict[str, Any]:
     return answer
 
 
-def chunk_of(answer: dict[str, Any]) -> np.ndarray:
-    a = answer["actions"]
-    return np.frombuffer(a["data"], dtype=a["dtype"]).reshape(a["shape"]).astype(np.float32)
+def chunk_of(answer: dict[str, Any], pred_horizon: int) -> np.ndarray:
+    """(Tp, 2) float32 actions of a predict answer, checked as the server checks requests (one line if malformed)."""
+    try:
+        return array(answer.get("actions"), "the server's actions", ("float32", "float64"),
+                     (pred_horizon, 2)).astype(np.float32)
+    except WireError as exc:
+        raise BCBenchError(f"the policy server answered malformed actions: {exc}") from None
 
 
 @dataclass
@@ -180,7 +184,7 @@ def run_episode(client: PolicyClient, meta: dict[str, Any], seed: int, cfg: Wall
                                + (f": it stopped ({why})" if why else ""))
         if answered is not None:  # takes effect now: the first step that starts after it arrived
             d = step - pending["step"]
-            chunk = chunk_of(answered[0])
+            chunk = chunk_of(answered[0], tp)
             lo, hi = cs + d, min(cs + d + actions_executed(meta["action_horizon"], pending["plan"],
                                                            cfg.execution_horizon), tp)
             queue = deque(chunk[lo:hi])
@@ -244,6 +248,7 @@ def _call_record(pending: dict[str, Any], answered: tuple[dict[str, Any], float]
 
 
 def _histogram(values: list[int]) -> dict[str, int]:
+    """{"d": count} of whole-step values (delays, re-plan thresholds), as records hold them."""
     v, n = np.unique(np.asarray(values, dtype=int), return_counts=True)
     return {str(int(a)): int(b) for a, b in zip(v, n, strict=True)}
 
@@ -253,10 +258,9 @@ def delay_distribution(steps: list[int], seconds: list[float]) -> dict[str, Any]
     if not steps:
         return {"calls": 0}
     d, sec = np.asarray(steps), np.asarray(seconds)
-    values, counts = np.unique(d, return_counts=True)
     return {"calls": len(steps), "median_steps": float(np.median(d)), "p90_steps": float(np.quantile(d, 0.9)),
             "max_steps": int(d.max()), "median_s": float(np.median(sec)), "p90_s": float(np.quantile(sec, 0.9)),
-            "max_s": float(sec.max()), "histogram": {str(int(v)): int(n) for v, n in zip(values, counts, strict=True)}}
+            "max_s": float(sec.max()), "histogram": _histogram(steps)}
 
 
 def simulated_delay(distribution: dict[str, Any]) -> int:
