@@ -1,6 +1,6 @@
 """The layers the code shows: stage packages whose imports point one way, and an analysis that reads files only.
 
-    core (errors, protocol, modes, reference, stats, utils)  <  data  <  env  <  policies  <  evaluation
+    core (errors, protocol, modes, reference, stats, utils)  <  data  <  tasks  <  policies  <  evaluation
         <  training  <  study  <  cli;            analysis: core only (result files in, reports out)
 
 A module may import its own stage and the stages below it; nothing imports cli; the analysis imports no torch,
@@ -22,7 +22,7 @@ import pytest
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "bcbench"
 CORE = {"errors", "protocol", "modes", "reference", "stats", "interface", "utils", "__init__"}
-ORDER = ["core", "data", "env", "policies", "evaluation", "training", "study", "cli"]
+ORDER = ["core", "data", "tasks", "policies", "evaluation", "training", "study", "cli"]
 HEAVY = {"torch", "openvino", "nncf", "ray", "gymnasium", "gym_pusht", "pymunk"}  # analysis reads files only
 
 
@@ -56,7 +56,7 @@ def internal(found: set[str], graph: dict[str, set[str]]) -> set[str]:
 
 def test_the_tree_is_grouped_by_stage():
     assert {p.name for p in SRC.iterdir() if p.is_dir() and not p.name.startswith("__")} == {
-        "data", "env", "policies", "evaluation", "training", "study", "analysis", "cli", "utils"}
+        "data", "tasks", "policies", "evaluation", "training", "study", "analysis", "cli", "utils"}
     assert len([p for p in SRC.glob("*.py") if p.name != "__init__.py"]) <= 7  # core modules only
 
 

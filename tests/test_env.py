@@ -7,8 +7,8 @@ import pytest
 import zarr
 
 from bcbench.data import load_replay_buffer
-from bcbench.env.pusht import dp_initial_state, goal_centroid, make_env, reward_from_coverage
-from bcbench.env.replay import replay_buffer_episodes, replay_episode, replay_report
+from bcbench.tasks.pusht.env import dp_initial_state, goal_centroid, make_env, reward_from_coverage
+from bcbench.tasks.pusht.replay import replay_buffer_episodes, replay_episode, replay_report
 
 EPISODES = [0, 41, 102, 163, 205]
 

@@ -7,11 +7,11 @@ import json
 import numpy as np
 import pytest
 
-from bcbench.env.pusht import dp_initial_state
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.evaluate import EvalConfig, evaluate
 from bcbench.policies import REGISTRY, is_learned, make_policy
 from bcbench.stats import bootstrap_ci, score_summary
+from bcbench.tasks.pusht.env import dp_initial_state
 
 
 def test_harness_on_a_baseline_with_two_episodes(tmp_path):

@@ -54,9 +54,9 @@ def test_bcbench_evaluates_and_times_a_lerobot_policy(kind, folders, tmp_path):
 
 @pytest.mark.parametrize("kind", ["diffusion", "act"])
 def test_the_model_sees_what_lerobots_own_gym_pusht_evaluation_feeds_it(kind, folders, tmp_path):
-    from bcbench.env.pusht import dp_initial_state, make_env
     from bcbench.evaluation.controller import ChunkedController
     from bcbench.policies.outside import outside_policy
+    from bcbench.tasks.pusht.env import dp_initial_state, make_env
 
     state, action = dp_initial_state(100003), [260.0, 240.0]
     _side(str(SIDE / "lerobot_side.py"), "observe", str(folders[kind]), json.dumps(state.tolist()),

@@ -27,7 +27,7 @@ def observe(policy_dir: str, state: list, action: list, out: str) -> None:
     from lerobot.envs.utils import preprocess_observation
     from lerobot.policies.factory import make_pre_post_processors
 
-    def angle_first(self, s):  # the demonstrations' reset order (bcbench.env.pusht explains it)
+    def angle_first(self, s):  # the demonstrations' reset order (bcbench.tasks.pusht.env explains it)
         s = np.asarray(s, dtype=np.float64).tolist()
         self.agent.position = s[:2]
         self.block.angle = s[4]

@@ -65,7 +65,7 @@ def cmd_data_import(args: argparse.Namespace) -> int:
 
 def cmd_data_replay(args: argparse.Namespace) -> int:
     from bcbench.data import load_replay_buffer, resolve_dataset
-    from bcbench.env.replay import replay_buffer_episodes, replay_report
+    from bcbench.tasks.pusht.replay import replay_buffer_episodes, replay_report
 
     buf = load_replay_buffer(resolve_dataset(args.data), images=False)
     if "block_pose" in buf.missing:

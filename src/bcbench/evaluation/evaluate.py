@@ -21,13 +21,13 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from bcbench.env.workers import WorkerPool
 from bcbench.evaluation.config import EvalConfig
 from bcbench.evaluation.controller import ChunkedController
 from bcbench.evaluation.latency_sources import LatencySource
 from bcbench.evaluation.strategies import Strategy
 from bcbench.interface import ChunkPolicy, CorrectionHead
 from bcbench.stats import score_summary
+from bcbench.tasks.workers import WorkerPool
 from bcbench.utils.io import write_json
 from bcbench.utils.system import provenance
 

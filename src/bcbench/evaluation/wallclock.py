@@ -33,12 +33,12 @@ import numpy as np
 import zmq
 from tqdm import tqdm
 
-from bcbench.env.pusht import dp_initial_state, make_env
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.config import WallClockConfig
 from bcbench.evaluation.controller import actions_executed, async_actions_needed
 from bcbench.evaluation.latency_sources import steps_for
 from bcbench.evaluation.wire import WireError, array, decode, encode
+from bcbench.tasks.pusht.env import dp_initial_state, make_env
 from bcbench.utils.system import CpuContention, provenance
 
 

@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from bcbench.env.pusht import WORLD_SIZE, goal_centroid
 from bcbench.errors import BCBenchError
+from bcbench.tasks.pusht.env import WORLD_SIZE, goal_centroid
 
 _BLOCK_RGB = np.array([119, 136, 153], dtype=np.float32)  # pygame's LightSlateGray, the T's colour
 

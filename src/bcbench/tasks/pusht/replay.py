@@ -16,8 +16,8 @@ import numpy as np
 from tqdm import tqdm
 
 from bcbench.data.replay_buffer import ReplayBuffer
-from bcbench.env.pusht import SUCCESS_COVERAGE, make_env
 from bcbench.stats import score_summary
+from bcbench.tasks.pusht.env import SUCCESS_COVERAGE, make_env
 
 EXACT_PX = 1.0  # an episode is "exact" when the block never strays more than this from the record
 

@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from bcbench.env.pusht import dp_initial_state, make_env
-from bcbench.env.video import VideoWriter
 from bcbench.errors import BCBenchError
+from bcbench.tasks.pusht.env import dp_initial_state, make_env
+from bcbench.tasks.video import VideoWriter
 
 
 def _worker(conn: Any, video_size: int) -> None:

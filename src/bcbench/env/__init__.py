@@ -1,1 +1,0 @@
-"""Push-T environment (exact gym-pusht wrapper) and the shared chunked controller."""

@@ -1,0 +1,127 @@
+"""What a task is to bcbench: the one place that knows a task's shapes, units, reset, score and seeds.
+
+Everything below the task (data) is task-agnostic storage; everything above it (policies, controller, evaluation,
+latency, real time, studies, reports) reads the task's `Task` and hard-codes no shape. A new task family is one
+package under `bcbench.tasks` that returns `Task`s (as LeRobot's `envs/configs.py` or Diffusion Policy's
+`config/task/` do).
+
+An episode (`Episode`) is one seeded environment: `reset()` puts it in the seed's start state, `step(action)`
+advances one control step. Observations are {"pixels": uint8 (H, W, 3), "agent_pos": float (S,)}: the camera
+frame and the task's proprioceptive state (the name is Push-T's, kept so that every model, normaliser and record
+written before tasks existed still reads; for another task it is the task's `state_names`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from bcbench.errors import BCBenchError
+from bcbench.protocol import TEST_SEED_START, VALIDATION_SEED_START
+
+Obs = dict[str, np.ndarray]
+
+
+class Episode(Protocol):
+    """One seeded environment, driven one control step at a time (in a simulator worker process)."""
+
+    def reset(self) -> tuple[Obs, float, list[float]]:
+        """The seed's start: (observation, progress, state) where state is what records keep of the world."""
+        ...
+
+    def step(self, action: np.ndarray) -> tuple[Obs, float, bool, float, list[float]]:
+        """(observation, reward in [0, 1], terminated (success: the episode ends), progress, state)."""
+        ...
+
+    def render(self) -> np.ndarray:
+        """A uint8 (V, V, 3) frame for the rollout video."""
+        ...
+
+    def close(self) -> None: ...
+
+
+@dataclass(frozen=True)
+class Task:
+    """A task: observation and action specs, control rate, episode rules, seeds and demonstrations."""
+
+    name: str
+    """`pusht`, `metaworld/drawer-open`, ...: what `--task` takes and run.json records"""
+    image_size: int
+    """side of the square camera frame a policy reads"""
+    camera: str
+    """which camera the frame comes from"""
+    state_names: tuple[str, ...]
+    """the proprioceptive observation `agent_pos`, one name a dimension"""
+    action_names: tuple[str, ...]
+    """one name an action dimension"""
+    action_low: tuple[float, ...]
+    """lower bound of each action dimension, in the task's units"""
+    action_high: tuple[float, ...]
+    """upper bound of each action dimension"""
+    action_units: str
+    """what an action is, in words (Push-T: target agent position in pixels of the 512 px world)"""
+    control_hz: float
+    """control steps a second (the real-time delay d = ceil(latency x rate))"""
+    max_steps: int
+    """episode length cap in control steps"""
+    score: str
+    """the per-episode score, in words"""
+    success: str
+    """what ends an episode early, in words"""
+    progress: str
+    """the progress measure kept per episode (`final_coverage` / `max_coverage` in records), in words"""
+    make_episode: Callable[[int, int | None], Episode] = field(repr=False, compare=False)
+    """(seed, video frame size or None) -> a fresh episode in the seed's start state after reset()"""
+    dataset: Callable[[str | None], Path] = field(repr=False, compare=False)
+    """the demonstrations' replay buffer: an explicit path (checked) or None (the task's default place)"""
+    test_seed_start: int = TEST_SEED_START
+    """test episodes use seeds test_seed_start + i"""
+    validation_seed_start: int = VALIDATION_SEED_START
+    """validation episodes use seeds validation_seed_start + i"""
+    family: str = ""
+    """pusht, metaworld, ..."""
+    difficulty: str | None = None
+    """a published difficulty group, where the family has one (MetaWorld: Seo et al.'s easy/medium/hard/very hard)"""
+    notes: str = ""
+    """anything else a reader needs (camera choice, proprioception, why a cap)"""
+
+    def __post_init__(self) -> None:
+        if not self.name:
+            raise BCBenchError("a task needs a name")
+        if self.image_size < 8 or self.max_steps < 1 or not self.control_hz > 0:
+            raise BCBenchError(f"task {self.name}: need image_size >= 8, max_steps >= 1 and control_hz > 0")
+        if not self.state_names or not self.action_names:
+            raise BCBenchError(f"task {self.name}: needs state_names and action_names")
+        if not len(self.action_low) == len(self.action_high) == len(self.action_names):
+            raise BCBenchError(f"task {self.name}: action_low, action_high and action_names differ in length")
+        if any(lo >= hi for lo, hi in zip(self.action_low, self.action_high, strict=True)):
+            raise BCBenchError(f"task {self.name}: every action_low must be below its action_high")
+
+    @property
+    def state_dim(self) -> int:
+        return len(self.state_names)
+
+    @property
+    def action_dim(self) -> int:
+        return len(self.action_names)
+
+    def hold_action(self, obs: Obs) -> np.ndarray:
+        """The action that keeps the robot where it is before any chunk arrived: an absolute-position task's
+        current position (Push-T), a velocity/delta task's zero."""
+        if self.family == "pusht":
+            return np.asarray(obs["agent_pos"], dtype=np.float32)
+        return np.zeros(self.action_dim, dtype=np.float32)
+
+    def describe(self) -> dict[str, Any]:
+        """JSON-ready: what records keep of the task (no callables)."""
+        return {"name": self.name, "family": self.family, "image_size": self.image_size, "camera": self.camera,
+                "state_names": list(self.state_names), "action_names": list(self.action_names),
+                "action_low": list(self.action_low), "action_high": list(self.action_high),
+                "action_units": self.action_units, "control_hz": self.control_hz, "max_steps": self.max_steps,
+                "score": self.score, "success": self.success, "progress": self.progress,
+                "test_seed_start": self.test_seed_start, "validation_seed_start": self.validation_seed_start,
+                "difficulty": self.difficulty, "notes": self.notes}
