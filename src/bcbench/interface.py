@@ -148,11 +148,13 @@ class CorrectionHead(Protocol):
     def describe(self) -> dict[str, Any]: ...
 
 
-def example_observation(batch: int = 1, obs_horizon: int = 2, seed: int = 0) -> Observation:
-    """A random raw observation as the controller hands it over (timing and the contract check use it)."""
+def example_observation(batch: int = 1, obs_horizon: int = 2, seed: int = 0, image_size: int = 96, state_dim: int = 2,
+                        state_range: tuple[float, float] = (0.0, 512.0)) -> Observation:
+    """A random raw observation as the controller hands it over (timing and the contract check use it); Push-T's
+    shapes unless a task's are given (bcbench.evaluation.timing.task_example)."""
     rng = np.random.default_rng(seed)
-    return {"image": rng.integers(0, 256, size=(batch, obs_horizon, 96, 96, 3), dtype=np.uint8),
-            "agent_pos": rng.uniform(0, 512, size=(batch, obs_horizon, 2)).astype(np.float32)}
+    return {"image": rng.integers(0, 256, size=(batch, obs_horizon, image_size, image_size, 3), dtype=np.uint8),
+            "agent_pos": rng.uniform(*state_range, size=(batch, obs_horizon, state_dim)).astype(np.float32)}
 
 
 def is_generative(policy: object) -> bool:

@@ -33,12 +33,14 @@ EXIT_INTERRUPTED = 130
 
 def cmd_eval(args: argparse.Namespace) -> int:
     from bcbench.evaluation.evaluate import EvalConfig, evaluate
+    from bcbench.tasks import task_of
 
-    cfg = EvalConfig(episodes=args.episodes, seed_start=args.seed_start, max_steps=args.max_steps,
-                     action_horizon=args.action_horizon, workers=args.workers, video=args.video,
-                     execution=args.execution, latency=args.latency, latency_ms=args.latency_ms,
-                     execution_horizon=args.execution_horizon, strategy=strategy_config(args, args.strategy))
+    strategy = strategy_config(args, args.strategy)
     policy, default_out = load_eval_policy(args)
+    cfg = EvalConfig(episodes=args.episodes, seed_start=args.seed_start, max_steps=args.max_steps,
+                     task=args.task or task_of(policy).name, action_horizon=args.action_horizon,
+                     workers=args.workers, video=args.video, execution=args.execution, latency=args.latency,
+                     latency_ms=args.latency_ms, execution_horizon=args.execution_horizon, strategy=strategy)
     out = Path(args.out) if args.out else default_out
     result = evaluate(policy, cfg, out, progress=not args.quiet, weak=load_weak(args, policy), head=load_head(args))
     s = result["summary"]
@@ -103,7 +105,8 @@ def cmd_train(args: argparse.Namespace) -> int:
             overrides["optim.precision"] = args.precision
         if dist.world > 1 and not args.out:
             raise BCBenchError("under torchrun, name the run folder with --out (every process trains into it)")
-        run_dir = new_run(args.policy, args.preset, overrides, args.out, opts) if dist.main else Path(args.out)
+        run_dir = (new_run(args.policy, args.preset, overrides, args.out, opts, args.task) if dist.main
+                   else Path(args.out))
     if dist.world > 1:
         import torch
 
@@ -158,7 +161,7 @@ def cmd_study(args: argparse.Namespace) -> int:
     from bcbench.study import run_study
     from bcbench.study.spec import load_spec
 
-    spec = load_spec(args.spec)
+    spec = load_spec(args.spec, args.task)
     if args.check:
         print(f"{args.spec}: valid; {len(spec.runs)} run(s): " + ", ".join(f"{r.label} s{r.seed}" for r in spec.runs))
         return 0
@@ -247,7 +250,7 @@ def cmd_realtime(args: argparse.Namespace) -> int:
         if done:
             print(f"{kind}: resuming, {len(done)} settings kept from {where}: {', '.join(done)}")
         results = sweep(policy, args.delays, args.execution, args.episodes, args.profile or [], args.measured,
-                        progress=not args.quiet, max_steps=args.max_steps, seed_start=args.seed_start,
+                        progress=not args.quiet, max_steps=args.max_steps, seed_start=args.seed_start, task=args.task,
                         execution_horizon=args.execution_horizon, strategy=strategy,
                         weak=weak if kind == "bid" else None, measured_source=measured.get(kind),
                         head=head if kind == "correction" else None,
@@ -362,7 +365,8 @@ def cmd_latency(args: argparse.Namespace) -> int:
     out = run_latency_benchmark(policies=args.policy, presets=args.preset, modes=modes, steps=args.steps,
                                 samplers=args.sampler, device=args.device, threads=args.threads,
                                 rate_hz=args.rate, out=args.out, quick_timing=args.quick,
-                                policy_args=parse_kwargs(args.policy_arg), runners=_latency_runners(args))
+                                policy_args=parse_kwargs(args.policy_arg), runners=_latency_runners(args),
+                                task=args.task)
     rec, plot = out["record"], Path(out["json"]).with_name("latency.png")
     hw = rec["hardware"]
     latency_bars([{**r, "label": f"{r['policy']} {r['preset']} {r['variant']} {r['mode']}"} for r in rec["rows"]],

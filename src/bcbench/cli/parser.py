@@ -49,6 +49,13 @@ def _field(p: argparse.ArgumentParser, flag: str, cls: type, name: str | None = 
     p.add_argument(flag, default=default, help=field_docs(cls)[name] + shown, **kw)
 
 
+def _add_task_flag(p: argparse.ArgumentParser, trained: bool = False) -> None:
+    """--task, one help for every command that takes it; `trained`: the default is the run's own task."""
+    p.add_argument("--task", metavar="NAME", default=None if trained else "pusht",
+                   help="pusht or metaworld/NAME (`bcbench data tasks` lists them); default "
+                        + ("a trained run's own task, else pusht" if trained else "pusht"))
+
+
 def _add_data_flag(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data", metavar="ZARR", help="dataset folder (default: $BCBENCH_DATA, then ../shared beside "
                    "the repo, then the `bcbench data fetch` location)")
@@ -131,6 +138,7 @@ def _add_train_eval_commands(sub: Any) -> None:
     _field(p, "--eval-episodes", TrainOptions, type=_positive_int, metavar="N")
     _field(p, "--threads", TrainOptions, type=_positive_int)
     _field(p, "--device", TrainOptions, choices=["auto", "cpu", "cuda"])
+    _add_task_flag(p)
     _add_data_flag(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func="cmd_train")
@@ -149,6 +157,8 @@ def _add_study_commands(sub: Any) -> None:
                    help="run the stages as Ray tasks: alone = a local Ray instance; 'auto' or HOST:PORT = a "
                         "cluster (its nodes need resources bcbench_node=1000; see bcbench.study.on_ray)")
     p.add_argument("--ray-cpus", type=_positive_int, metavar="N", help="CPUs of the local Ray instance (default all)")
+    p.add_argument("--task", metavar="NAME", help="run the spec on this task instead of its study.task (pusht or "
+                   "metaworld/NAME)")
     _add_data_flag(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func="cmd_study")
@@ -197,6 +207,7 @@ def _add_latency_command(sub: Any) -> None:
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"], help="default auto")
     p.add_argument("--threads", type=_positive_int, help="torch threads (default: torch's choice)")
     p.add_argument("--rate", type=float, default=10.0, help="control rate for the verdicts, Hz (default 10)")
+    _add_task_flag(p, trained=True)
     p.add_argument("--quick", action="store_true", help="fewer timed calls (a rough table in a minute or two)")
     p.add_argument("--out", metavar="DIR", help="output folder (default runs/latency-TIME)")
     p.set_defaults(func="cmd_latency")
@@ -255,6 +266,7 @@ def _add_realtime_command(sub: Any) -> None:
     _field(p, "--episodes", EvalConfig, type=_positive_int, default=100)  # a sweep's settings: 100 test seeds
     _field(p, "--seed-start", EvalConfig, type=_nonneg_int)  # validation seeds (200000+) for choices
     _field(p, "--max-steps", EvalConfig, type=_positive_int)
+    _add_task_flag(p, trained=True)
     _field(p, "--execution-horizon", EvalConfig, type=_positive_int, metavar="S")
     _add_strategy_args(p, sweep=True)
     p.add_argument("--out", metavar="DIR", help="output folder (its realtime-sweep.json is what a report reads: "
@@ -396,6 +408,7 @@ def _add_eval_command(sub: Any) -> None:
     _field(p, "--seed-start", EvalConfig, type=_nonneg_int)
     p.add_argument("--seed", type=_nonneg_int, default=0, help="the policy's own random seed (default 0)")
     _field(p, "--max-steps", EvalConfig, type=_positive_int)
+    _add_task_flag(p, trained=True)
     _field(p, "--action-horizon", EvalConfig, type=_positive_int)
     _field(p, "--workers", EvalConfig, type=_positive_int)
     _field(p, "--video", EvalConfig, type=_nonneg_int, metavar="N")

@@ -33,6 +33,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         torch.set_num_threads(args.threads)
     args.episodes = 1  # load_eval_policy names a default folder with it; serve writes none
     policy, _ = load_eval_policy(args)
+    _pusht_only(policy, "bcbench serve")
     info = {"pid": os.getpid(), "threads": _torch_threads(), "bind": bind}
     server = serve(policy, bind, info)
     print(f"bcbench serve: stopped after {server.served} answers and {server.refused} refusals", file=sys.stderr)
@@ -119,12 +120,22 @@ def _check_wallclock_args(args: argparse.Namespace) -> None:
         raise BCBenchError("--compare-with and --no-compare exclude each other")
 
 
+def _pusht_only(policy: object, what: str) -> None:
+    """The wire format (image 96x96x3, 2-D positions) and the wall-clock loop are Push-T's: one line otherwise."""
+    from bcbench.tasks import task_of
+
+    if task_of(policy).name != "pusht":
+        raise BCBenchError(f"{what} serves Push-T policies only; this one was trained on {task_of(policy).name}")
+
+
 def cmd_realtime_wallclock(args: argparse.Namespace) -> int:
     from bcbench.evaluation.wallclock import PolicyClient, WallClockConfig, run_wallclock
     from bcbench.evaluation.wire import check_address
 
     _check_wallclock_args(args)
-    cfg = WallClockConfig(episodes=args.episodes, seed_start=args.seed_start, max_steps=args.max_steps,
+    if (args.task or "pusht") != "pusht":
+        raise BCBenchError("--wall-clock runs Push-T only (its wire format and simulator loop are Push-T's)")
+    cfg = WallClockConfig(episodes=args.episodes, seed_start=args.seed_start, max_steps=args.max_steps or 300,
                           execution_horizon=args.execution_horizon, plan_delay=args.plan_delay)
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     out = Path(args.out) if args.out else Path(args.checkpoint or "runs") / f"wallclock-{stamp}"

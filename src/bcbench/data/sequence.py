@@ -54,7 +54,9 @@ def window_indices(
 class SequenceDataset:
     """Windows of one split, served as normalised batches.
 
-    Batches: image (B, To, 3, 96, 96) float32 in [0, 1]; agent_pos (B, To, 2) and action (B, Tp, 2) in [-1, 1].
+    Batches: image (B, To, 3, H, W) float32 in [0, 1]; agent_pos (B, To, S) and action (B, Tp, A) in [-1, 1], where
+    S is the task's proprioception (the first `state_dim` columns of the buffer's state; Push-T's 5-column state
+    holds the agent's position first) and A its action size.
     """
 
     buffer: ReplayBuffer
@@ -63,6 +65,7 @@ class SequenceDataset:
     obs_horizon: int = 2
     pred_horizon: int = 16
     action_horizon: int = 8
+    state_dim: int = 2
 
     def __post_init__(self) -> None:
         if self.buffer.images is None:
@@ -84,26 +87,28 @@ class SequenceDataset:
         img = self.buffer.images[obs_idx]  # (B, To, H, W, C) uint8
         img = np.ascontiguousarray(img.transpose(0, 1, 4, 2, 3), dtype=np.float32)  # (B, To, C, H, W)
         img *= 1.0 / 255.0
-        agent_pos = self.normalizer.normalize("agent_pos", self.buffer.state[obs_idx, :2])  # (B, To, 2)
-        action = self.normalizer.normalize("action", self.buffer.action[idx])  # (B, Tp, 2)
+        agent_pos = self.normalizer.normalize("agent_pos", self.buffer.state[obs_idx, : self.state_dim])  # (B, To, S)
+        action = self.normalizer.normalize("action", self.buffer.action[idx])  # (B, Tp, A)
         return {"image": img, "agent_pos": agent_pos.astype(np.float32), "action": action.astype(np.float32)}
 
     def __getitem__(self, i: int) -> dict[str, np.ndarray]:
         return {k: v[0] for k, v in self.get_batch(np.array([i])).items()}
 
 
-def fit_normalizer(buffer: ReplayBuffer, train_episodes: np.ndarray) -> MinMaxNormalizer:
-    """Min-max statistics of agent position and action over the training episodes only."""
+def fit_normalizer(buffer: ReplayBuffer, train_episodes: np.ndarray, state_dim: int = 2) -> MinMaxNormalizer:
+    """Min-max statistics of the proprioception (the state's first `state_dim` columns) and the action over the
+    training episodes only."""
     steps = np.concatenate([np.arange(buffer.episode_starts[e], buffer.episode_ends[e]) for e in train_episodes])
-    return MinMaxNormalizer.fit({"agent_pos": buffer.state[steps, :2], "action": buffer.action[steps]})
+    return MinMaxNormalizer.fit({"agent_pos": buffer.state[steps, :state_dim], "action": buffer.action[steps]})
 
 
 def make_datasets(
     buffer: ReplayBuffer, val_fraction: float = 0.1, seed: int = 0, obs_horizon: int = 2,
-    pred_horizon: int = 16, action_horizon: int = 8,
+    pred_horizon: int = 16, action_horizon: int = 8, state_dim: int = 2,
 ) -> tuple[SequenceDataset, SequenceDataset, MinMaxNormalizer]:
     """Split by episode, fit the normalizer on the training split, build both datasets."""
     train_eps, val_eps = split_episodes(buffer.n_episodes, val_fraction, seed)
-    norm = fit_normalizer(buffer, train_eps)
-    kw = {"obs_horizon": obs_horizon, "pred_horizon": pred_horizon, "action_horizon": action_horizon}
+    norm = fit_normalizer(buffer, train_eps, state_dim)
+    kw = {"obs_horizon": obs_horizon, "pred_horizon": pred_horizon, "action_horizon": action_horizon,
+          "state_dim": state_dim}
     return SequenceDataset(buffer, train_eps, norm, **kw), SequenceDataset(buffer, val_eps, norm, **kw), norm

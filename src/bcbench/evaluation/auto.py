@@ -20,10 +20,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from bcbench.interface import FilmSplittable, example_observation
+from bcbench.interface import FilmSplittable
 from bcbench.modes import EXACT_MODES
 from bcbench.policies.checkpoint import weights_file
 from bcbench.policies.learned import PolicyRunner
+from bcbench.tasks import example_for
 from bcbench.utils.io import read_json, write_json
 from bcbench.utils.system import cpu_record, versions
 
@@ -96,7 +97,7 @@ def choose_mode(runner: PolicyRunner, apply: Callable[[PolicyRunner, str], None]
         cache = Path(runner.info.run_dir) / "export" / f"auto-{_cache_key(runner, candidates)}.json"
         if cache.exists():
             return {**read_json(cache), "cached": True}
-    obs = example_observation(1, runner.obs_horizon)
+    obs = example_for(runner)
     prepared = {}
     for m in candidates:  # export and compile each mode once; the rounds then only switch between them
         apply(runner, m)

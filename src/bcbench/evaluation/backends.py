@@ -39,8 +39,6 @@ from typing import Any
 import numpy as np
 import torch
 
-from bcbench.data.paths import resolve_dataset
-from bcbench.data.replay_buffer import load_replay_buffer
 from bcbench.data.sequence import make_datasets
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.auto import choose_mode
@@ -206,8 +204,8 @@ def dataset_observations(model: BCPolicy, split: str, n: int, seed: int = 0,
     is a run's (run.json: val_fraction, split_seed), so its training episodes are the ones it trained on."""
     c = model.config
     d = data_split or {}
-    train, val, _ = make_datasets(load_replay_buffer(resolve_dataset(None)), d.get("val_fraction", 0.1),
-                                  d.get("split_seed", 0), c.obs_horizon, c.pred_horizon, c.action_horizon)
+    train, val, _ = make_datasets(model.task.demonstrations(), d.get("val_fraction", 0.1), d.get("split_seed", 0),
+                                  c.obs_horizon, c.pred_horizon, c.action_horizon, model.state_dim)
     ds = train if split == "train" else val
     ids = np.random.default_rng(seed).choice(len(ds), size=min(n, len(ds)), replace=False)
     batches = (ds.get_batch(np.array([i])) for i in ids)

@@ -24,6 +24,7 @@ from bcbench.modes import AUTO, EXACT_MODES, MODES
 from bcbench.policies import REGISTRY, is_learned, make_policy
 from bcbench.policies.learned import PolicyRunner
 from bcbench.policies.outside import outside_policy
+from bcbench.tasks import Task, get_task
 from bcbench.utils.device import pick_device
 from bcbench.utils.io import atomic_path, write_json
 from bcbench.utils.system import provenance
@@ -31,22 +32,25 @@ from bcbench.utils.system import provenance
 DEFAULT_STEPS = (1, 2, 5, 10, 20, 50, 100)
 
 
-def _normalizer() -> MinMaxNormalizer:
-    world = np.array([[0.0, 0.0], [512.0, 512.0]])
-    return MinMaxNormalizer.fit({"agent_pos": world, "action": world})
+def _normalizer(task: Task | None = None) -> MinMaxNormalizer:
+    """An untrained network's normaliser: the task's ranges (default Push-T: its 512 px world for both)."""
+    task = task or get_task()
+    lo, hi = task.state_range
+    state = np.array([[lo] * task.state_dim, [hi] * task.state_dim])
+    return MinMaxNormalizer.fit({"agent_pos": state, "action": np.array([task.action_low, task.action_high])})
 
 
 def _rows_for(name: str, preset: str, modes: list[str], samplers: list[str], steps: list[int], device: torch.device,
-              timing: TimingConfig, rate_hz: float) -> list[dict[str, Any]]:
+              timing: TimingConfig, rate_hz: float, task: Task) -> list[dict[str, Any]]:
     torch.manual_seed(0)
-    model = make_policy(name, preset)
+    model = make_policy(name, preset, task)
     if not is_learned(name):
         stats = measure_runner(model, timing, rate_hz)
         return [{"policy": name, "preset": "-", "mode": "reference", "variant": "default", "params": 0, **stats}]
     kinds = [s for s in samplers if s in model.samplers] or list(model.samplers[:1])
     variants = [(s, k) for s in kinds for k in steps] if model.samplers else [(None, None)]
     rows = []
-    runner = PolicyRunner(model, _normalizer(), device)
+    runner = PolicyRunner(model, _normalizer(task), device)
     for mode in modes:  # outer: each mode exports and compiles once, for every sampler setting
         apply_mode(runner, mode)
         for sampler, k in variants:
@@ -114,15 +118,17 @@ def run_latency_benchmark(policies: list[str] | None = None, presets: list[str] 
                           samplers: list[str] | None = None, device: str = "auto", threads: int | None = None,
                           rate_hz: float = 10.0, out: str | None = None, quick_timing: bool = False,
                           policy_args: dict[str, Any] | None = None,
-                          runners: dict[str, PolicyRunner] | None = None) -> dict[str, Any]:
+                          runners: dict[str, PolicyRunner] | None = None, task: str | None = None) -> dict[str, Any]:
     """Time every named policy at batch 1: a registered one at each preset, mode and sampler setting; an outside
     one (module:factory or a plug-in, built with `policy_args`) as it is; `runners` (`latency --checkpoint`: a
     trained run or published model, already loaded and configured) in each of `modes` (default: the exact modes and
-    auto), in place of the untrained registry policies unless `policies` names some."""
+    auto), in place of the untrained registry policies unless `policies` names some. `task`: the untrained
+    networks' shapes (default Push-T; the baselines are Push-T's only, left out for another task)."""
     if threads:
         torch.set_num_threads(threads)
     dev = pick_device(device)
-    names = policies or list(REGISTRY)
+    the_task = get_task(task)
+    names = policies or [n for n in REGISTRY if the_task.name == "pusht" or is_learned(n)]
     outside = {n: outside_policy(n, policy_args) for n in names if n not in REGISTRY}  # checked before timing
     if any(not 1 <= k <= 100 for k in steps or []):
         raise BCBenchError("--steps must be in 1..100")
@@ -139,10 +145,11 @@ def run_latency_benchmark(policies: list[str] | None = None, presets: list[str] 
         if name in outside or any(r["policy"] == name and r["preset"] == "-" for r in rows):
             continue  # baselines have no sizes
         rows += _rows_for(name, preset, modes or [*MODES, AUTO], samplers or ["ddpm", "ddim"],
-                          list(steps or DEFAULT_STEPS), dev, timing, rate_hz)
+                          list(steps or DEFAULT_STEPS), dev, timing, rate_hz, the_task)
     best = against_floor(rows)  # every row against the best limits this run measured
     out_dir = Path(out) if out else Path("runs") / f"latency-{datetime.now():%Y%m%d-%H%M%S}"
-    record = {"type": "latency-benchmark", "device": str(dev), "rate_hz": rate_hz, "timing": timing.__dict__,
+    record = {"type": "latency-benchmark", "task": the_task.name, "device": str(dev), "rate_hz": rate_hz,
+              "timing": timing.__dict__,
               "machine_limits": best, "floor_rule": f"{floor_ms.__doc__} The limits: the best of those measured "
               "right before each row (bcbench.evaluation.floor).",
               "rows": rows, "verdict_rule": verdicts.__doc__, **provenance(str(dev))}

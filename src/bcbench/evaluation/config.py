@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 from bcbench.errors import BCBenchError
 from bcbench.protocol import CONTROL_DT_S, TEST_SEED_START
+from bcbench.tasks import DEFAULT_TASK, get_task
 
 EXECUTIONS = ("sync", "blocking", "async")  # how the world moves while the policy computes (see the controller)
 # what is done with chunks across re-plans (see the controller and bcbench.evaluation.strategies)
@@ -87,8 +88,10 @@ class EvalConfig:
     """evaluation episodes (the study used 40)"""
     seed_start: int = TEST_SEED_START
     """episode i uses seed seed_start + i"""
-    max_steps: int = 300
-    """steps per episode at most"""
+    max_steps: int | None = None
+    """steps per episode at most (default: the task's cap, Push-T's 300)"""
+    task: str = DEFAULT_TASK
+    """the task the episodes run (`pusht`, `metaworld/NAME`); a trained policy's must match it"""
     action_horizon: int | None = None
     """actions executed per chunk (default: the policy's own, 8)"""
     workers: int | None = None
@@ -112,6 +115,8 @@ class EvalConfig:
     def __post_init__(self) -> None:
         if self.episodes < 1:
             raise BCBenchError(f"--episodes must be >= 1, got {self.episodes}")
+        if self.max_steps is None:
+            self.max_steps = get_task(self.task).max_steps  # also checks the task's name
         if not 1 <= self.max_steps <= 10_000:
             raise BCBenchError(f"--max-steps must be in 1..10000, got {self.max_steps}")
         if self.seed_start < 0:

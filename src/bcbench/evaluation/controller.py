@@ -51,6 +51,7 @@ from bcbench.errors import BCBenchError
 from bcbench.evaluation.config import EXECUTIONS, StrategyConfig
 from bcbench.evaluation.strategies import Strategy, ensemble_action, prefix_weights
 from bcbench.interface import ChunkPolicy, SeededPolicy
+from bcbench.tasks import Task, get_task
 
 
 def episode_generator(policy_seed: int, episode_seed: int) -> torch.Generator:
@@ -68,7 +69,7 @@ class _Chunk:
 
     origin: int
     arrival: int
-    chunk: np.ndarray  # (Tp, 2) pixels
+    chunk: np.ndarray  # (Tp, A) in the task's units
     actions: list[np.ndarray]  # what it puts in the queue
     observed: int = 0  # the step of the observation it was computed from (its age is counted from here)
 
@@ -90,10 +91,12 @@ class ChunkedController:
 
     def __init__(self, policy: ChunkPolicy, action_horizon: int | None = None, execution: str = "sync",
                  delay: Callable[[int], int] | None = None, execution_horizon: int | None = None,
-                 strategy: Strategy | None = None) -> None:
+                 strategy: Strategy | None = None, task: Task | None = None) -> None:
         if execution not in EXECUTIONS:
             raise BCBenchError(f"--execution must be one of {', '.join(EXECUTIONS)}, got '{execution}'")
         self.policy, self.execution = policy, execution
+        self.task = task or get_task()  # the action's size and what holds the robot still (Push-T by default)
+        self.action_dim = self.task.action_dim
         self.delay = delay or (lambda env_id: 0)  # control steps a call started now takes (0: none)
         self.obs_horizon = int(policy.obs_horizon)
         self.pred_horizon = int(policy.pred_horizon)
@@ -132,7 +135,7 @@ class ChunkedController:
         if self.strategy.weak is not None:
             self._weak_noise[env_id] = episode_generator(policy_seed + WEAK_STREAM, env_id if seed is None else seed)
         self._pending[env_id], self._step[env_id], self._received[env_id] = None, 0, []
-        self._last[env_id] = np.asarray(obs["agent_pos"], dtype=np.float32)  # before any command: stay put
+        self._last[env_id] = self.task.hold_action(obs)  # before any command: stay put
         if self.execution == "async":
             self._next_delay[env_id] = self._checked_delay(env_id)
 
@@ -147,7 +150,7 @@ class ChunkedController:
             d.pop(env_id, None)
 
     def stacked_obs(self, env_ids: list[int]) -> dict[str, Any]:
-        """Batch of histories: image (B, To, H, W, 3) uint8, agent_pos (B, To, 2) float32, generators [B]."""
+        """Batch of histories: image (B, To, H, W, 3) uint8, agent_pos (B, To, S) float32, generators [B]."""
         image = np.stack([np.stack([o["pixels"] for o in self._history[i]]) for i in env_ids])
         agent_pos = np.stack([np.stack([o["agent_pos"] for o in self._history[i]]) for i in env_ids])
         return {"image": image, "agent_pos": agent_pos.astype(np.float32),
@@ -167,9 +170,9 @@ class ChunkedController:
         return d
 
     def _target(self, i: int, origin: int, frozen_end: int) -> tuple[np.ndarray, np.ndarray]:
-        """The chunk executing, aligned to a new chunk of this origin (Tp, 2), and RTC's soft mask over it (Tp,)."""
+        """The chunk executing, aligned to a new chunk of this origin (Tp, A), and RTC's soft mask over it (Tp,)."""
         tp = self.pred_horizon
-        target, weights = np.zeros((tp, 2), np.float32), np.zeros(tp, np.float32)
+        target, weights = np.zeros((tp, self.action_dim), np.float32), np.zeros(tp, np.float32)
         if self._received[i]:
             prev = self._received[i][-1]
             shift = origin - prev.origin  # new index k is the previous chunk's k + shift
@@ -185,7 +188,7 @@ class ChunkedController:
         return target, weights
 
     def _plan(self, env_ids: list[int], delays: list[int]) -> np.ndarray:
-        """One batched request for these environments under the strategy: (B, Tp, 2) chunks."""
+        """One batched request for these environments under the strategy: (B, Tp, A) chunks."""
         obs = self.stacked_obs(env_ids)
         target = weights = weak = None
         if self.strategy.uses_target:
@@ -195,10 +198,10 @@ class ChunkedController:
                 pairs.append(self._target(i, origin, self.chunk_start + t + d - origin))
             target, weights = np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs])
             weak = [self._weak_noise[i] for i in env_ids] if self.strategy.weak is not None else None
-        chunks = self.strategy.request(obs, target, weights, weak)  # (B, Tp, 2)
-        if chunks.shape != (len(env_ids), self.pred_horizon, 2):
-            raise BCBenchError(
-                f"policy returned a chunk of shape {chunks.shape}, expected ({len(env_ids)}, {self.pred_horizon}, 2)")
+        chunks = self.strategy.request(obs, target, weights, weak)  # (B, Tp, A)
+        want = (len(env_ids), self.pred_horizon, self.action_dim)
+        if chunks.shape != want:
+            raise BCBenchError(f"policy returned a chunk of shape {chunks.shape}, expected {want}")
         if not np.isfinite(chunks).all():
             raise BCBenchError("policy returned NaN or infinite actions")
         self.n_calls += 1
@@ -256,7 +259,7 @@ class ChunkedController:
         chunks = [self._received[i][-1] for i in env_ids]  # the executing chunk of each (its actions fill the queue)
         ages = np.array([self._step[i] - c.observed for i, c in zip(env_ids, chunks, strict=True)])
         index = np.array([self.chunk_start + self._step[i] - c.origin for i, c in zip(env_ids, chunks, strict=True)])
-        actions = np.stack([self._last[i] for i in env_ids]).astype(np.float32)  # (B, 2)
+        actions = np.stack([self._last[i] for i in env_ids]).astype(np.float32)  # (B, A)
         corrected = self.strategy.correct(self.stacked_obs(env_ids), actions, ages, index)
         if corrected.shape != actions.shape or not np.isfinite(corrected).all():
             raise BCBenchError(f"the correction head returned {corrected.shape} or non-finite actions for "

@@ -1,8 +1,8 @@
-"""Closed-loop evaluation on Push-T: seeded episodes, parallel simulators, batched policy calls.
+"""Closed-loop evaluation on a task: seeded episodes, parallel simulators, batched policy calls.
 
-Protocol (Diffusion Policy's, which the study follows): episode i starts from Diffusion Policy's seeded
-state for seed 100000 + i; at most 300 steps; the score of an episode is its maximum reward
-min(coverage / 0.95, 1); success is coverage > 0.95 (the episode then ends).
+Protocol (Diffusion Policy's, which the study follows): episode i starts from the task's seeded start for seed
+100000 + i; at most the task's cap of steps; the score of an episode is its maximum reward, success ends it
+(Push-T: reward min(coverage / 0.95, 1), success coverage > 0.95, 300 steps; each task states its own).
 
 Simulators run in worker processes (one per core by default); the policy runs in this process and is
 called once per re-planning round for every episode that needs a new chunk, so a batch of B episodes
@@ -21,12 +21,14 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from bcbench.errors import BCBenchError
 from bcbench.evaluation.config import EvalConfig
 from bcbench.evaluation.controller import ChunkedController
 from bcbench.evaluation.latency_sources import LatencySource
 from bcbench.evaluation.strategies import Strategy
 from bcbench.interface import ChunkPolicy, CorrectionHead
 from bcbench.stats import score_summary
+from bcbench.tasks import Task, get_task
 from bcbench.tasks.workers import WorkerPool
 from bcbench.utils.io import write_json
 from bcbench.utils.system import provenance
@@ -46,6 +48,18 @@ class EpisodeResult:
     video: str | None = None
 
 
+
+
+def episode_task(policy: ChunkPolicy, name: str) -> Task:
+    """The task `name`, checked against the one the policy was trained on (a trained runner's, or an outside
+    policy's `task` attribute where it has one): one line when they differ."""
+    task = get_task(name)
+    own = getattr(policy, "task", None)
+    own = getattr(own, "name", own)
+    if own is not None and own != task.name:
+        raise BCBenchError(f"{getattr(policy, 'name', 'the policy')} was trained on {own}, not {task.name}: "
+                           f"pass --task {own} (or leave --task out)")
+    return task
 
 
 def _split(items: dict[int, Any] | list[Any], n: int, key=lambda x: x) -> list[Any]:
@@ -68,6 +82,7 @@ def run_episodes(policy: ChunkPolicy, cfg: EvalConfig, out_dir: Path | None = No
     weaker policy (cfg.strategy.bid_weak, loaded by the caller); `source`: cfg's latency source, already resolved
     (a sweep that looked at its delays first: measured calls are then not timed twice); `head`: the correction
     head of --strategy correction (cfg.strategy.correction, loaded by the caller)."""
+    task = episode_task(policy, cfg.task)
     n_workers = max(1, min(cfg.workers or os.cpu_count() or 1, cfg.episodes))
     results = {i: EpisodeResult(episode=i, seed=cfg.seed_start + i) for i in range(cfg.episodes)}
     source = source or LatencySource.parse(cfg.latency, cfg.latency_ms)
@@ -75,9 +90,9 @@ def run_episodes(policy: ChunkPolicy, cfg: EvalConfig, out_dir: Path | None = No
     source.resolve(policy, strategy)  # measured: timed now, before any simulator runs beside it
     controller = ChunkedController(policy, cfg.action_horizon, cfg.execution,
                                    source.delay_fn({i: r.seed for i, r in results.items()}), cfg.execution_horizon,
-                                   strategy)
+                                   strategy, task)
     video_dir = (out_dir / "videos") if out_dir is not None else Path("videos")
-    pool = WorkerPool(n_workers, cfg.video_size)
+    pool = WorkerPool(n_workers, cfg.video_size, task.name)
     policy_time, env_steps, t0 = 0.0, 0, time.perf_counter()
     try:
         resets = [(i, r.seed, str(video_dir / f"episode_{i:03d}_seed_{r.seed}.mp4") if i < cfg.video else None)

@@ -26,8 +26,8 @@ from typing import Any
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
-from bcbench.interface import example_observation
 from bcbench.policies.learned import PolicyRunner
+from bcbench.tasks import example_for
 
 READ_MB = 256  # bytes streamed per bandwidth sample: well past any L3 cache
 GEMM_N = 1024
@@ -80,7 +80,7 @@ def layer_work(runner: PolicyRunner) -> list[dict[str, Any]]:
         row["flops"] += inclusive - children
 
     hooks = [h for m in model.modules() for h in (m.register_forward_pre_hook(pre), m.register_forward_hook(post))]
-    obs = example_observation(1, runner.obs_horizon)
+    obs = example_for(runner)
     deployed, model.deployed = model.deployed, None
     try:
         with counter:

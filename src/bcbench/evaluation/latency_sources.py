@@ -26,9 +26,10 @@ from bcbench.evaluation.config import check_latency_options
 from bcbench.evaluation.controller import WEAK_STREAM, episode_generator
 from bcbench.evaluation.strategies import Strategy, prefix_weights
 from bcbench.evaluation.timing import TimingConfig, time_calls
-from bcbench.interface import ChunkPolicy, example_observation, is_generative
+from bcbench.interface import ChunkPolicy, is_generative
 from bcbench.protocol import delay_steps
 from bcbench.reference import A100_DP_MS, A100_MS
+from bcbench.tasks import example_for
 from bcbench.utils.system import CpuContention
 
 # Diffusion Policy (and flow matching, the same network) at K steps on the A100: the encoder-and-overhead
@@ -66,7 +67,7 @@ def timed_request_inputs(runner: ChunkPolicy, uses_target: bool
                          ) -> tuple[dict[str, Any], np.ndarray | None, np.ndarray | None]:
     """What a timed request is made with: a batch-1 observation and, for a strategy that reads the executing chunk,
     one the policy made (1, Tp, 2) followed over half of it, with RTC's soft mask (1, Tp)."""
-    obs = example_observation(1, runner.obs_horizon)
+    obs = example_for(runner)
     if not uses_target:
         return obs, None, None
     target = np.asarray(runner.predict_action_chunk(obs), dtype=np.float32)

@@ -20,6 +20,7 @@ from bcbench.evaluation.latency_sources import LatencySource, profile_ms, sample
 from bcbench.evaluation.strategies import Strategy
 from bcbench.interface import ChunkPolicy, CorrectionHead
 from bcbench.protocol import CONTROL_DT_S, SYNC_SETTING, delay_setting
+from bcbench.tasks import task_of
 from bcbench.utils.io import read_json
 from bcbench.utils.system import provenance
 
@@ -40,12 +41,12 @@ def sweep_settings(delays: list[int], executions: list[str], profiles: list[str]
 
 
 def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episodes: int, profiles: list[str],
-          measured: bool, progress: bool = True, max_steps: int = 300, seed_start: int = 100_000,
+          measured: bool, progress: bool = True, max_steps: int | None = None, seed_start: int = 100_000,
           skip_missing_profiles: bool = False, done: dict[str, dict[str, Any]] | None = None,
           on_setting: Callable[[dict[str, dict[str, Any]]], None] | None = None,
           execution_horizon: int | None = None, strategy: StrategyConfig | None = None,
           weak: ChunkPolicy | None = None, measured_source: LatencySource | None = None,
-          head: CorrectionHead | None = None) -> dict[str, dict[str, Any]]:
+          head: CorrectionHead | None = None, task: str | None = None) -> dict[str, dict[str, Any]]:
     """Score against delay d for each execution mode (sync as the d = 0 reference), plus the policy's score at
     its measured latency on this machine and under each hardware profile: evaluation results by setting.
     `done`: settings finished by an interrupted sweep (kept, not rerun); `on_setting(results so far)` is called
@@ -55,7 +56,9 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
     `execution_horizon`: s of the async settings (see bcbench.evaluation.controller); `strategy` (and BID's
     `weak` policy, the correction `head`): how consecutive chunks are joined, in every setting, sync included.
     `measured_source`: the
-    measured setting's calls, timed by the caller (e.g. interleaved with other strategies'); else timed here."""
+    measured setting's calls, timed by the caller (e.g. interleaved with other strategies'); else timed here.
+    `task`: the episodes' task (default: the policy's own); `max_steps` (default: its cap)."""
+    task = task or task_of(policy).name
     if execution_horizon is not None:  # checked before hours of episodes
         EvalConfig(execution="async", execution_horizon=execution_horizon)
     if "async" in executions:
@@ -77,7 +80,7 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
     for name, execution, latency in settings:
         if name in out:
             continue
-        cfg = EvalConfig(episodes=episodes, execution=execution, max_steps=max_steps, seed_start=seed_start,
+        cfg = EvalConfig(episodes=episodes, execution=execution, max_steps=max_steps, seed_start=seed_start, task=task,
                          execution_horizon=execution_horizon if execution == "async" else None,
                          strategy=strategy or StrategyConfig(), **latency)
         source, twin = None, None
@@ -97,7 +100,7 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
     return out
 
 
-def finished_settings(folder: Path, policy: ChunkPolicy, episodes: int, seed_start: int, max_steps: int,
+def finished_settings(folder: Path, policy: ChunkPolicy, episodes: int, seed_start: int, max_steps: int | None,
                       execution_horizon: int | None, strategy: StrategyConfig) -> dict[str, dict[str, Any]]:
     """The settings an interrupted sweep already wrote to `folder` (one file each, as they finish) that this sweep
     would repeat exactly: same policy (weights, checkpoint, sampler, deployment), episodes, seeds, step cap,
@@ -105,6 +108,7 @@ def finished_settings(folder: Path, policy: ChunkPolicy, episodes: int, seed_sta
     def plain(x: Any) -> Any:  # as a result file holds it (tuples as lists)
         return json.loads(json.dumps(x, default=str))
 
+    max_steps = max_steps or task_of(policy).max_steps
     want = plain({"episodes": episodes, "seed_start": seed_start, "max_steps": max_steps, "strategy": asdict(strategy)})
     described, out = plain(policy.describe()), {}
     for f in sorted(folder.glob("realtime-*.json")) if folder.is_dir() else []:

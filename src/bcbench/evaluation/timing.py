@@ -26,8 +26,9 @@ import torch
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.backends import apply_mode
 from bcbench.evaluation.floor import against_floor, call_work, machine_limits
-from bcbench.interface import ChunkPolicy, SelfTimedPolicy, example_observation
+from bcbench.interface import ChunkPolicy, SelfTimedPolicy
 from bcbench.policies.learned import PolicyRunner
+from bcbench.tasks import example_for, task_of
 from bcbench.utils.system import CpuContention, provenance
 
 ACTION_HORIZON = 8
@@ -122,10 +123,11 @@ def verdicts(tail_ms: float, rate_hz: float, action_horizon: int = ACTION_HORIZO
 
 def measure_runner(runner: ChunkPolicy, cfg: TimingConfig, rate_hz: float = 10.0, what: str = "") -> dict[str, Any]:
     """Time `runner.predict_action_chunk` on a batch-1 raw observation."""
-    obs = example_observation(1, runner.obs_horizon)
+    obs = example_for(runner)
     out = runner.predict_action_chunk(obs)
-    if np.asarray(out).shape != (1, runner.pred_horizon, 2):
-        raise BCBenchError(f"{runner.name} returned {np.asarray(out).shape}, expected (1, {runner.pred_horizon}, 2)")
+    want = (1, runner.pred_horizon, task_of(runner).action_dim)
+    if np.asarray(out).shape != want:
+        raise BCBenchError(f"{runner.name} returned {np.asarray(out).shape}, expected {want}")
     cuda = getattr(runner, "device", torch.device("cpu")).type == "cuda"
     clock = self_clock(runner)
     # a self-timed policy's worker process is "other" CPU use: recorded, not warned about

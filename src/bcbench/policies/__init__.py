@@ -21,6 +21,7 @@ from bcbench.policies.diffusion import DiffusionConfig, DiffusionPolicy
 from bcbench.policies.flow import FlowConfig, FlowPolicy
 from bcbench.policies.learned import BCPolicy
 from bcbench.policies.resnet50_cnn import ResNet50Config, ResNet50Policy
+from bcbench.tasks import Task
 
 REGISTRY: dict[str, tuple[type, type]] = {
     "random": (BaselineConfig, RandomPolicy),
@@ -70,8 +71,13 @@ def make_config(name: str, preset: str = "quick", overrides: dict[str, Any] | No
     return with_overrides(cfg, overrides) if overrides else cfg
 
 
-def make_policy(name: str, preset: str = "quick", **overrides: Any) -> BCPolicy | ChunkPolicy:
-    """Build a registered policy from a preset with (dotted) field overrides: a baseline is a ready ChunkPolicy,
-    a learned policy an untrained BCPolicy network (wrap it in a PolicyRunner to run it on raw observations)."""
+def make_policy(name: str, preset: str = "quick", task: Task | None = None, **overrides: Any) -> BCPolicy | ChunkPolicy:
+    """Build a registered policy from a preset with (dotted) field overrides: a baseline is a ready ChunkPolicy
+    (Push-T's), a learned policy an untrained BCPolicy network in `task`'s shapes (default Push-T; wrap it in a
+    PolicyRunner to run it on raw observations)."""
     cfg = make_config(name, preset, overrides)
-    return REGISTRY[name][1](cfg)
+    if not is_learned(name):
+        if task is not None and task.name != "pusht":
+            raise BCBenchError(f"the {name} baseline acts in Push-T's world; it has no version for {task.name}")
+        return REGISTRY[name][1](cfg)
+    return REGISTRY[name][1](cfg, task)

@@ -55,6 +55,7 @@ class BaselineConfig:
 class _Baseline:
     name = "baseline"
     chunk_start = 0
+    task = "pusht"  # both act in Push-T's world (positions in its 512 px): evaluation refuses another task
 
     def __init__(self, config: BaselineConfig) -> None:
         self.config = config

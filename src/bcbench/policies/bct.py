@@ -18,6 +18,7 @@ from bcbench.errors import BCBenchError
 from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile, pick_preset
 from bcbench.policies.encoders import RESNET18_LAYERS, FrameFeatures
 from bcbench.policies.learned import BCPolicy
+from bcbench.tasks import Task
 
 
 @dataclass
@@ -68,11 +69,12 @@ class BCTPolicy(BCPolicy):
     name = "bct"
     graphs = ("forward",)  # the whole policy is one graph: (image, agent_pos) -> chunk
 
-    def __init__(self, config: BCTConfig) -> None:
+    def __init__(self, config: BCTConfig, task: Task | None = None) -> None:
         super().__init__()
         self.config = c = config
+        self.use_task(task)
         self.encoder = FrameFeatures("batch", c.encoder_width, c.encoder_layers)
-        self.obs_proj = nn.Linear(self.encoder.out_dim + 2, c.d_model)
+        self.obs_proj = nn.Linear(self.encoder.out_dim + self.state_dim, c.d_model)
         self.obs_pos = nn.Parameter(torch.zeros(1, c.obs_horizon, c.d_model))
         self.queries = nn.Parameter(torch.zeros(1, c.pred_horizon, c.d_model))  # one per future step
         nn.init.normal_(self.obs_pos, std=0.02)
@@ -81,7 +83,7 @@ class BCTPolicy(BCPolicy):
                                            norm_first=True)
         self.transformer = nn.TransformerEncoder(layer, c.n_layers, enable_nested_tensor=False)
         self.norm = nn.LayerNorm(c.d_model)
-        self.action_head = nn.Linear(c.d_model, 2)
+        self.action_head = nn.Linear(c.d_model, self.action_dim)
 
     def forward(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:
         obs = torch.cat([self.encoder(image), agent_pos], dim=-1)  # (B, To, F + 2)

@@ -27,6 +27,7 @@ from bcbench.errors import BCBenchError
 from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile, pick_preset
 from bcbench.policies.encoders import RESNET18_LAYERS, FrameFeatures
 from bcbench.policies.learned import BCPolicy
+from bcbench.tasks import Task
 
 
 @dataclass
@@ -116,20 +117,22 @@ class BeTPolicy(BCPolicy):
     name = "bet"
     graphs = ("heads",)  # observations -> bin logits and offsets; the bin is drawn in Python
 
-    def __init__(self, config: BeTConfig) -> None:
+    def __init__(self, config: BeTConfig, task: Task | None = None) -> None:
         super().__init__()
         self.config = c = config
+        self.use_task(task)
         self.encoder = FrameFeatures("batch", c.encoder_width, c.encoder_layers)
-        self.tok = nn.Linear(self.encoder.out_dim + 2, c.d_model)
+        self.tok = nn.Linear(self.encoder.out_dim + self.state_dim, c.d_model)
         self.pos = nn.Parameter(torch.zeros(1, c.obs_horizon, c.d_model))
         self.drop = nn.Dropout(c.dropout)
         self.blocks = nn.ModuleList(Block(c.d_model, c.n_heads, c.dropout) for _ in range(c.n_layers))
         self.ln_f = nn.LayerNorm(c.d_model)
-        self.head = nn.Linear(c.d_model, c.pred_horizon * c.n_bins * 3)  # per step: k logits + k 2-D offsets
+        # per step: k logits and k offsets of action_dim values
+        self.head = nn.Linear(c.d_model, c.pred_horizon * c.n_bins * (1 + self.action_dim))
         # True above the diagonal = not allowed to attend: token t sees tokens <= t only (causal).
         self.register_buffer("mask", torch.triu(torch.ones(c.obs_horizon, c.obs_horizon, dtype=torch.bool), 1),
                              persistent=False)
-        self.register_buffer("centres", torch.zeros(c.n_bins, 2))  # k-means bins, saved with the weights
+        self.register_buffer("centres", torch.zeros(c.n_bins, self.action_dim))  # k-means bins, saved with the weights
 
     def fit_data(self, train_ds: SequenceDataset) -> None:
         """Fit the k-means bins on the normalised actions of the training split (once, before training)."""
@@ -148,8 +151,8 @@ class BeTPolicy(BCPolicy):
         """The inference graph: observations -> bin logits and offsets (sampling stays in Python)."""
         h = self.transformer(image, agent_pos)[:, -1]  # newest token: (B, D)
         c = self.config
-        out = self.head(h).view(-1, c.pred_horizon, c.n_bins, 3)
-        return out[..., 0], out[..., 1:]  # logits (B, Tp, k), offsets (B, Tp, k, 2)
+        out = self.head(h).view(-1, c.pred_horizon, c.n_bins, 1 + self.action_dim)
+        return out[..., 0], out[..., 1:]  # logits (B, Tp, k), offsets (B, Tp, k, A)
 
     def optim_groups(self, weight_decay: float) -> list[dict[str, Any]]:
         """minGPT's parameter groups: weight decay on matrices and convolution kernels only, never on biases,
@@ -161,7 +164,7 @@ class BeTPolicy(BCPolicy):
 
     def encode_actions(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(..., 2) -> nearest bin (...,) and the residual offset (..., 2): bin centre + offset = action."""
-        bins = torch.cdist(action.reshape(-1, 2), self.centres).argmin(-1).view(action.shape[:-1])
+        bins = torch.cdist(action.reshape(-1, self.action_dim), self.centres).argmin(-1).view(action.shape[:-1])
         return bins, action - self.centres[bins]
 
     def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -169,7 +172,7 @@ class BeTPolicy(BCPolicy):
         bins, target_offset = self.encode_actions(batch["action"])  # (B, Tp), (B, Tp, 2)
         logp = F.log_softmax(logits, dim=-1).gather(-1, bins[..., None]).squeeze(-1)  # (B, Tp)
         focal = -((1 - logp.exp()) ** self.config.focal_gamma * logp).mean()
-        chosen = offsets.gather(2, bins[..., None, None].expand(-1, -1, 1, 2)).squeeze(2)  # (B, Tp, 2)
+        chosen = offsets.gather(2, bins[..., None, None].expand(-1, -1, 1, self.action_dim)).squeeze(2)  # (B, Tp, 2)
         return focal + self.config.offset_weight * F.mse_loss(chosen, target_offset)
 
     def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -181,5 +184,5 @@ class BeTPolicy(BCPolicy):
         else:  # row i from episode i's own stream (sampled on its generator's device)
             bins = torch.stack([torch.multinomial(p.to(g.device), 1, generator=g).view(-1).to(p.device)
                                 for p, g in zip(probs, gens, strict=True)])  # sample a bin, as BeT does
-        chosen = offsets.gather(2, bins[..., None, None].expand(-1, -1, 1, 2)).squeeze(2)
+        chosen = offsets.gather(2, bins[..., None, None].expand(-1, -1, 1, self.action_dim)).squeeze(2)
         return self.centres[bins] + chosen  # (B, Tp, 2)

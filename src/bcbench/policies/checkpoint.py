@@ -28,6 +28,7 @@ from bcbench.policies import HEADS, REGISTRY, trainable
 from bcbench.policies.config import config_from_dict
 from bcbench.policies.correction import CorrectionRunner
 from bcbench.policies.learned import PolicyRunner
+from bcbench.tasks import get_task
 from bcbench.utils.io import read_json, sha256_file, write_json
 
 KEEP = 2  # step directories kept besides the newest
@@ -119,7 +120,7 @@ def build_model(run: dict[str, Any]) -> torch.nn.Module:
         if not config.base:
             raise BCBenchError(f"a {name} head needs its base run: --set base=RUN_DIR")
         return policy_cls(config, load_runner(config.base))
-    return policy_cls(config)
+    return policy_cls(config, get_task(run.get("task")))  # a run from before tasks existed is Push-T's
 
 
 def load_correction(run_dir: str | Path, device: str = "cpu") -> CorrectionRunner:

@@ -17,6 +17,7 @@ from torch import nn
 from bcbench.errors import BCBenchError
 from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile, pick_preset
 from bcbench.policies.regressor import ChunkRegressor, TimeMerge, conv_bn_relu
+from bcbench.tasks import Task
 
 
 @dataclass
@@ -53,9 +54,10 @@ class CNNMLPConfig(PolicyConfig):
 class CNNMLPPolicy(ChunkRegressor):
     name = "cnn_mlp"
 
-    def __init__(self, config: CNNMLPConfig) -> None:
+    def __init__(self, config: CNNMLPConfig, task: Task | None = None) -> None:
         super().__init__()
         self.config = config
+        self.use_task(task)
         c = config.channels
         self.merge = TimeMerge(config.obs_horizon, c[0])
         layers: list[nn.Module] = []
@@ -65,9 +67,9 @@ class CNNMLPPolicy(ChunkRegressor):
         side = config.image_size
         for _ in range(5):
             side = (side + 1) // 2
-        n_in = c[-1] * side * side + (2 * config.obs_horizon if config.use_agent_pos else 0)
+        n_in = c[-1] * side * side + (self.state_dim * config.obs_horizon if config.use_agent_pos else 0)
         self.fc1 = nn.Linear(n_in, config.hidden)
-        self.fc2 = nn.Linear(config.hidden, config.pred_horizon * 2)
+        self.fc2 = nn.Linear(config.hidden, config.pred_horizon * self.action_dim)
 
     def forward(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:
         return self.head(self.convs(self.merge(image)), agent_pos)  # (B, Tp, 2)

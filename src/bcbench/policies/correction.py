@@ -115,13 +115,14 @@ class CorrectionPolicy(BCPolicy):
                 raise BCBenchError(f"base_sampler/base_steps apply to a generative base, not to {m.name}")
             m.set_sampler(c.base_sampler or m.sampler_kind, c.base_steps or m.sampler_steps)
         m.eval().requires_grad_(False)
+        self.use_task(m.task)  # the base's task: its shapes
         self._base = (base,)  # a tuple: nn.Module registers no submodule, so nothing of the base trains or is saved
-        feat = c.obs_horizon * (m.encoder.out_dim + 2)
-        dims = [feat + 4, *c.hidden]  # features, planned action (2), age, index
+        feat = c.obs_horizon * (m.encoder.out_dim + self.state_dim)
+        dims = [feat + self.action_dim + 2, *c.hidden]  # features, planned action (A), age, index
         layers: list[nn.Module] = []
         for a, b in itertools.pairwise(dims):
             layers += [nn.Linear(a, b), nn.Mish()]
-        last = nn.Linear(dims[-1], 2)
+        last = nn.Linear(dims[-1], self.action_dim)
         nn.init.zeros_(last.weight)  # zero residual until trained: the head starts as the base itself
         nn.init.zeros_(last.bias)
         self.mlp = nn.Sequential(*layers, last)

@@ -26,6 +26,7 @@ from bcbench.policies.encoders import RESNET18_LAYERS, FrameFeatures, count_para
 from bcbench.policies.learned import BCPolicy
 from bcbench.policies.prefix import Prefix, check_delay_range
 from bcbench.policies.unet1d import ConditionalUnet1D
+from bcbench.tasks import Task
 
 
 def _paper_optim() -> OptimConfig:
@@ -80,19 +81,22 @@ class DenoiserPolicy(BCPolicy):
     guidable = True  # Real-Time Chunking's guided sampling (bcbench.policies.guidance)
     encodes_once = True  # obs["samples"] = n: BID's candidates share one encoding of their observation
 
-    def __init__(self, config: DenoiserNetConfig) -> None:
+    def __init__(self, config: DenoiserNetConfig, task: Task | None = None) -> None:
         super().__init__()
         self.config = c = config
+        self.use_task(task)
         self.encoder = FrameFeatures("group", c.encoder_width, c.encoder_layers, c.crop)
-        # delay conditioning reads a clean-position mask beside the 2 action channels (bcbench.policies.prefix);
+        # delay conditioning reads a clean-action mask beside the action channels (bcbench.policies.prefix);
         # without it the U-Net is Diffusion Policy's, parameter for parameter
         self.delay_conditioned = c.delay_train[1] > 0
-        self.unet = ConditionalUnet1D(3 if self.delay_conditioned else 2, c.obs_horizon * (self.encoder.out_dim + 2),
+        a = self.action_dim
+        self.unet = ConditionalUnet1D(a + 1 if self.delay_conditioned else a,
+                                      c.obs_horizon * (self.encoder.out_dim + self.state_dim),
                                       c.step_embed_dim, c.down_dims, c.kernel_size, c.n_groups,
-                                      out_dim=2 if self.delay_conditioned else None)
+                                      out_dim=a if self.delay_conditioned else None)
 
     def encode(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:
-        """image (B, To, 3, H, W), agent_pos (B, To, 2) -> global condition (B, To * (F + 2))."""
+        """image (B, To, 3, H, W), agent_pos (B, To, S) -> global condition (B, To * (F + S))."""
         feats = self.encoder(image)  # (B, To, F)
         return torch.cat([feats, agent_pos], dim=-1).flatten(1)
 
@@ -110,7 +114,8 @@ class DenoiserPolicy(BCPolicy):
         image, pos = obs["image"], obs["agent_pos"]
         with torch.no_grad():
             film = self.obs_film(image, pos)
-        x = torch.randn(batch, self.config.pred_horizon, 3 if self.delay_conditioned else 2)  # (+ the mask channel)
+        # the state x, and a delay-conditioned network's mask channel beside it
+        x = torch.randn(batch, self.config.pred_horizon, self.action_dim + int(self.delay_conditioned))
         return {"obs_film": (image, pos), "denoise": (x, film)}
 
     def net_input(self, x: torch.Tensor, prefix: Prefix | None) -> torch.Tensor:

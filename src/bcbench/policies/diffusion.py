@@ -22,6 +22,7 @@ from bcbench.policies.denoiser import DenoiserNetConfig, DenoiserPolicy
 from bcbench.policies.guidance import Guide, inpaint_clean
 from bcbench.policies.prefix import Prefix, masked_mse, train_prefix
 from bcbench.policies.samplers import DEFAULT_SPACING, check_spacing, make_train_scheduler, plan, run_plan
+from bcbench.tasks import Task
 
 
 @dataclass
@@ -74,8 +75,8 @@ class DiffusionPolicy(DenoiserPolicy):
     samplers = ("ddpm", "ddim")
     guidance_autograd = False  # RTC inpaints the clean estimate: no backward pass, every backend
 
-    def __init__(self, config: DiffusionConfig) -> None:
-        super().__init__(config)
+    def __init__(self, config: DiffusionConfig, task: Task | None = None) -> None:
+        super().__init__(config, task)
         c = config
         self.noise_scheduler = make_train_scheduler(c.num_train_timesteps, c.beta_schedule)
         ac = self.noise_scheduler.alphas_cumprod.float()
@@ -118,6 +119,6 @@ class DiffusionPolicy(DenoiserPolicy):
             def edit(x0: torch.Tensor, t: int) -> torch.Tensor:
                 return inpaint_clean(x0, float(ac[t]), guide)
 
-        x = self.randn(obs, (b, self.config.pred_horizon, 2), device)  # (B, Tp, 2) pure noise
+        x = self.randn(obs, (b, self.config.pred_horizon, self.action_dim), device)  # (B, Tp, A) pure noise
         x = run_plan(self.plan, model, x, lambda shape: self.randn(obs, shape, device), edit)
         return x if prefix is None else prefix.impose(x)  # the prefix is what executes: returned as given

@@ -26,6 +26,7 @@ from bcbench.policies.denoiser import DenoiserNetConfig, DenoiserPolicy
 from bcbench.policies.diffusion import DiffusionConfig
 from bcbench.policies.guidance import Guide, guided_velocity
 from bcbench.policies.prefix import Prefix, masked_mse, train_prefix
+from bcbench.tasks import Task
 
 INTEGRATORS = ("euler", "midpoint")
 TIME_SCALE = 100.0  # t in [0, 1] enters the U-Net's sinusoidal step embedding as 100 t
@@ -65,8 +66,8 @@ class FlowPolicy(DenoiserPolicy):
     name = "flow"
     samplers = INTEGRATORS
 
-    def __init__(self, config: FlowConfig) -> None:
-        super().__init__(config)
+    def __init__(self, config: FlowConfig, task: Task | None = None) -> None:
+        super().__init__(config, task)
         self.set_sampler(config.sampler, config.sampling_steps)
 
     def set_sampler(self, kind: str, steps: int, spacing: str | None = None) -> None:
@@ -116,7 +117,7 @@ class FlowPolicy(DenoiserPolicy):
                 return model(x, t * TIME_SCALE)
             return guided_velocity(lambda x_in: model(x_in, t * TIME_SCALE), x, t, guide)
 
-        x = self.randn(obs, (b, self.config.pred_horizon, 2), device)  # (B, Tp, 2) noise at t = 0
+        x = self.randn(obs, (b, self.config.pred_horizon, self.action_dim), device)  # (B, Tp, A) noise at t = 0
         for t in starts:
             vel = v(x, t)
             if self.sampler_kind == "midpoint":

@@ -36,6 +36,7 @@ from bcbench.policies.config import config_to_dict
 from bcbench.policies.encoders import count_parameters
 from bcbench.policies.guidance import Guide
 from bcbench.policies.prefix import Prefix
+from bcbench.tasks import Task, get_task
 
 
 class BCPolicy(nn.Module):
@@ -56,6 +57,16 @@ class BCPolicy(nn.Module):
     encodes_once = False  # obs["samples"] = n: n samples per observation row, the observation encoded once
     standalone = True  # a policy of its own (False: a head run beside a base, e.g. A2C2's correction head)
 
+    def use_task(self, task: Task | None) -> None:
+        """Take the shapes of `task` (None: Push-T): `state_dim` proprioception values a frame in, `action_dim` values
+        an action out. Called first in every policy's __init__, before its layers are made."""
+        self.task = task or get_task()
+        self.state_dim, self.action_dim = self.task.state_dim, self.task.action_dim
+        size = getattr(self.config, "image_size", self.task.image_size)
+        if size != self.task.image_size:
+            raise BCBenchError(f"{self.name}'s image_size is {size}, task {self.task.name}'s frames "
+                               f"{self.task.image_size}: --set image_size={self.task.image_size}")
+
     def call_graph(self, name: str, *args: torch.Tensor) -> Any:
         """Run one inference graph: the deployed (compiled) one if a backend is set, else this module's method."""
         if self.deployed is not None:
@@ -63,10 +74,10 @@ class BCPolicy(nn.Module):
         return getattr(self, name)(*args)
 
     def example_obs(self, batch: int = 1) -> dict[str, torch.Tensor]:
-        """A random normalised observation window: image (B, To, 3, H, W) in [0, 1], agent_pos (B, To, 2)."""
+        """A random normalised observation window: image (B, To, 3, H, W) in [0, 1], agent_pos (B, To, S)."""
         c = self.config
         return {"image": torch.rand(batch, c.obs_horizon, 3, c.image_size, c.image_size),
-                "agent_pos": torch.rand(batch, c.obs_horizon, 2) * 2 - 1}
+                "agent_pos": torch.rand(batch, c.obs_horizon, self.state_dim) * 2 - 1}
 
     def graph_inputs(self, batch: int = 1) -> dict[str, tuple[torch.Tensor, ...]]:
         """Example inputs of every graph (for export); default: graphs of the observation window."""
@@ -177,6 +188,7 @@ class PolicyRunner:
         self.name = model.name
         self.obs_horizon, self.pred_horizon, self.action_horizon = cfg.obs_horizon, cfg.pred_horizon, cfg.action_horizon
         self.chunk_start = cfg.obs_horizon - 1
+        self.task = model.task  # what it was trained on: evaluation checks --task against it
         self.info = info or RunInfo()
 
     def prepare(self, obs: dict[str, Any]) -> dict[str, Any]:
@@ -295,4 +307,4 @@ class PolicyRunner:
         # the noise seed is recorded because `--seed` changes a stochastic policy's episodes without changing its
         # config: two records of one checkpoint that differ only in it are replicates, not repeats
         return {"name": self.name, "parameters": self.model.num_parameters(), "noise_seed": self.noise_seed,
-                "config": config_to_dict(self.model.config), **self.info.describe()}
+                "task": self.task.name, "config": config_to_dict(self.model.config), **self.info.describe()}

@@ -58,5 +58,5 @@ class ChunkRegressor(BCPolicy):
         """Flattened features (+ agent positions) -> two fully connected layers -> (B, Tp, 2)."""
         x = features.flatten(1)
         if self.config.use_agent_pos:
-            x = torch.cat([x, agent_pos.flatten(1)], dim=1)  # (B, F + To*2)
-        return self.fc2(F.relu(self.fc1(x))).view(-1, self.config.pred_horizon, 2)
+            x = torch.cat([x, agent_pos.flatten(1)], dim=1)  # (B, F + To*S)
+        return self.fc2(F.relu(self.fc1(x))).view(-1, self.config.pred_horizon, self.action_dim)

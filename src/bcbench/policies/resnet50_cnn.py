@@ -17,6 +17,7 @@ from bcbench.errors import BCBenchError
 from bcbench.policies.config import OptimConfig, PolicyConfig, cpu_profile, pick_preset
 from bcbench.policies.encoders import RESNET50_LAYERS, load_pretrained, resnet50
 from bcbench.policies.regressor import ChunkRegressor, TimeMerge, conv_bn_relu
+from bcbench.tasks import Task
 
 
 @dataclass
@@ -63,9 +64,10 @@ class ResNet50Config(PolicyConfig):
 class ResNet50Policy(ChunkRegressor):
     name = "resnet50"
 
-    def __init__(self, config: ResNet50Config) -> None:
+    def __init__(self, config: ResNet50Config, task: Task | None = None) -> None:
         super().__init__()
         self.config = config
+        self.use_task(task)
         self.merge = TimeMerge(config.obs_horizon, config.merge_channels)
         self.to_rgb = nn.Sequential(*conv_bn_relu(config.merge_channels, 3, 3))
         self.backbone = resnet50("batch", config.width, config.layers)
@@ -77,9 +79,9 @@ class ResNet50Policy(ChunkRegressor):
             *conv_bn_relu(h[1], h[2], 3), *conv_bn_relu(h[2], h[3], 3),
         )
         side = config.image_size // 32 if config.image_size % 32 == 0 else -(-config.image_size // 32)
-        n_in = h[3] * side * side + (2 * config.obs_horizon if config.use_agent_pos else 0)
+        n_in = h[3] * side * side + (self.state_dim * config.obs_horizon if config.use_agent_pos else 0)
         self.fc1 = nn.Linear(n_in, config.hidden)
-        self.fc2 = nn.Linear(config.hidden, config.pred_horizon * 2)
+        self.fc2 = nn.Linear(config.hidden, config.pred_horizon * self.action_dim)
 
     def forward(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:
         x = self.backbone(self.to_rgb(self.merge(image)))  # (B, 2048, 3, 3) at paper size

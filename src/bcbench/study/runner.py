@@ -51,7 +51,7 @@ class StudyRunner:
     # ------------------------------------------------------------------ layout
     def run_dir(self, run: RunSpec) -> Path:
         if run.learned:
-            key = run.key(self.spec.val_fraction)
+            key = run.key(self.spec.val_fraction, self.spec.task)
         elif run.outside:  # its factory arguments are part of what was run
             h = hashlib.sha256(json.dumps(run.args, sort_keys=True).encode()).hexdigest()[:8]
             key = f"{safe_name(run.policy)}-s{run.seed}-{h}-outside"
@@ -105,7 +105,7 @@ class StudyRunner:
                             eval_every=run.eval_every, eval_episodes=self.spec.curve_episodes)
         d = self.run_dir(run)
         if not (d / "run.json").exists():
-            new_run(run.policy, run.config, {**run.overrides, "seed": run.seed}, d, opts)
+            new_run(run.policy, run.config, {**run.overrides, "seed": run.seed}, d, opts, self.spec.task)
         summary = train(d, opts)
         if not training_done(summary):
             raise KeyboardInterrupt  # Ctrl-C during training: the checkpoint is saved; stop the study here
@@ -123,7 +123,7 @@ class StudyRunner:
     def _eval(self, run: RunSpec, variant: Variant, check: bool = False) -> dict[str, Any]:
         episodes, start = (self.spec.check_size(run), VALIDATION_SEED_START) if check else (
             self.spec.episodes, self.spec.seed_start)
-        cfg = EvalConfig(episodes=episodes, seed_start=start, max_steps=self.spec.max_steps)
+        cfg = EvalConfig(episodes=episodes, seed_start=start, max_steps=self.spec.max_steps, task=self.spec.task)
         extra = {"study": {"name": self.spec.name, "purpose": self.spec.purpose, **({"check": True} if check else {}),
                            "label": run.label,
                            "variant": asdict(variant), "run_dir": str(self.run_dir(run)),

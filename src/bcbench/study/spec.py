@@ -59,11 +59,12 @@ from bcbench.policies.config import config_to_dict
 from bcbench.policies.outside import load_factory
 from bcbench.protocol import MIN_CHOICE_EPISODES, check_purpose, test_informed_entries
 from bcbench.study.spec_tables import realtime_table, resources_table
+from bcbench.tasks import DEFAULT_TASK, get_task
 
 STUDY_KEYS = {"name", "episodes", "seed_start", "val_fraction", "latency", "threads", "max_steps", "rate_hz",
               "latency_min_calls", "latency_min_seconds", "device", "margin", "curve_episodes", "realtime",
               "check_episodes", "backend", "precision", "latency_modes", "resources", "purpose",
-              "test_informed"}
+              "test_informed", "task"}
 RUN_KEYS = {"policy", "preset", "config", "steps", "max_minutes", "seeds", "set", "eval", "label", "eval_every",
             "realtime", "args", "doubles", "check_episodes"}
 
@@ -112,16 +113,18 @@ class RunSpec:
     def config_dict(self) -> dict[str, Any]:
         return config_to_dict(make_config(self.policy, self.config, {**self.overrides, "seed": self.seed}))
 
-    def key(self, val_fraction: float) -> str:
-        """policy-config-sSEED-HASH: the hash covers the full config and the split, so a change retrains."""
-        blob = json.dumps({"policy": self.policy, "config": self.config_dict(), "val_fraction": val_fraction},
-                          sort_keys=True)
+    def key(self, val_fraction: float, task: str = DEFAULT_TASK) -> str:
+        """policy-config-sSEED-HASH: the hash covers the task, the full config and the split, so a change retrains
+        (Push-T is left out of the hash, so that every run key from before tasks existed still holds)."""
+        blob = json.dumps({"policy": self.policy, "config": self.config_dict(), "val_fraction": val_fraction,
+                           **({"task": task} if task != DEFAULT_TASK else {})}, sort_keys=True)
         return f"{self.policy}-{self.config}-s{self.seed}-{hashlib.sha256(blob.encode()).hexdigest()[:8]}"
 
 
 @dataclass
 class StudySpec:
     name: str
+    task: str = DEFAULT_TASK  # every run of a study trains and is scored on one task (pusht, metaworld/NAME)
     episodes: int = 40
     seed_start: int = 100_000
     val_fraction: float = 0.1
@@ -308,6 +311,11 @@ def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
     if not isinstance(runs, list) or not runs:
         raise BCBenchError("the spec lists no runs: add at least one [[run]] table")
     spec = StudySpec(name=str(study.get("name", Path(source).stem or "study")), source=source)
+    if "task" in study:
+        if not isinstance(study["task"], str):
+            raise BCBenchError(f"study.task must be a task's name, got {study['task']!r}")
+        spec.task = get_task(study["task"]).name  # an unknown name: one line naming the choices
+        spec.max_steps = get_task(spec.task).max_steps  # the task's cap unless study.max_steps says otherwise
     for key, typ, ok in (("episodes", int, lambda v: v >= 1), ("seed_start", int, lambda v: v >= 0),
                          ("val_fraction", float, lambda v: 0 < v < 1), ("latency", bool, lambda v: True),
                          ("threads", int, lambda v: v >= 1), ("max_steps", int, lambda v: 1 <= v <= 10_000),
@@ -388,7 +396,9 @@ def _backend_keys(study: dict[str, Any], spec: StudySpec) -> None:
     spec.latency_modes = tuple(modes)
 
 
-def load_spec(path: str | Path) -> StudySpec:
+def load_spec(path: str | Path, task: str | None = None) -> StudySpec:
+    """The study file at `path`; `task` (`bcbench study --task`) in place of its study.task (with that task's episode
+    cap unless study.max_steps sets one)."""
     path = Path(path)
     if not path.is_file():
         raise BCBenchError(f"study spec {path} not found")
@@ -396,4 +406,6 @@ def load_spec(path: str | Path) -> StudySpec:
         data = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
         raise BCBenchError(f"{path} is not valid TOML: {exc}") from None
+    if task is not None and isinstance(data.get("study"), dict):
+        data["study"]["task"] = task
     return parse_spec(data, str(path))

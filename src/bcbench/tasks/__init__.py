@@ -7,13 +7,15 @@ is asked for, so that Push-T never loads MuJoCo.
 
 from __future__ import annotations
 
+from typing import Any
+
 from bcbench.errors import BCBenchError
 from bcbench.tasks.spec import Episode, Task
 
 DEFAULT_TASK = "pusht"
 FAMILIES = ("pusht", "metaworld")
 
-__all__ = ["DEFAULT_TASK", "FAMILIES", "Episode", "Task", "get_task", "task_names"]
+__all__ = ["DEFAULT_TASK", "FAMILIES", "Episode", "Task", "example_for", "get_task", "task_names", "task_of"]
 
 
 def get_task(name: str | None = None) -> Task:
@@ -29,6 +31,18 @@ def get_task(name: str | None = None) -> Task:
 
         return metaworld_task(rest)
     raise BCBenchError(f"unknown task '{name}' (choose pusht or metaworld/NAME: {', '.join(task_names())})")
+
+
+def task_of(policy: object) -> Task:
+    """The task a policy was made for: a trained runner's (its run's), an outside policy's `task` (a name) where it
+    declares one, else Push-T."""
+    task = getattr(policy, "task", None)
+    return task if isinstance(task, Task) else get_task(task if isinstance(task, str) else None)
+
+
+def example_for(policy: object, batch: int = 1, seed: int = 0) -> dict[str, Any]:
+    """A random raw observation window for `policy` (timing, contract checks) in its task's shapes."""
+    return task_of(policy).example_observation(batch, int(getattr(policy, "obs_horizon", 2)), seed)
 
 
 def task_names() -> list[str]:

@@ -20,7 +20,9 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from bcbench.data.replay_buffer import ReplayBuffer
 from bcbench.errors import BCBenchError
+from bcbench.interface import example_observation
 from bcbench.protocol import TEST_SEED_START, VALIDATION_SEED_START
 
 Obs = dict[str, np.ndarray]
@@ -78,10 +80,14 @@ class Task:
     """(seed, video frame size or None) -> a fresh episode in the seed's start state after reset()"""
     dataset: Callable[[str | None], Path] = field(repr=False, compare=False)
     """the demonstrations' replay buffer: an explicit path (checked) or None (the task's default place)"""
+    load_buffer: Callable[[Path, bool], ReplayBuffer] = field(repr=False, compare=False)
+    """(path, with images) -> the demonstrations, checked against this task's shapes"""
     test_seed_start: int = TEST_SEED_START
     """test episodes use seeds test_seed_start + i"""
     validation_seed_start: int = VALIDATION_SEED_START
     """validation episodes use seeds validation_seed_start + i"""
+    state_range: tuple[float, float] = (-1.0, 1.0)
+    """where proprioception values lie, roughly: timing's random observations are drawn in it"""
     family: str = ""
     """pusht, metaworld, ..."""
     difficulty: str | None = None
@@ -115,6 +121,21 @@ class Task:
         if self.family == "pusht":
             return np.asarray(obs["agent_pos"], dtype=np.float32)
         return np.zeros(self.action_dim, dtype=np.float32)
+
+    def example_observation(self, batch: int = 1, obs_horizon: int = 2, seed: int = 0) -> Obs:
+        """A random raw observation window of this task's shapes (B, To, ...), as timing calls a policy with."""
+        return example_observation(batch, obs_horizon, seed, self.image_size, self.state_dim, self.state_range)
+
+    def demonstrations(self, path: str | None = None, images: bool = True) -> ReplayBuffer:
+        """The task's demonstrations (from `path`, else the default place), shapes checked against the task's."""
+        buf = self.load_buffer(self.dataset(path), images)
+        if buf.state.shape[1] < self.state_dim or buf.action.shape[1] != self.action_dim:
+            raise BCBenchError(f"{buf.source}: state {buf.state.shape[1:]} / action {buf.action.shape[1:]} do not fit "
+                               f"task {self.name} ({self.state_dim} state values, {self.action_dim} action values)")
+        if buf.images is not None and buf.images.shape[1:] != (self.image_size, self.image_size, 3):
+            raise BCBenchError(f"{buf.source}: frames {buf.images.shape[1:]}, task {self.name} reads "
+                               f"{self.image_size}x{self.image_size}x3")
+        return buf
 
     def describe(self) -> dict[str, Any]:
         """JSON-ready: what records keep of the task (no callables)."""

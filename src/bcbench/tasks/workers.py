@@ -1,7 +1,7 @@
-"""Push-T simulators in worker processes: episode e lives on worker e % n (bcbench.evaluation drives them).
+"""A task's simulators in worker processes: episode e lives on worker e % n (bcbench.evaluation drives them).
 
 A worker is started with multiprocessing's spawn (no fork of a process that holds torch threads), and a spawned
-child imports the module its target lives in: this one imports the simulator and the video writer only, so a
+child imports the module its target lives in: this one imports the task's simulator and the video writer only, so a
 pool starts in about a second rather than the several seconds an import of the evaluation stage (torch, the
 policies) costs, once per evaluation.
 """
@@ -15,13 +15,15 @@ from typing import Any
 import numpy as np
 
 from bcbench.errors import BCBenchError
-from bcbench.tasks.pusht.env import dp_initial_state, make_env
+from bcbench.tasks import get_task
+from bcbench.tasks.spec import Episode
 from bcbench.tasks.video import VideoWriter
 
 
-def _worker(conn: Any, video_size: int) -> None:
-    """Own a set of environments; answer 'reset', 'step' and 'close' messages until 'stop'."""
-    envs: dict[int, Any] = {}
+def _worker(conn: Any, task_name: str, video_size: int) -> None:
+    """Own a set of episodes of one task; answer 'reset', 'step' and 'close' messages until 'stop'."""
+    task = get_task(task_name)
+    envs: dict[int, Episode] = {}
     videos: dict[int, VideoWriter] = {}
     try:
         while True:
@@ -29,24 +31,21 @@ def _worker(conn: Any, video_size: int) -> None:
             if cmd == "reset":  # payload: [(episode, seed, video_path | None)]
                 out = {}
                 for ep, seed, video_path in payload:
-                    env = make_env(video_size=video_size)
-                    state = dp_initial_state(seed)
-                    obs, _ = env.reset(options={"reset_to_state": state})
+                    env = task.make_episode(seed, video_size)
+                    obs, progress, state = env.reset()
                     envs[ep] = env
                     if video_path:
                         videos[ep] = VideoWriter(video_path, label=f"seed {seed}")
                         videos[ep].add(env.render(), step=0, reward=0.0, score=0.0)
-                    out[ep] = (obs, env.coverage(), state.tolist())
+                    out[ep] = (obs, progress, state)
                 conn.send(("ok", out))
             elif cmd == "step":  # payload: {episode: (action, score_so_far)}
                 out = {}
                 for ep, (action, score) in payload.items():
-                    obs, reward, terminated, _, info = envs[ep].step(np.asarray(action, dtype=np.float64))
+                    obs, reward, terminated, progress, state = envs[ep].step(np.asarray(action, dtype=np.float64))
                     if ep in videos:
-                        videos[ep].add(envs[ep].render(), step=None, reward=float(reward),
-                                       score=max(score, float(reward)))
-                    state = [*map(float, info["pos_agent"]), *map(float, info["block_pose"])]
-                    out[ep] = (obs, float(reward), bool(terminated), float(info["coverage"]), state)
+                        videos[ep].add(envs[ep].render(), step=None, reward=reward, score=max(score, reward))
+                    out[ep] = (obs, reward, terminated, progress, state)
                 conn.send(("ok", out))
             elif cmd == "close":  # payload: [episode]
                 paths = {}
@@ -68,14 +67,14 @@ def _worker(conn: Any, video_size: int) -> None:
 
 
 class WorkerPool:
-    """Simulator processes; episode e lives on worker e % n."""
+    """Simulator processes of one task; episode e lives on worker e % n."""
 
-    def __init__(self, n: int, video_size: int) -> None:
+    def __init__(self, n: int, video_size: int, task: str = "pusht") -> None:
         ctx = mp.get_context("spawn")
         self.conns, self.procs = [], []
         for _ in range(n):
             parent, child = ctx.Pipe()
-            proc = ctx.Process(target=_worker, args=(child, video_size), daemon=True)
+            proc = ctx.Process(target=_worker, args=(child, task, video_size), daemon=True)
             proc.start()
             child.close()
             self.conns.append(parent)

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from bcbench.data import MinMaxNormalizer, load_replay_buffer, make_datasets, resolve_dataset
+from bcbench.data import MinMaxNormalizer, make_datasets
 from bcbench.data.sequence import SequenceDataset
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.evaluate import EvalConfig, run_episodes
@@ -43,6 +43,7 @@ from bcbench.policies.learned import BCPolicy, PolicyRunner
 from bcbench.protocol import STOPPED_BY_TIME, VALIDATION_SEED_START
 from bcbench.reference import CPU_DEVIATIONS
 from bcbench.stats import estimate
+from bcbench.tasks import DEFAULT_TASK, get_task
 from bcbench.training.options import TrainOptions
 from bcbench.training.parts import (
     EMA,
@@ -116,21 +117,22 @@ class Run:
 
 
 def new_run(policy: str, preset: str, overrides: dict[str, Any], out: str | Path | None,
-            opts: TrainOptions) -> Path:
-    """Create a run directory with its run.json; returns it (training starts with `train`)."""
+            opts: TrainOptions, task: str = DEFAULT_TASK) -> Path:
+    """Create a run directory with its run.json (the task, the policy's config, the split); returns it (training
+    starts with `train`)."""
     config_cls, _ = trainable(policy)  # a registered policy, or a head trained beside one (policies.HEADS)
     if not hasattr(config_cls(), "optim"):
         raise BCBenchError(f"policy '{policy}' has nothing to train")
     config = with_overrides(config_cls.preset(preset), overrides)
     preset_dict = config_to_dict(config_cls.preset(preset))
-    resolve_dataset(opts.data)  # a bad --data fails here, before any run folder exists
+    get_task(task).dataset(opts.data)  # a bad --task or --data fails here, before any run folder exists
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     run_dir = Path(out) if out else Path("runs") / f"train-{policy}-{preset}-{stamp}"
     if (run_dir / "run.json").exists():
         raise BCBenchError(f"{run_dir} already holds a run; use --resume {run_dir} or another --out")
     run_dir.mkdir(parents=True, exist_ok=True)
     write_json(run_dir / "run.json", {
-        "policy": policy, "preset": preset, "config": config_to_dict(config), "overrides": overrides,
+        "policy": policy, "task": task, "preset": preset, "config": config_to_dict(config), "overrides": overrides,
         "preset_values": {k: dotted_value(preset_dict, k) for k in overrides},  # what the analysis compares with
         **({"preset_deviations": CPU_DEVIATIONS[policy]} if preset.startswith("cpu") and policy in CPU_DEVIATIONS
            else {}),
@@ -162,15 +164,16 @@ def prepare(run_dir: str | Path, opts: TrainOptions) -> Run:
     device = pick_device(opts.device)
     keeps_freed = device.type == "cpu" and keep_freed_memory()  # before the big tensors
     split = meta.get("data_split", {})
-    buf = load_replay_buffer(resolve_dataset(opts.data))
     torch.manual_seed(meta["config"]["seed"])  # initialisation is part of the seeded run
     model = build_model(meta)
+    buf = model.task.demonstrations(opts.data)
     o = model.config.optim
     if opts.eval_every and not model.standalone:
         raise BCBenchError(f"--eval-every rolls out a policy; a {model.name} head runs beside its base: score it with "
                            "bcbench realtime --strategy correction")
     train_ds, val_ds, norm = make_datasets(buf, split.get("val_fraction", opts.val_fraction),
-                                           split.get("split_seed", opts.split_seed), *model.data_window())
+                                           split.get("split_seed", opts.split_seed), *model.data_window(),
+                                           model.state_dim)
     if len(train_ds) < o.batch_size:
         raise BCBenchError(f"only {len(train_ds)} training windows for a batch of {o.batch_size}")
     steps_per_epoch = len(train_ds) // o.batch_size  # drop_last: every batch is full
@@ -282,8 +285,8 @@ def rollout_score(r: Run, episodes: int) -> dict[str, Any]:
     model.reset_noise(model.config.seed)
     try:
         with torch.random.fork_rng():
-            episodes_out, timing = run_episodes(runner, EvalConfig(episodes=episodes, seed_start=VALIDATION_SEED_START),
-                                                progress=False)
+            cfg = EvalConfig(episodes=episodes, seed_start=VALIDATION_SEED_START, task=model.task.name)
+            episodes_out, timing = run_episodes(runner, cfg, progress=False)
     finally:
         if model.samplers:
             model.set_sampler(kind, steps, spacing)

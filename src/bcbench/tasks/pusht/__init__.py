@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bcbench.data.replay_buffer import ReplayBuffer
 from bcbench.tasks.spec import Episode, Obs, Task
 
 WORLD = 512.0
@@ -52,15 +53,21 @@ def _dataset(path: str | None) -> Path:
     return resolve_dataset(path)
 
 
+def _load(path: Path, images: bool) -> ReplayBuffer:
+    from bcbench.data.replay_buffer import load_replay_buffer
+
+    return load_replay_buffer(path, images=images)
+
+
 TASK = Task(
     name="pusht", family="pusht", image_size=96, camera="top-down (gym-pusht's render)",
     state_names=("agent_x", "agent_y"), action_names=("target_x", "target_y"),
-    action_low=(0.0, 0.0), action_high=(WORLD, WORLD),
+    action_low=(0.0, 0.0), action_high=(WORLD, WORLD), state_range=(0.0, WORLD),
     action_units="target agent position in pixels of the 512 px world (a PD controller follows it)",
     control_hz=10.0, max_steps=300,
     score="maximum reward over the episode, reward = min(coverage / 0.95, 1)",
     success="coverage of the goal T above 0.95 (the episode ends)",
     progress="coverage: the share of the goal T's area the block covers",
-    make_episode=_episode, dataset=_dataset,
+    make_episode=_episode, dataset=_dataset, load_buffer=_load,
     notes="Diffusion Policy's seeded reset (legacy RandomState draw, block angle set before its position)",
 )
