@@ -17,7 +17,7 @@ install: $(STAMP)
 $(STAMP): pyproject.toml
 	@test -x $(PY) || python3 -m venv $(VENV)
 	$(PIP) install $(PIPOPTS) torch==2.13.0
-	$(PIP) install $(PIPOPTS) -e '.[dev,ray]'
+	$(PIP) install $(PIPOPTS) -e '.[dev,ray,metaworld]'
 	@touch $(STAMP)
 	@echo "installed: run bcbench as .venv/bin/bcbench, or first: source $(VENV)/bin/activate"
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import Any
 
 from bcbench.errors import BCBenchError
@@ -92,4 +93,39 @@ def cmd_data_replay(args: argparse.Namespace) -> int:
         print("bcbench: error: fewer than 95% of episodes replay exactly: the simulator differs from the "
               "one that recorded the data", file=sys.stderr)
         return 1
+    return 0
+
+
+def cmd_data_generate(args: argparse.Namespace) -> int:
+    from bcbench.tasks import get_task
+
+    task = get_task(args.task)
+    if task.family != "metaworld":
+        raise BCBenchError(f"{task.name} has recorded demonstrations, not a scripted expert: `bcbench data fetch`")
+    from bcbench.tasks.metaworld import default_dataset_path
+    from bcbench.tasks.metaworld.generate import generate
+
+    short = task.name.split("/", 1)[1]
+    out = Path(args.out) if args.out else default_dataset_path(short)
+    if out.exists() and not args.force:
+        raise BCBenchError(f"{out} exists: --force replaces it")
+    info = generate(short, args.episodes, out, seed_start=args.seed_start, noise=args.noise, workers=args.workers,
+                    progress=not args.quiet)
+    print(f"{task.name}: kept {info['kept']} of {info['attempted']} scripted episodes "
+          f"(expert success {info['kept'] / info['attempted']:.0%}), {info['steps']} steps -> {out}")
+    return 0
+
+
+def cmd_data_tasks(args: argparse.Namespace) -> int:
+    from bcbench.tasks import get_task, task_names
+
+    for name in task_names():
+        t = get_task(name)
+        try:
+            where, have = str(t.dataset(None)), "yes"
+        except BCBenchError:
+            where, have = "-", "no (bcbench data generate / fetch)"
+        print(f"{name:<28} {t.difficulty or '-':<10} image {t.image_size}px ({t.camera}), state "
+              f"{','.join(t.state_names)}; action {','.join(t.action_names)}; {t.control_hz:g} Hz, cap {t.max_steps}"
+              f"\n{'':<28} demonstrations: {have} {where if have == 'yes' else ''}")
     return 0

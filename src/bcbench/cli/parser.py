@@ -76,10 +76,30 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _add_task_data_commands(dsub: Any) -> None:
+    """`data generate` and `data tasks`: demonstrations of the tasks whose experts are scripted (MetaWorld)."""
+    p = dsub.add_parser("generate", help="generate a task's demonstrations with its scripted expert (MetaWorld)")
+    p.add_argument("--task", metavar="NAME", required=True, help="metaworld/NAME (`bcbench data tasks` lists them)")
+    p.add_argument("--episodes", type=_positive_int, required=True, metavar="N", help="successful episodes to keep")
+    p.add_argument("--out", metavar="ZARR", help="the replay buffer to write (default: the task's own place, where "
+                   "train and eval look for it)")
+    p.add_argument("--seed-start", type=_nonneg_int, default=0, help="first demonstration seed (default 0; never the "
+                   "test seeds 100000-100099 or validation seeds 200000+)")
+    p.add_argument("--noise", type=_number(float, 0), default=0.0, metavar="STD",
+                   help="Gaussian noise of this std added to the expert's actions, seeded per episode (default 0)")
+    p.add_argument("--workers", type=_positive_int, metavar="N", help="processes (default: one per core)")
+    p.add_argument("--force", action="store_true", help="replace an existing buffer at --out")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func="cmd_data_generate")
+    p = dsub.add_parser("tasks", help="the tasks bcbench has: observation, action, cap, demonstrations")
+    p.set_defaults(func="cmd_data_tasks")
+
+
 def _add_data_commands(sub: Any) -> None:
-    data = sub.add_parser("data", help="get, inspect and replay the Push-T demonstrations")
+    data = sub.add_parser("data", help="get, generate, inspect and replay demonstrations")
     dsub = data.add_subparsers(dest="data_command", metavar="DATA_COMMAND", parser_class=OneLineParser)
     dsub.required = True
+    _add_task_data_commands(dsub)
     p = dsub.add_parser("fetch", help="download the official pusht.zip (or import a local copy) and verify it")
     p.add_argument("--from", dest="source", metavar="ZIP_OR_DIR",
                    help="import this zip or folder instead of downloading")
