@@ -31,19 +31,20 @@ def _print_summary(s: dict[str, Any]) -> None:
 
 
 def cmd_data_info(args: argparse.Namespace) -> int:
-    from bcbench.data import load_replay_buffer, resolve_dataset
+    from bcbench.tasks import get_task
 
-    buf = load_replay_buffer(resolve_dataset(args.data), images=not args.no_images)
+    buf = get_task(args.task).demonstrations(args.data, images=not args.no_images)
     _print_summary(buf.summary())
     return 0
 
 
 def cmd_data_export(args: argparse.Namespace) -> int:
-    from bcbench.data import load_replay_buffer, resolve_dataset
     from bcbench.data.lerobot_format import export_lerobot
+    from bcbench.tasks import get_task
 
-    buf = load_replay_buffer(resolve_dataset(args.data), images=True)
-    info = export_lerobot(buf, args.dest, video=args.video, force=args.force)
+    task = get_task(args.task)
+    buf = task.demonstrations(args.data, images=True)
+    info = export_lerobot(buf, args.dest, video=args.video, force=args.force, task=task)
     print(f"wrote LeRobot v3.0 dataset {info['path']}: {info['episodes']} episodes, {info['frames']} frames, "
           f"{info['frames_stored_as']}")
     return 0
@@ -52,9 +53,14 @@ def cmd_data_export(args: argparse.Namespace) -> int:
 def cmd_data_import(args: argparse.Namespace) -> int:
     from bcbench.data.lerobot_import import import_lerobot
     from bcbench.data.replay_buffer import write_replay_buffer
+    from bcbench.tasks import get_task
     from bcbench.utils.io import atomic_dir
 
-    buf = import_lerobot(args.source)
+    task = get_task(args.task)
+    buf = import_lerobot(args.source, task=task)
+    if buf.keypoint is None or buf.n_contacts is None:  # write_replay_buffer writes Push-T's layout only
+        raise BCBenchError(f"{args.source}: read as {task.name}'s demonstrations, but bcbench writes Push-T's "
+                           "replay-buffer layout only (keypoints and contacts); nothing written")
     with atomic_dir(args.out, force=args.force) as staged:
         write_replay_buffer(staged, buf)
     _print_summary({**buf.summary(), "path": args.out})

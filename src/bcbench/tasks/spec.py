@@ -94,6 +94,9 @@ class Task:
     """a published difficulty group, where the family has one (MetaWorld: Seo et al.'s easy/medium/hard/very hard)"""
     notes: str = ""
     """anything else a reader needs (camera choice, proprioception, why a cap)"""
+    instruction: str = ""
+    """the task in one sentence, as language-conditioned datasets state it (LeRobot's task string); empty: the
+    LeRobot export makes one from the name"""
 
     def __post_init__(self) -> None:
         if not self.name:

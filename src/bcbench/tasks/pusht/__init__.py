@@ -70,4 +70,5 @@ TASK = Task(
     progress="coverage: the share of the goal T's area the block covers",
     make_episode=_episode, dataset=_dataset, load_buffer=_load,
     notes="Diffusion Policy's seeded reset (legacy RandomState draw, block angle set before its position)",
+    instruction="Push the T-shaped block onto the T-shaped target.",
 )
