@@ -1,0 +1,284 @@
+"""MetaWorld tasks: seeded resets, the fast camera, the scripted expert through the Episode wrapper, and the
+demonstration generator and its store (about a minute on 2 cores)."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+pytest.importorskip("metaworld", reason="MetaWorld is not installed (pip install -e .[metaworld])")
+
+from bcbench.errors import BCBenchError, DatasetError
+from bcbench.tasks import get_task, task_names
+from bcbench.tasks.metaworld import load_metaworld_buffer, metaworld_task
+from bcbench.tasks.metaworld.env import FLIPPED_CAMERAS, MetaWorldEpisode
+from bcbench.tasks.metaworld.generate import generate
+from bcbench.tasks.metaworld.reader import store_info
+from bcbench.tasks.metaworld.table import TASKS
+
+pytestmark = pytest.mark.filterwarnings("ignore:Constant.s. may be too high")  # the experts' gains
+
+NAMES = list(TASKS)
+SRC = str(Path(__file__).resolve().parents[1] / "src")
+
+
+def _expert(name: str):
+    import metaworld.policies as policies
+
+    return getattr(policies, TASKS[name]["expert"])()
+
+
+# ------------------------------------------------------------------ the Task
+def test_unknown_name_is_one_clear_error():
+    with pytest.raises(BCBenchError, match="drawer-open, door-open"):
+        get_task("metaworld/no-such-task")
+    with pytest.raises(BCBenchError, match="unknown MetaWorld task"):
+        MetaWorldEpisode("no-such-task", 0)
+    assert all(f"metaworld/{n}" in task_names() for n in NAMES)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_task_describes_itself(name):
+    task = get_task(f"metaworld/{name}")
+    assert task.family == "metaworld" and task.name == f"metaworld/{name}"
+    assert task.state_dim == len(TASKS[name]["proprio"]) and task.action_dim == 4
+    assert task.control_hz == 80.0 and task.max_steps <= 500
+    assert task.max_steps >= 1.5 * TASKS[name]["expert_length"][1]
+    assert ("goal_x" in task.state_names) == (name in ("pick-place", "stick-pull"))
+    json.dumps(task.describe())
+
+
+# ------------------------------------------------------------------ the episode
+@pytest.mark.parametrize("name", NAMES)
+def test_expert_succeeds_through_the_episode(name):
+    """Seed 1 is a success for every task's expert (table.py's measurement); shapes match the Task."""
+    task = metaworld_task(name)
+    ep = task.make_episode(1, 64)
+    try:
+        obs, progress, state = ep.reset()
+        assert obs["pixels"].shape == (task.image_size, task.image_size, 3) and obs["pixels"].dtype == np.uint8
+        assert obs["agent_pos"].shape == (task.state_dim,) and obs["agent_pos"].dtype == np.float32
+        assert 0.0 <= progress <= 1.0 and len(state) == 9
+        assert ep.render().shape == (64, 64, 3)
+        expert = _expert(name)
+        for _ in range(task.max_steps):
+            obs, reward, terminated, progress, state = ep.step(expert.get_action(ep.full_obs))
+            assert 0.0 <= progress <= 1.0
+            if terminated:
+                break
+        assert terminated and reward == 1.0
+        assert obs["agent_pos"].shape == (task.state_dim,) and len(state) == 9
+    finally:
+        ep.close()
+
+
+_PROBE = """
+import os, sys, numpy as np
+os.environ.setdefault("MUJOCO_GL", "egl")
+from bcbench.tasks.metaworld.env import MetaWorldEpisode
+ep = MetaWorldEpisode("pick-place", int(sys.argv[1]))
+obs, _, state = ep.reset()
+frames, states = [obs["pixels"]], [state]
+for _ in range(3):
+    obs, *_, state = ep.step(np.array([0.5, -0.3, 0.2, 1.0]))
+    frames.append(obs["pixels"]); states.append(state)
+np.savez(sys.argv[2], frames=np.stack(frames), states=np.array(states), agent_pos=obs["agent_pos"])
+ep.close()
+"""
+
+
+def _probe(seed: int, out: Path) -> dict[str, np.ndarray]:
+    env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    subprocess.run([sys.executable, "-c", _PROBE, str(seed), str(out)], check=True, env=env, timeout=120)
+    return dict(np.load(out))
+
+
+def test_seeded_reset_is_the_same_in_two_processes_and_differs_across_seeds(tmp_path):
+    a = _probe(7, tmp_path / "a.npz")
+    b = _probe(7, tmp_path / "b.npz")
+    for key in a:
+        assert np.array_equal(a[key], b[key]), key
+    ep = MetaWorldEpisode("pick-place", 8)  # a third process (this one), another seed
+    try:
+        obs, _, state = ep.reset()
+        assert not np.allclose(state[3:], a["states"][0][3:])  # object and goal moved
+        assert not np.array_equal(obs["pixels"], a["frames"][0])
+        obs, _, state = ep.reset(seed=7)  # and back: the same start as the other processes
+        assert state == a["states"][0].tolist() and np.array_equal(obs["pixels"], a["frames"][0])
+        # the frame shows this seed's goal marker, not the one MetaWorld's reset drew before (it moves the site
+        # after its last mj_forward)
+        assert np.allclose(ep.env.data.site("goal").xpos, ep.full_obs[36:39])
+    finally:
+        ep.close()
+
+
+def _default_render_env(name: str, seed: int):
+    """MetaWorld's own rendering (gymnasium's renderer, multisampling and shadows on), same seeding as ours."""
+    from metaworld.env_dict import ALL_V3_ENVIRONMENTS
+
+    env = ALL_V3_ENVIRONMENTS[TASKS[name]["env"]](render_mode="rgb_array", camera_name=TASKS[name]["camera"],
+                                                  width=96, height=96)
+    env._partially_observable = False
+    env.__dict__.pop("sawyer_observation_space", None)
+    env._freeze_rand_vec, env.seeded_rand_vec, env._set_task_called = False, True, True
+    env.seed(seed)
+    env.reset()
+    return env
+
+
+def _default_frame(env, camera: str) -> np.ndarray:
+    viewer = env.mujoco_renderer._get_viewer("rgb_array")
+    viewer.make_context_current()  # gymnasium draws in whatever context is current (ours, otherwise)
+    img = env.render()
+    return img[::-1, ::-1] if camera in FLIPPED_CAMERAS else img
+
+
+def _close_default(env) -> None:
+    viewer = env.mujoco_renderer._viewers.get("rgb_array")
+    if viewer is not None:  # free its MjrContext in its own GL context, not in ours (see env.free_renderer)
+        viewer.make_context_current()
+        viewer.con.free()
+    env.close()
+
+
+@pytest.mark.parametrize("name", ["drawer-open", "pick-place", "stick-pull"])
+def test_fast_rendering_shows_what_the_default_rendering_shows(name):
+    ours, ref = MetaWorldEpisode(name, 3), _default_render_env(name, 3)
+    camera = TASKS[name]["camera"]
+    try:
+        ours.reset()
+        expert = _expert(name)
+        for t in range(21):
+            a = np.clip(expert.get_action(ours.full_obs), -1, 1)
+            obs, *_ = ours.step(a)
+            ref.step(a)
+            if t % 10:
+                continue
+            f, g = obs["pixels"].astype(int), _default_frame(ref, camera).astype(int)
+            assert np.abs(f - g).mean() < 15  # measured 7-9 (shadows, anti-aliased edges)
+            assert (f.argmax(-1) == g.argmax(-1)).mean() > 0.97  # measured >= 0.99
+            colourful_f, colourful_g = np.ptp(f, axis=-1) > 60, np.ptp(g, axis=-1) > 60  # robot, objects, goal
+            iou = (colourful_f & colourful_g).sum() / (colourful_f | colourful_g).sum()
+            assert iou > 0.85, iou  # measured 0.91-0.94
+    finally:
+        ours.close()
+        _close_default(ref)
+
+
+def test_closing_one_episode_leaves_another_drawing():
+    """A renderer freed in another live renderer's GL context deletes that one's buffers (it then draws noise:
+    under OSMesa; EGL happens to release the context first)."""
+    a, b = MetaWorldEpisode("drawer-open", 0), MetaWorldEpisode("drawer-open", 0)
+    try:
+        first, _, _ = a.reset()
+        b.reset()
+        a.frame(96)  # a's context is current while b closes
+        b.close()
+        assert np.array_equal(a.frame(96), first["pixels"])
+    finally:
+        a.close()
+
+
+def test_a_machine_that_cannot_render_gets_one_line():
+    env = {**os.environ, "MUJOCO_GL": "no-such-backend",
+           "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    code = ("from bcbench.errors import BCBenchError\nfrom bcbench.tasks.metaworld.env import MetaWorldEpisode\n"
+            "try:\n    MetaWorldEpisode('drawer-open', 0)\nexcept BCBenchError as e:\n    print('ERR', e)\n")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60).stdout
+    assert out.startswith("ERR MetaWorld cannot render") and "MUJOCO_GL=egl" in out and out.count("\n") == 1
+
+
+# ------------------------------------------------------------------ demonstrations
+@pytest.fixture(scope="module")
+def stores(tmp_path_factory):
+    """pick-place (the shortest expert, ~55 steps): the same arguments twice in this process, once in two
+    spawned workers, and once from another seed_start; all with action noise."""
+    root = tmp_path_factory.mktemp("mw")
+    runs = {"a": dict(seed_start=0, workers=1), "a_again": dict(seed_start=0, workers=1),
+            "a_pool": dict(seed_start=0, workers=2), "b": dict(seed_start=10, workers=1)}
+    out = {}
+    for key, kw in runs.items():
+        summary = generate("pick-place", 2, root / f"{key}.zarr", noise=0.1, progress=False, **kw)
+        out[key] = (root / f"{key}.zarr", summary)
+    return out
+
+
+def _arrays(path: Path) -> dict[str, np.ndarray]:
+    import zarr
+
+    root = zarr.open_group(str(path), mode="r")
+    return {k: np.asarray(root[k][:]) for k in ("data/img", "data/state", "data/action", "meta/episode_ends",
+                                                 "meta/seeds")}
+
+
+def test_generate_is_reproducible_and_seed_start_matters(stores):
+    a = _arrays(stores["a"][0])
+    for other in ("a_again", "a_pool"):
+        b = _arrays(stores[other][0])
+        for key in a:
+            assert a[key].dtype == b[key].dtype and np.array_equal(a[key], b[key]), (other, key)
+    c = _arrays(stores["b"][0])
+    assert c["meta/seeds"].min() >= 10 and not np.array_equal(a["data/action"][:50], c["data/action"][:50])
+
+
+def test_store_round_trips_through_the_reader(stores):
+    path, summary = stores["a"]
+    buf = load_metaworld_buffer(path)
+    task = metaworld_task("pick-place")
+    assert buf.images is not None and buf.images.dtype == np.uint8
+    assert buf.images.shape == (summary["steps"], 96, 96, 3)
+    assert buf.state.shape == (summary["steps"], task.state_dim) and buf.action.shape == (summary["steps"], 4)
+    assert buf.n_episodes == 2 and buf.keypoint is None and buf.n_contacts is None
+    assert np.abs(buf.action).max() <= 1.0
+    info = store_info(path)
+    assert info["task"] == "metaworld/pick-place" and info["kept"] == 2 and info["seeds"] == [0, 1]
+    assert info["generator"]["noise"] == 0.1 and info["versions"]["metaworld"] == "3.1.1"
+    assert load_metaworld_buffer(path, images=False).images is None
+    # the first recorded step is the seed's start: the observation before the first action
+    ep = MetaWorldEpisode("pick-place", 0)
+    try:
+        obs, _, _ = ep.reset()
+        assert np.array_equal(buf.images[0], obs["pixels"]) and np.array_equal(buf.state[0], obs["agent_pos"])
+    finally:
+        ep.close()
+
+
+def test_reader_refuses_a_bad_store(tmp_path):
+    import zarr
+
+    with pytest.raises(DatasetError, match="not a folder"):
+        load_metaworld_buffer(tmp_path / "missing.zarr")
+    root = zarr.open_group(str(tmp_path / "bad.zarr"), mode="w", zarr_format=2)
+    root.create_array("data/img", shape=(3, 84, 84, 3), dtype=np.uint8)
+    for key, shape, dtype in (("data/state", (3, 4), np.float32), ("data/action", (3, 4), np.float32),
+                              ("meta/episode_ends", (1,), np.int64), ("meta/seeds", (1,), np.int64)):
+        root.create_array(key, shape=shape, dtype=dtype)
+    with pytest.raises(DatasetError, match=re.escape("data/img is uint8 (3, 84, 84, 3), expected")):
+        load_metaworld_buffer(tmp_path / "bad.zarr")
+
+
+@pytest.mark.parametrize("seed_start,episodes", [(100_000 - 5, 3), (100_050, 1), (199_990, 5), (-1, 1)])
+def test_generate_refuses_test_and_validation_seeds(tmp_path, seed_start, episodes):
+    with pytest.raises(BCBenchError, match="seed"):
+        generate("pick-place", episodes, tmp_path / "x.zarr", seed_start=seed_start, progress=False)
+    assert not (tmp_path / "x.zarr").exists()
+
+
+def test_dataset_paths(tmp_path, monkeypatch, stores):
+    task = metaworld_task("pick-place")
+    with pytest.raises(DatasetError, match="not found"):
+        task.dataset(str(tmp_path / "nowhere.zarr"))
+    monkeypatch.setenv("BCBENCH_HOME", str(tmp_path))
+    with pytest.raises(DatasetError, match="bcbench data generate --task metaworld/pick-place --episodes N"):
+        task.dataset(None)
+    assert task.dataset(str(stores["a"][0])) == stores["a"][0]
+    with pytest.raises(BCBenchError, match="already exists"):
+        generate("pick-place", 1, stores["a"][0], progress=False)
