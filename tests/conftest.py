@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 
 os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
+# MuJoCo picks its GL backend once, when first imported, by whichever test module that is: headless EGL
+os.environ.setdefault("MUJOCO_GL", "egl")
 # Tiny models gain nothing from threads, and OpenMP threads spinning against another busy process (a
 # study running beside the tests) can slow small ops 100-fold. Subprocesses inherit this too.
 os.environ.setdefault("OMP_NUM_THREADS", "1")

@@ -26,7 +26,8 @@ def fake_task(state_dim: int = 7, action_dim: int = 4, image_size: int = 96):
     return dataclasses.replace(get_task("pusht"), name="fake/task", family="fake", image_size=image_size,
                                state_names=tuple(f"s{i}" for i in range(state_dim)),
                                action_names=tuple(f"a{i}" for i in range(action_dim)),
-                               action_low=(-1.0,) * action_dim, action_high=(1.0,) * action_dim, state_range=(-1.0, 1.0))
+                               action_low=(-1.0,) * action_dim, action_high=(1.0,) * action_dim,
+                               state_range=(-1.0, 1.0), action_hold=(False,) * (action_dim - 1) + (True,))
 
 
 def test_pusht_is_the_default_and_states_its_shapes_and_rules():
@@ -93,6 +94,9 @@ def test_the_controller_holds_still_in_the_task_s_terms_and_checks_the_action_si
     actions = ctl.act([0])
     assert actions[0].shape == (4,)
     assert get_task("pusht").hold_action(obs).shape == (7,) and not task.hold_action(obs).any()  # delta action: 0
+    last = np.array([0.5, -0.5, 0.2, 1.0], np.float32)  # waiting: stand still, keep the grip (Push-T: hold)
+    assert task.waiting_action(last).tolist() == [0.0, 0.0, 0.0, 1.0]
+    assert get_task("pusht").waiting_action(last) is last
 
 
 def test_evaluation_refuses_a_task_the_policy_was_not_trained_on():
@@ -114,6 +118,6 @@ def test_pusht_run_keys_are_those_from_before_tasks_and_another_task_retrains():
     assert spec.task == "pusht" and run.key(0.1) == run.key(0.1, "pusht")
     assert run.key(0.1, "metaworld/drawer-open") != run.key(0.1)
     mw = parse_spec({"study": {"name": "k", "task": "metaworld/drawer-open", "purpose": "explore",
-                               "seed_start": 200_000},
+                               "seed_start": 200_000, "episodes": 50},
                      "run": [{"policy": "cnn_mlp", "preset": "quick", "seeds": [0]}]})
     assert mw.task == "metaworld/drawer-open" and mw.max_steps == get_task("metaworld/drawer-open").max_steps

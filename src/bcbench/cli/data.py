@@ -113,12 +113,11 @@ def cmd_data_generate(args: argparse.Namespace) -> int:
 
     short = task.name.split("/", 1)[1]
     out = Path(args.out) if args.out else default_dataset_path(short)
-    if out.exists() and not args.force:
-        raise BCBenchError(f"{out} exists: --force replaces it")
     info = generate(short, args.episodes, out, seed_start=args.seed_start, noise=args.noise, workers=args.workers,
-                    progress=not args.quiet)
-    print(f"{task.name}: kept {info['kept']} of {info['attempted']} scripted episodes "
-          f"(expert success {info['kept'] / info['attempted']:.0%}), {info['steps']} steps -> {out}")
+                    progress=not args.quiet, force=args.force)
+    print(f"{task.name}: kept {info['episodes']} of {info['attempted']} scripted episodes (expert success "
+          f"{info['scripted_success_rate']:.0%}), {info['steps']} steps in {info['seconds']:.0f} s on "
+          f"{info['workers']} workers -> {out}")
     return 0
 
 

@@ -229,7 +229,8 @@ def _add_latency_command(sub: Any) -> None:
                    help="diffusion step counts (default 1 2 5 10 20 50 100)")
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"], help="default auto")
     p.add_argument("--threads", type=_positive_int, help="torch threads (default: torch's choice)")
-    p.add_argument("--rate", type=float, default=10.0, help="control rate for the verdicts, Hz (default 10)")
+    p.add_argument("--rate", type=_positive_float, help="control rate for the verdicts, Hz (default: the task's, "
+                   "Push-T's 10)")
     _add_task_flag(p, trained=True)
     p.add_argument("--quick", action="store_true", help="fewer timed calls (a rough table in a minute or two)")
     p.add_argument("--out", metavar="DIR", help="output folder (default runs/latency-TIME)")

@@ -24,7 +24,7 @@ from bcbench.modes import AUTO, EXACT_MODES, MODES
 from bcbench.policies import REGISTRY, is_learned, make_policy
 from bcbench.policies.learned import PolicyRunner
 from bcbench.policies.outside import outside_policy
-from bcbench.tasks import Task, get_task
+from bcbench.tasks import Task, get_task, task_of
 from bcbench.utils.device import pick_device
 from bcbench.utils.io import atomic_path, write_json
 from bcbench.utils.system import provenance
@@ -95,11 +95,11 @@ def _tail(r: dict[str, Any]) -> str:
     return f"{r.get('tail_ms', r.get('p99_ms')):.2f} ({stat})"
 
 
-def _table(rows: list[dict[str, Any]]) -> str:
+def _table(rows: list[dict[str, Any]], rate_hz: float = 10.0) -> str:
     ref = {(r["policy"], r["preset"], r["variant"]): r["median_ms"] for r in rows if r["mode"] == "reference"}
     head = ("| policy | preset | variant | mode | params | median ms | p90 | tail (p99, or max of N < 100 calls) | min "
-            "| calls/s | speed-up | 10 Hz chunked | 10 Hz every step | max Hz every step | floor ms (bound) "
-            "| x floor |")
+            f"| calls/s | speed-up | {rate_hz:g} Hz chunked | {rate_hz:g} Hz every step | max Hz every step "
+            "| floor ms (bound) | x floor |")
     lines = [head, "|" + "---|" * 16]
     for r in rows:
         base = ref.get((r["policy"], r["preset"], r["variant"]))
@@ -116,7 +116,7 @@ def _table(rows: list[dict[str, Any]]) -> str:
 def run_latency_benchmark(policies: list[str] | None = None, presets: list[str] | None = None,
                           modes: list[str] | None = None, steps: list[int] | None = None,
                           samplers: list[str] | None = None, device: str = "auto", threads: int | None = None,
-                          rate_hz: float = 10.0, out: str | None = None, quick_timing: bool = False,
+                          rate_hz: float | None = None, out: str | None = None, quick_timing: bool = False,
                           policy_args: dict[str, Any] | None = None,
                           runners: dict[str, PolicyRunner] | None = None, task: str | None = None) -> dict[str, Any]:
     """Time every named policy at batch 1: a registered one at each preset, mode and sampler setting; an outside
@@ -127,7 +127,10 @@ def run_latency_benchmark(policies: list[str] | None = None, presets: list[str] 
     if threads:
         torch.set_num_threads(threads)
     dev = pick_device(device)
+    if task is None and runners:  # a trained run's own task
+        task = task_of(next(iter(runners.values()))).name
     the_task = get_task(task)
+    rate_hz = rate_hz or the_task.control_hz
     names = policies or [n for n in REGISTRY if the_task.name == "pusht" or is_learned(n)]
     outside = {n: outside_policy(n, policy_args) for n in names if n not in REGISTRY}  # checked before timing
     if any(not 1 <= k <= 100 for k in steps or []):
@@ -154,7 +157,7 @@ def run_latency_benchmark(policies: list[str] | None = None, presets: list[str] 
               "right before each row (bcbench.evaluation.floor).",
               "rows": rows, "verdict_rule": verdicts.__doc__, **provenance(str(dev))}
     write_json(out_dir / "latency.json", record)
-    table = _table(rows)
+    table = _table(rows, rate_hz)
     with atomic_path(out_dir / "latency.md") as tmp:
         tmp.write_text(table + "\n")
     print(table)

@@ -250,7 +250,9 @@ class ChunkedController:
         if planned and self.strategy.per_step:
             self._correct(planned)
         for i in env_ids:
-            out[i] = self._last[i]  # an empty queue (waiting for a chunk) holds the last target
+            if i not in planned:  # an empty queue, waiting for a chunk: Push-T holds its last target, a
+                self._last[i] = self.task.waiting_action(self._last[i])  # displacement task stands still
+            out[i] = self._last[i]
             self._step[i] += 1
         return out
 

@@ -86,6 +86,7 @@ def run_episodes(policy: ChunkPolicy, cfg: EvalConfig, out_dir: Path | None = No
     n_workers = max(1, min(cfg.workers or os.cpu_count() or 1, cfg.episodes))
     results = {i: EpisodeResult(episode=i, seed=cfg.seed_start + i) for i in range(cfg.episodes)}
     source = source or LatencySource.parse(cfg.latency, cfg.latency_ms)
+    source.rate_hz = task.delay_rate  # a latency counts in this task's control steps
     strategy = Strategy(cfg.strategy, policy, weak, head)  # checked before any simulator starts
     source.resolve(policy, strategy)  # measured: timed now, before any simulator runs beside it
     controller = ChunkedController(policy, cfg.action_horizon, cfg.execution,

@@ -45,11 +45,12 @@ def sampler_steps(policy: ChunkPolicy) -> int | None:
     return policy.sampler_steps if is_generative(policy) else None
 
 
-def steps_for(latency_s: float) -> int:
-    """Control steps a call of `latency_s` seconds takes: ceil(L / 0.1), 0 for no latency."""
+def steps_for(latency_s: float, rate_hz: float | None = None) -> int:
+    """Control steps a call of `latency_s` seconds takes: ceil(L / 0.1) (or ceil(L f) at a task's rate f), 0 for no
+    latency."""
     if latency_s < 0:
         raise BCBenchError(f"latency must be >= 0, got {latency_s * 1e3:g} ms")
-    return delay_steps(latency_s)
+    return delay_steps(latency_s, rate_hz)
 
 
 def profile_ms(profile: str, policy: str, steps: int | None = None) -> float:
@@ -109,6 +110,8 @@ class LatencySource:
     name: str = ""
     contention: dict[str, float] | None = None
     """measured: what else used the CPUs while the calls were timed (bcbench.utils.system.CpuContention)"""
+    rate_hz: float | None = None
+    """the task's control rate where it is not the protocol's 10 Hz (Task.delay_rate): what a latency is counted in"""
 
     @classmethod
     def parse(cls, latency: str | None, latency_ms: float | None) -> LatencySource:
@@ -147,10 +150,10 @@ class LatencySource:
     def delay_fn(self, seeds: dict[int, int]) -> Callable[[int], int]:
         """env id -> d for its next call; measured draws come from each episode's own stream."""
         if self.kind in ("fixed", "profile"):
-            d = steps_for(self.ms / 1e3)
+            d = steps_for(self.ms / 1e3, self.rate_hz)
             return lambda env_id: d
         if self.kind == "measured":
-            steps = np.array([steps_for(ms / 1e3) for ms in self.samples_ms])
+            steps = np.array([steps_for(ms / 1e3, self.rate_hz) for ms in self.samples_ms])
             rngs = {i: np.random.default_rng([7, s]) for i, s in seeds.items()}
             return lambda env_id: int(rngs[env_id].choice(steps))
         return lambda env_id: 0

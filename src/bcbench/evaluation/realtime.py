@@ -20,19 +20,20 @@ from bcbench.evaluation.latency_sources import LatencySource, profile_ms, sample
 from bcbench.evaluation.strategies import Strategy
 from bcbench.interface import ChunkPolicy, CorrectionHead
 from bcbench.protocol import CONTROL_DT_S, SYNC_SETTING, delay_setting
-from bcbench.tasks import task_of
+from bcbench.tasks import get_task, task_of
 from bcbench.utils.io import read_json
 from bcbench.utils.system import provenance
 
 
-def sweep_settings(delays: list[int], executions: list[str], profiles: list[str], measured: bool
-                   ) -> list[tuple[str, str, dict[str, Any]]]:
-    """(name, execution, latency options) of every setting of a sweep; sync (d = 0) first."""
+def sweep_settings(delays: list[int], executions: list[str], profiles: list[str], measured: bool,
+                   step_s: float = CONTROL_DT_S) -> list[tuple[str, str, dict[str, Any]]]:
+    """(name, execution, latency options) of every setting of a sweep; sync (d = 0) first. A delay of d steps is the
+    latency d x `step_s` (the task's control step: Push-T's 0.1 s)."""
     bad = [d for d in delays if d < 0]
     if bad:
         raise BCBenchError(f"delays must be >= 0, got {bad[0]}")
     settings: list[tuple[str, str, dict[str, Any]]] = [(SYNC_SETTING, "sync", {})]
-    settings += [(delay_setting(e, d), e, {"latency_ms": d * CONTROL_DT_S * 1e3})
+    settings += [(delay_setting(e, d), e, {"latency_ms": d * step_s * 1e3})
                  for e in executions for d in sorted(set(delays)) if d > 0]
     settings += [(f"realtime-{e}-{p}", e, {"latency": f"profile:{p}"}) for e in executions for p in profiles]
     if measured:
@@ -71,7 +72,7 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
         except BCBenchError:
             if not skip_missing_profiles:
                 raise
-    settings = sweep_settings(delays, executions, usable, measured)
+    settings = sweep_settings(delays, executions, usable, measured, get_task(task).step_s)
     if strategy is not None and strategy.strategy == "rtc" and "async" in executions:
         note = rtc_horizon_note(policy, delays, execution_horizon)
         if note:  # allowed (the queue runs dry, the last target is held), but not RTC as its paper defines it
@@ -86,6 +87,7 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
         source, twin = None, None
         if "latency" in latency:  # a profile or the measured latency: its delays are known before any episode
             source = LatencySource.parse(cfg.latency, None)
+            source.rate_hz = get_task(task).delay_rate
             if source.kind == "measured" and measured_source is not None:
                 source = copy.deepcopy(measured_source)  # timed by the caller: resolve keeps its calls
             source.resolve(policy, Strategy(cfg.strategy, policy, weak, head))
@@ -162,7 +164,7 @@ def fixed_twin(source: LatencySource, execution: str, done: dict[str, dict[str, 
     repeat: every call of it takes the same d (a profile's time, or measured calls that all round to one d), and the
     controller sees only d, so each seed's episode is the same. None where the delays vary or d was not swept."""
     ms = [source.ms] if source.kind == "profile" else source.samples_ms
-    steps = {steps_for(m / 1e3) for m in ms}
+    steps = {steps_for(m / 1e3, source.rate_hz) for m in ms}
     if len(steps) != 1 or (d := steps.pop()) < 1:
         return None
     name = delay_setting(execution, d)

@@ -23,7 +23,7 @@ import numpy as np
 from bcbench.data.replay_buffer import ReplayBuffer
 from bcbench.errors import BCBenchError
 from bcbench.interface import example_observation
-from bcbench.protocol import TEST_SEED_START, VALIDATION_SEED_START
+from bcbench.protocol import CONTROL_DT_S, TEST_SEED_START, VALIDATION_SEED_START
 
 Obs = dict[str, np.ndarray]
 
@@ -86,6 +86,10 @@ class Task:
     """test episodes use seeds test_seed_start + i"""
     validation_seed_start: int = VALIDATION_SEED_START
     """validation episodes use seeds validation_seed_start + i"""
+    action_hold: tuple[bool, ...] | None = None
+    """what the robot does while no action is queued (waiting for a chunk): per action dimension, True = the last
+    command is kept (a gripper's), False = zeroed (a displacement); None = every dimension kept, the actions being
+    absolute targets that equal the proprioception at rest (Push-T's positions)"""
     state_range: tuple[float, float] = (-1.0, 1.0)
     """where proprioception values lie, roughly: timing's random observations are drawn in it"""
     family: str = ""
@@ -109,6 +113,8 @@ class Task:
             raise BCBenchError(f"task {self.name}: action_low, action_high and action_names differ in length")
         if any(lo >= hi for lo, hi in zip(self.action_low, self.action_high, strict=True)):
             raise BCBenchError(f"task {self.name}: every action_low must be below its action_high")
+        if self.action_hold is not None and len(self.action_hold) != len(self.action_names):
+            raise BCBenchError(f"task {self.name}: action_hold needs one entry per action dimension")
 
     @property
     def state_dim(self) -> int:
@@ -118,12 +124,30 @@ class Task:
     def action_dim(self) -> int:
         return len(self.action_names)
 
+    @property
+    def delay_rate(self) -> float | None:
+        """The rate a latency becomes a delay in steps at (protocol.delay_steps): None for the protocol's own 10 Hz
+        (Push-T: its one rounding, ceil(L / 0.1 s)), else this task's control rate."""
+        return None if self.control_hz * CONTROL_DT_S == 1.0 else self.control_hz
+
+    @property
+    def step_s(self) -> float:
+        """Seconds of the world a control step takes."""
+        return CONTROL_DT_S if self.delay_rate is None else 1.0 / self.control_hz
+
     def hold_action(self, obs: Obs) -> np.ndarray:
-        """The action that keeps the robot where it is before any chunk arrived: an absolute-position task's
-        current position (Push-T), a velocity/delta task's zero."""
-        if self.family == "pusht":
+        """The action that keeps the robot where it is before any chunk arrived: an absolute-target task's current
+        position (Push-T), a displacement task's zero (the gripper neither opening nor closing)."""
+        if self.action_hold is None:
             return np.asarray(obs["agent_pos"], dtype=np.float32)
         return np.zeros(self.action_dim, dtype=np.float32)
+
+    def waiting_action(self, last: np.ndarray) -> np.ndarray:
+        """The action of a step with no action queued, after `last`: `last` itself for absolute targets (Push-T's
+        target held), else `last` with its displacements zeroed (stand still, keep the grip)."""
+        if self.action_hold is None:
+            return last
+        return np.where(np.asarray(self.action_hold), last, 0.0).astype(np.float32)
 
     def example_observation(self, batch: int = 1, obs_horizon: int = 2, seed: int = 0) -> Obs:
         """A random raw observation window of this task's shapes (B, To, ...), as timing calls a policy with."""

@@ -16,6 +16,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import functools
 from pathlib import Path
 
+from bcbench.data.replay_buffer import ReplayBuffer
 from bcbench.errors import BCBenchError, DatasetError
 from bcbench.tasks.metaworld.reader import load_metaworld_buffer
 from bcbench.tasks.metaworld.table import CAMERA, CONTROL_HZ, IMAGE_SIZE, TASKS, state_names
@@ -51,6 +52,10 @@ def _dataset(name: str, path: str | None) -> Path:
     return chosen
 
 
+def _load(path: Path, images: bool) -> ReplayBuffer:
+    return load_metaworld_buffer(path, images=images, image_size=IMAGE_SIZE)
+
+
 def _notes(name: str) -> str:
     spec = TASKS[name]
     ok, n = spec["expert_success"]
@@ -79,5 +84,6 @@ def metaworld_task(name: str) -> Task:
         success="MetaWorld's info['success'] (the episode ends)",
         progress="MetaWorld's shaped reward / 10 (in [0, 1]; its shaping, not always 1 at success)",
         make_episode=functools.partial(_episode, name), dataset=functools.partial(_dataset, name),
+        load_buffer=_load, action_hold=(False, False, False, True), state_range=(-1.0, 1.0),
         difficulty=spec["difficulty"], notes=_notes(name),
     )

@@ -1,0 +1,95 @@
+"""A MetaWorld task end to end at smoke size, through the command line as a user runs it: generate demonstrations,
+train every learned policy a few steps, evaluate, time, sweep delays and run a study with --task. Skipped where
+MetaWorld is not installed (make install installs it)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("metaworld", reason="MetaWorld is not installed (pip install 'bcbench[metaworld]')")
+
+from bcbench.cli.main import main  # noqa: E402
+from bcbench.policies import learned_policies  # noqa: E402
+from tests.tiny import TINY  # noqa: E402
+
+TASK = "metaworld/drawer-open"
+
+
+def _sets(name: str) -> list[str]:
+    tiny = {**TINY[name], "optim.max_steps": 2, "optim.epochs": 1, "optim.batch_size": 4,
+            "optim.checkpoint_every": 2, "optim.warmup_steps": 0}
+    return [a for k, v in tiny.items() for a in ("--set", f"{k}={json.dumps(v)}")]
+
+
+@pytest.fixture(scope="module")
+def demos(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("mw") / "demos.zarr"
+    assert main(["data", "generate", "--task", TASK, "--episodes", "2", "--out", str(out), "--workers", "1",
+                 "--quiet"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def dp_run(demos: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    run = tmp_path_factory.mktemp("mw") / "dp"
+    assert main(["train", "--task", TASK, "--data", str(demos), "--policy", "diffusion", *_sets("diffusion"),
+                 "--out", str(run), "--quiet"]) == 0
+    return run
+
+
+@pytest.mark.parametrize("name", learned_policies())
+def test_every_learned_policy_trains_and_is_scored_on_a_metaworld_task(name, demos, tmp_path, capsys):
+    run = tmp_path / name
+    assert main(["train", "--task", TASK, "--data", str(demos), "--policy", name, *_sets(name), "--out", str(run),
+                 "--quiet"]) == 0
+    assert json.loads((run / "run.json").read_text())["task"] == TASK
+    assert main(["eval", "--checkpoint", str(run), "--episodes", "1", "--max-steps", "6", "--workers", "1",
+                 "--quiet", "--out", str(tmp_path / "eval")]) == 0
+    rec = json.loads((tmp_path / "eval" / "eval.json").read_text())
+    assert rec["eval_config"]["task"] == TASK and rec["policy"]["task"] == TASK
+    assert rec["episodes"][0]["length"] == 6 and 0.0 <= rec["episodes"][0]["max_coverage"] <= 1.0
+
+
+def test_eval_latency_and_realtime_on_a_metaworld_run(dp_run, tmp_path, capsys):
+    assert main(["eval", "--checkpoint", str(dp_run), "--episodes", "2", "--max-steps", "10", "--workers", "1",
+                 "--quiet", "--out", str(tmp_path / "e")]) == 0
+    assert main(["eval", "--checkpoint", str(dp_run), "--task", "pusht", "--episodes", "1"]) == 2
+    assert "trained on metaworld/drawer-open, not pusht" in capsys.readouterr().err
+    assert main(["latency", "--checkpoint", str(dp_run), "--backend", "fast", "--quick", "--out",
+                 str(tmp_path / "lat")]) == 0
+    lat = json.loads((tmp_path / "lat" / "latency.json").read_text())
+    assert lat["task"] == TASK and lat["rate_hz"] == 80.0 and lat["rows"][0]["calls"] >= 5
+    assert main(["realtime", "--checkpoint", str(dp_run), "--delays", "0", "2", "--execution", "async",
+                 "--episodes", "2", "--max-steps", "10", "--quiet", "--out", str(tmp_path / "rt")]) == 0
+    d2 = json.loads((tmp_path / "rt" / "realtime-async-d2.json").read_text())
+    # a delay of 2 steps is 2 of MetaWorld's 12.5 ms steps, and every call saw d = 2
+    assert d2["eval_config"]["latency_ms"] == pytest.approx(25.0) and set(d2["summary"]["delay_steps"]) == {"2"}
+
+
+def test_a_study_runs_on_a_metaworld_task(demos, tmp_path):
+    dp = ", ".join(f'"{k}" = {json.dumps(v)}' for k, v in TINY["diffusion"].items())
+    spec = tmp_path / "mw.toml"
+    spec.write_text(f"""
+[study]
+name = "mw-smoke"
+episodes = 2
+max_steps = 6
+latency = true
+latency_min_calls = 2
+latency_min_seconds = 0.0
+
+[[run]]
+policy = "diffusion"
+set = {{ {dp}, "optim.max_steps" = 2, "optim.batch_size" = 4, "optim.warmup_steps" = 0 }}
+eval = [{{ sampler = "ddim", steps = [2] }}]
+""")
+    out = tmp_path / "study"
+    assert main(["study", str(spec), "--task", TASK, "--data", str(demos), "--out", str(out), "--quiet",
+                 "--no-report"]) == 0
+    runs = list((out / "runs").iterdir())
+    assert len(runs) == 1 and json.loads((runs[0] / "run.json").read_text())["task"] == TASK
+    evals = list(out.rglob("eval*.json"))
+    assert evals and all(json.loads(f.read_text())["eval_config"]["task"] == TASK for f in evals)
