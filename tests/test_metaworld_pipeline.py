@@ -11,9 +11,9 @@ import pytest
 
 pytest.importorskip("metaworld", reason="MetaWorld is not installed (pip install 'bcbench[metaworld]')")
 
-from bcbench.cli.main import main  # noqa: E402
-from bcbench.policies import learned_policies  # noqa: E402
-from tests.tiny import TINY  # noqa: E402
+from bcbench.cli.main import main
+from bcbench.policies import learned_policies
+from tests.tiny import TINY
 
 TASK = "metaworld/drawer-open"
 
