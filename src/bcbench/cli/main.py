@@ -138,11 +138,15 @@ def cmd_params(args: argparse.Namespace) -> int:
     from bcbench.policies.config import config_to_dict
     from bcbench.policies.encoders import count_parameters, resnet18, resnet50
     from bcbench.reference import STUDY_PARAMETERS, sized_label
+    from bcbench.tasks import get_task
 
+    task = get_task(args.task)
+    print(f"task {task.name}: {task.state_dim} state values and a {task.image_size}x{task.image_size} frame in, "
+          f"{task.action_dim} action values out (the study's counts are Push-T's)")
     print(f"{'policy':<18}{'paper':>14}{'study':>14}{'diff':>9}{'quick':>12}{'cpu':>12}  "
           "cpu preset, as reports name it")
     for name in learned_policies():
-        paper, quick, cpu = make_policy(name, "paper"), make_policy(name, "quick"), make_policy(name, "cpu")
+        paper, quick, cpu = (make_policy(name, p, task) for p in ("paper", "quick", "cpu"))
         n, study = paper.num_parameters(), STUDY_PARAMETERS.get(name)
         diff = f"{100 * (n - study) / study:+.3f}%" if study else "-"
         named = sized_label(name, name, cpu.num_parameters(), config_to_dict(cpu.config))  # the study's size or not

@@ -199,6 +199,7 @@ def _add_study_commands(sub: Any) -> None:
     _add_serve_command(sub)
 
     p = sub.add_parser("params", help="parameter counts of every learned policy (paper and quick sizes)")
+    _add_task_flag(p)
     p.set_defaults(func="cmd_params")
 
     p = sub.add_parser("policies", help="the policies bcbench can run: built in, installed plug-ins, module:factory")
