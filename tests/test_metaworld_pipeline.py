@@ -53,11 +53,14 @@ def test_every_learned_policy_trains_and_is_scored_on_a_metaworld_task(name, dem
     assert rec["episodes"][0]["length"] == 6 and 0.0 <= rec["episodes"][0]["max_coverage"] <= 1.0
 
 
-def test_eval_latency_and_realtime_on_a_metaworld_run(dp_run, tmp_path, capsys):
+def test_eval_latency_and_realtime_on_a_metaworld_run(dp_run, demos, tmp_path, capsys):
     assert main(["eval", "--checkpoint", str(dp_run), "--episodes", "2", "--max-steps", "10", "--workers", "1",
                  "--quiet", "--out", str(tmp_path / "e")]) == 0
     assert main(["eval", "--checkpoint", str(dp_run), "--task", "pusht", "--episodes", "1"]) == 2
     assert "trained on metaworld/drawer-open, not pusht" in capsys.readouterr().err
+    assert main(["data", "info", "--task", "metaworld/door-open", "--data", str(demos)]) == 2  # another task's store
+    assert "holds demonstrations of metaworld/drawer-open, not metaworld/door-open" in capsys.readouterr().err
+    assert main(["latency", "--checkpoint", str(dp_run), "--task", "pusht", "--quick", "--out", str(tmp_path)]) == 2
     assert main(["latency", "--checkpoint", str(dp_run), "--backend", "fast", "--quick", "--out",
                  str(tmp_path / "lat")]) == 0
     lat = json.loads((tmp_path / "lat" / "latency.json").read_text())

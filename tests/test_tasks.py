@@ -121,3 +121,32 @@ def test_pusht_run_keys_are_those_from_before_tasks_and_another_task_retrains():
                                "seed_start": 200_000, "episodes": 50},
                      "run": [{"policy": "cnn_mlp", "preset": "quick", "seeds": [0]}]})
     assert mw.task == "metaworld/drawer-open" and mw.max_steps == get_task("metaworld/drawer-open").max_steps
+
+
+def test_a_study_of_another_task_refuses_baselines_and_a_folder_of_another_task(tmp_path):
+    from bcbench.study import run_study
+    from bcbench.study.spec import parse_spec
+
+    with pytest.raises(BCBenchError, match="baselines act in Push-T's world"):
+        parse_spec({"study": {"name": "b", "task": "metaworld/drawer-open", "purpose": "explore", "episodes": 50,
+                              "seed_start": 200_000}, "run": [{"policy": "random"}]})
+    (tmp_path / "spec.json").write_text('{"task": "pusht"}')
+    spec = parse_spec({"study": {"name": "b", "task": "metaworld/drawer-open"},
+                       "run": [{"policy": "cnn_mlp", "preset": "quick"}]})
+    assert spec.rate_hz == 80.0  # latency verdicts at the task's rate
+    with pytest.raises(BCBenchError, match="holds a study of pusht, not metaworld/drawer-open"):
+        run_study(spec, tmp_path)
+
+
+def test_more_steps_than_the_simulator_allows_is_one_line():
+    with pytest.raises(BCBenchError, match=r"1\.\.500 .*allows no more"):
+        EvalConfig(task="metaworld/drawer-open", max_steps=501)
+    assert EvalConfig(task="metaworld/drawer-open").max_steps == get_task("metaworld/drawer-open").max_steps
+
+
+def test_the_safe_rate_sentence_counts_in_the_sweep_s_task_rate():
+    from bcbench.analysis.realtime import step_rate
+
+    assert step_rate({"realtime-sync": {}}) == (10.0, "Push-T")  # a record from before tasks
+    mw = {"realtime-sync": {"task": get_task("metaworld/drawer-open").describe()}}
+    assert step_rate(mw) == (80.0, "metaworld/drawer-open")

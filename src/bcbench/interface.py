@@ -1,10 +1,15 @@
 """The public policy interface: what every seam of bcbench (evaluation, controller, latency, real time, tiers,
 studies) takes, for the built-in policies and for yours (`bcbench eval --policy my_pkg.my_module:make`).
 
-A `ChunkPolicy` maps a batch of observation windows in environment units to action chunks in environment units:
+A `ChunkPolicy` maps a batch of observation windows in environment units to action chunks in environment units,
+in the shapes its task states (`bcbench.tasks.Task`: H = image_size, S = state_dim, A = action_dim):
 
-    obs = {"image": uint8 (B, To, 96, 96, 3), "agent_pos": float32 (B, To, 2) in pixels of the 512 world}
-    predict_action_chunk(obs) -> float32 (B, pred_horizon, 2), target agent positions in the 512 world
+    obs = {"image": uint8 (B, To, H, H, 3), "agent_pos": float32 (B, To, S), the task's proprioception}
+    predict_action_chunk(obs) -> float32 (B, pred_horizon, A), actions in the task's units
+
+Push-T: H = 96, S = 2 (agent position in pixels of the 512 world), A = 2 (target agent positions, same units).
+A policy made for another task says so with a `task` attribute (its name, e.g. "metaworld/drawer-open"); without
+one it is taken to be Push-T's. A trained runner carries its run's task.
 
 `chunk_start` is the chunk index of the action for the current step (0 when the chunk starts now;
 obs_horizon - 1 for policies trained on Diffusion Policy's windows, whose chunk starts at the oldest
@@ -33,7 +38,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 Observation = dict[str, Any]
-"""image uint8 (B, To, 96, 96, 3); agent_pos float32 (B, To, 2) in pixels; optional generators (B torch.Generator)"""
+"""image uint8 (B, To, H, H, 3); agent_pos float32 (B, To, S); optional generators (B torch.Generator)"""
 
 
 @runtime_checkable
@@ -47,7 +52,8 @@ class ChunkPolicy(Protocol):
     chunk_start: int  # index in the chunk of the action for the current step
 
     def predict_action_chunk(self, obs: Observation) -> np.ndarray:
-        """(B, pred_horizon, 2) float32 target positions in pixels, for a batch of B observation windows."""
+        """(B, pred_horizon, A) float32 actions in the task's units (Push-T: target positions in pixels), for a batch
+        of B observation windows."""
         ...
 
     def describe(self) -> dict[str, Any]:
@@ -100,7 +106,7 @@ class GuidedPolicy(Protocol):
 
     def predict_guided_chunk(self, obs: Observation, target: np.ndarray, weights: np.ndarray,
                              max_guidance: float, jacobian: bool = True) -> np.ndarray:
-        """(B, Tp, 2) pixels, guided towards target (B, Tp, 2) pixels with soft mask weights (B, Tp) in [0, 1]."""
+        """(B, Tp, A) pixels, guided towards target (B, Tp, A) pixels with soft mask weights (B, Tp) in [0, 1]."""
         ...
 
 
@@ -109,7 +115,7 @@ class CandidatePolicy(Protocol):
     """Several sampled chunks per observation in one call (Bidirectional Decoding)."""
 
     def predict_candidates(self, obs: Observation, n: int) -> np.ndarray:
-        """(B, n, Tp, 2) pixels; row r's candidates draw their noise in turn from row r's stream (n = 1: the chunk
+        """(B, n, Tp, A) pixels; row r's candidates draw their noise in turn from row r's stream (n = 1: the chunk
         predict_action_chunk returns)."""
         ...
 
@@ -125,7 +131,7 @@ class PrefixPolicy(Protocol):
         ...
 
     def predict_prefixed_chunk(self, obs: Observation, prefix: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        """(B, Tp, 2) pixels continuing `prefix` (B, Tp, 2) pixels where `mask` (B, Tp) is 1 (returned there as given);
+        """(B, Tp, A) pixels continuing `prefix` (B, Tp, A) pixels where `mask` (B, Tp) is 1 (returned there as given);
         an all-zero mask samples as predict_action_chunk does."""
         ...
 
@@ -136,7 +142,7 @@ class CorrectionHead(Protocol):
     action the executing chunk planned for it, from the newest observation, that action and the chunk's age."""
 
     def correct(self, obs: Observation, actions: np.ndarray, ages: np.ndarray, indices: np.ndarray) -> np.ndarray:
-        """(B, 2) pixels: `actions` (B, 2) pixels corrected, given the observation windows (as a chunk request has
+        """(B, A) pixels: `actions` (B, A) pixels corrected, given the observation windows (as a chunk request has
         them), each chunk's age `ages` (B,) (steps since its observation) and the action's index in it `indices`
         (B,)."""
         ...

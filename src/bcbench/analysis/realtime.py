@@ -229,6 +229,16 @@ def too_few_episodes(settings: dict[str, dict[str, Any]]) -> int | None:
     return n if n < MIN_CHOICE_EPISODES else None
 
 
+def step_rate(settings: dict[str, dict[str, Any]]) -> tuple[float, str]:
+    """The control rate a sweep counts delay in, and its task in words, from its records' `task` (Push-T's 10 Hz
+    for a record written before tasks existed)."""
+    for r in settings.values():
+        task = r.get("task")
+        if isinstance(task, dict) and task.get("name", "pusht") != "pusht":
+            return float(task["control_hz"]), str(task["name"])
+    return 1 / CONTROL_DT_S, "Push-T"
+
+
 def rate_text(hz: float, extra: str = "") -> str:
     """A safe control rate, capped at what the simulator shows: delay is counted in Push-T's 10 Hz steps, so a
     rate above 10 Hz says only that the calls would allow it ("10 Hz (Push-T's step rate; calls alone allow 5599
@@ -272,11 +282,11 @@ def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float, plai
     fits = ""
     if measured:
         med, slow = (highest_safe_rate(best, measured[k]) for k in ("median_ms", "max_ms"))
-        top = 1 / CONTROL_DT_S
+        top, task = step_rate(settings)
         fits = (f"; its measured median call {measured['median_ms']:.0f} ms "
-                f"{'fits' if med >= 1 / CONTROL_DT_S else 'does not fit'} within {mode} d = {best} at 10 Hz; "
+                f"{'fits' if med >= top else 'does not fit'} within {mode} d = {best} at {top:g} Hz; "
                 f"highest safe control rate {min(med, top):.1f} Hz ({min(slow, top):.1f} Hz at its slowest call), "
                 f"{mode}"
-                + (f" (capped at Push-T's {top:g} Hz step rate, in which the sweep counts delay: the calls alone would "
+                + (f" (capped at {task}'s {top:g} Hz step rate, in which the sweep counts delay: the calls alone would "
                    f"allow {med:.0f} Hz, {slow:.0f} Hz at the slowest)" if med > top else ""))
     return f"{head}{fits}."

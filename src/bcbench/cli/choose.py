@@ -7,11 +7,13 @@ module:factory or a lerobot:FOLDER is taken exactly as there. Heavy imports are 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
 from bcbench.cli.policies import eval_namespace, load_eval_policy
 from bcbench.errors import BCBenchError
+from bcbench.tasks import task_of
 
 
 def _policies(args: argparse.Namespace, models: list[Any]) -> dict[str, tuple[Any, Any]]:
@@ -23,7 +25,10 @@ def _policies(args: argparse.Namespace, models: list[Any]) -> dict[str, tuple[An
         label = policy.name if policy.name not in out else name
         out[label] = (policy, None)
     loaded = {m.name: (load_eval_policy(eval_namespace(checkpoint=str(m.folder)))[0], m) for m in models}
-    return {**loaded, **out}
+    other = sorted(k for k, (p, _) in loaded.items() if task_of(p).name != "pusht")
+    if other:  # the choice reads Push-T's committed sweeps at its 10 Hz: another task's model has no place in it
+        print(f"choose: leaving out {', '.join(other)} (not Push-T models)", file=sys.stderr)
+    return {**{k: v for k, v in loaded.items() if k not in other}, **out}
 
 
 def cmd_choose(args: argparse.Namespace) -> int:

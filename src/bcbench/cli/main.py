@@ -250,7 +250,7 @@ def cmd_realtime(args: argparse.Namespace) -> int:
         # naive alone writes to --out itself (as before strategies); several: one folder each
         where = out if strategies == ["naive"] else out / kind
         done = finished_settings(where, policy, args.episodes, args.seed_start, args.max_steps,
-                                 args.execution_horizon, strategy) if args.resume else None
+                                 args.execution_horizon, strategy, args.task) if args.resume else None
         if done:
             print(f"{kind}: resuming, {len(done)} settings kept from {where}: {', '.join(done)}")
         results = sweep(policy, args.delays, args.execution, args.episodes, args.profile or [], args.measured,

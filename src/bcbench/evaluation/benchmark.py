@@ -127,8 +127,11 @@ def run_latency_benchmark(policies: list[str] | None = None, presets: list[str] 
     if threads:
         torch.set_num_threads(threads)
     dev = pick_device(device)
-    if task is None and runners:  # a trained run's own task
-        task = task_of(next(iter(runners.values()))).name
+    own = {task_of(r).name for r in (runners or {}).values()}
+    if len(own) > 1 or (task is not None and own and own != {get_task(task).name}):
+        raise BCBenchError(f"--checkpoint runs of {', '.join(sorted(own))} timed as {task or 'one table'}: time one "
+                           "task's runs at a time, on their own task (leave --task out)")
+    task = task or next(iter(own), None)  # a trained run's own task
     the_task = get_task(task)
     rate_hz = rate_hz or the_task.control_hz
     names = policies or [n for n in REGISTRY if the_task.name == "pusht" or is_learned(n)]

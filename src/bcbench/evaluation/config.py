@@ -115,10 +115,14 @@ class EvalConfig:
     def __post_init__(self) -> None:
         if self.episodes < 1:
             raise BCBenchError(f"--episodes must be >= 1, got {self.episodes}")
+        task = get_task(self.task)  # also checks the task's name
         if self.max_steps is None:
-            self.max_steps = get_task(self.task).max_steps  # also checks the task's name
-        if not 1 <= self.max_steps <= 10_000:
-            raise BCBenchError(f"--max-steps must be in 1..10000, got {self.max_steps}")
+            self.max_steps = task.max_steps
+        limit = task.step_limit or 10_000
+        if not 1 <= self.max_steps <= limit:
+            raise BCBenchError(f"--max-steps must be in 1..{limit}" + (f" ({task.name}'s simulator allows no more)"
+                                                                         if task.step_limit else "")
+                               + f", got {self.max_steps}")
         if self.seed_start < 0:
             raise BCBenchError(f"--seed-start must be >= 0, got {self.seed_start}")
         if self.workers is not None and self.workers < 1:

@@ -168,6 +168,7 @@ def evaluate(policy: ChunkPolicy, cfg: EvalConfig, out_dir: str | Path | None = 
         "type": "evaluation",
         "created": datetime.now(UTC).isoformat(timespec="seconds"),
         "policy": describe,
+        "task": episode_task(policy, cfg.task).describe(),
         "eval_config": asdict(cfg),
         "summary": summary,
         "episodes": [asdict(e) for e in episodes],

@@ -67,7 +67,7 @@ def profile_ms(profile: str, policy: str, steps: int | None = None) -> float:
 def timed_request_inputs(runner: ChunkPolicy, uses_target: bool
                          ) -> tuple[dict[str, Any], np.ndarray | None, np.ndarray | None]:
     """What a timed request is made with: a batch-1 observation and, for a strategy that reads the executing chunk,
-    one the policy made (1, Tp, 2) followed over half of it, with RTC's soft mask (1, Tp)."""
+    one the policy made (1, Tp, A) followed over half of it, with RTC's soft mask (1, Tp)."""
     obs = example_for(runner)
     if not uses_target:
         return obs, None, None

@@ -20,7 +20,7 @@ from bcbench.evaluation.latency_sources import LatencySource, profile_ms, sample
 from bcbench.evaluation.strategies import Strategy
 from bcbench.interface import ChunkPolicy, CorrectionHead
 from bcbench.protocol import CONTROL_DT_S, SYNC_SETTING, delay_setting
-from bcbench.tasks import get_task, task_of
+from bcbench.tasks import DEFAULT_TASK, get_task, task_of
 from bcbench.utils.io import read_json
 from bcbench.utils.system import provenance
 
@@ -87,9 +87,9 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
         source, twin = None, None
         if "latency" in latency:  # a profile or the measured latency: its delays are known before any episode
             source = LatencySource.parse(cfg.latency, None)
-            source.rate_hz = get_task(task).delay_rate
             if source.kind == "measured" and measured_source is not None:
                 source = copy.deepcopy(measured_source)  # timed by the caller: resolve keeps its calls
+            source.rate_hz = get_task(task).delay_rate  # its calls count in this task's steps (fixed_twin reads it)
             source.resolve(policy, Strategy(cfg.strategy, policy, weak, head))
             twin = fixed_twin(source, execution, out)
         if twin is not None:
@@ -103,20 +103,23 @@ def sweep(policy: ChunkPolicy, delays: list[int], executions: list[str], episode
 
 
 def finished_settings(folder: Path, policy: ChunkPolicy, episodes: int, seed_start: int, max_steps: int | None,
-                      execution_horizon: int | None, strategy: StrategyConfig) -> dict[str, dict[str, Any]]:
+                      execution_horizon: int | None, strategy: StrategyConfig, task: str | None = None
+                      ) -> dict[str, dict[str, Any]]:
     """The settings an interrupted sweep already wrote to `folder` (one file each, as they finish) that this sweep
     would repeat exactly: same policy (weights, checkpoint, sampler, deployment), episodes, seeds, step cap,
     strategy and async horizon. Measured settings are never kept (their times belong to the machine of the day)."""
     def plain(x: Any) -> Any:  # as a result file holds it (tuples as lists)
         return json.loads(json.dumps(x, default=str))
 
-    max_steps = max_steps or task_of(policy).max_steps
+    task = get_task(task or task_of(policy).name)
+    max_steps = max_steps or task.max_steps
     want = plain({"episodes": episodes, "seed_start": seed_start, "max_steps": max_steps, "strategy": asdict(strategy)})
     described, out = plain(policy.describe()), {}
+    described.setdefault("task", task.name)  # a record from before tasks: its policy's describe() had none
     for f in sorted(folder.glob("realtime-*.json")) if folder.is_dir() else []:
         r = read_json(f)
         cfg, name = r.get("eval_config") or {}, f.stem
-        if name.endswith("-measured") or r.get("policy") != described:
+        if name.endswith("-measured") or {"task": DEFAULT_TASK, **(r.get("policy") or {})} != described:
             continue
         horizon = execution_horizon if cfg.get("execution") == "async" else None
         if {k: cfg.get(k) for k in want} == want and cfg.get("execution_horizon") == horizon:

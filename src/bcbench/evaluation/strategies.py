@@ -40,6 +40,7 @@ from bcbench.interface import (
     SelfTimedPolicy,
 )
 from bcbench.protocol import delay_steps
+from bcbench.tasks import task_of
 
 if TYPE_CHECKING:  # the controller itself runs on numpy; generators only pass through to the policy
     import torch
@@ -63,7 +64,7 @@ def prefix_weights(pred_horizon: int, frozen_end: int, cover_end: int) -> np.nda
 
 
 def _chunk_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Mean over steps of the Euclidean distance in pixels; broadcasts over leading axes: (..., T, 2) -> (...)."""
+    """Mean over steps of the Euclidean distance in pixels; broadcasts over leading axes: (..., T, A) -> (...)."""
     return np.linalg.norm(a - b, axis=-1).mean(axis=-1)
 
 
@@ -74,7 +75,7 @@ def _nearest_mean(dist: np.ndarray, k: int) -> np.ndarray:
 
 def bid_select(candidates: np.ndarray, target: np.ndarray, weights: np.ndarray, modes: int,
                weak: np.ndarray | None = None, start: int = 0) -> np.ndarray:
-    """Bidirectional Decoding's choice among one observation's N candidates (N, Tp, 2) -> (Tp, 2).
+    """Bidirectional Decoding's choice among one observation's N candidates (N, Tp, A) -> (Tp, A).
 
     Backward coherence: sum_k W_k |a_k - target_k| / sum_k W_k (no term when W is all zero: the first call of an
     episode); the N / modes most coherent candidates (and as many of the weak policy's) go on. Forward contrast
@@ -87,7 +88,7 @@ def bid_select(candidates: np.ndarray, target: np.ndarray, weights: np.ndarray, 
         return candidates[0]
     mass = float(weights.sum())
 
-    def backward(chunks: np.ndarray) -> np.ndarray:  # (M, Tp, 2) -> (M,): 0 without a previous chunk
+    def backward(chunks: np.ndarray) -> np.ndarray:  # (M, Tp, A) -> (M,): 0 without a previous chunk
         dist = (np.linalg.norm(chunks - target, axis=-1) * weights).sum(-1)
         return dist / mass if mass > 0 else dist
 
@@ -134,9 +135,10 @@ class Strategy:
             reason = policy.guidance_unavailable(**self._jacobian_kw)
             if reason:
                 raise BCBenchError(f"--strategy rtc: {reason}")
-        if weak is not None and (self.kind != "bid" or (weak.pred_horizon, weak.chunk_start)
-                                 != (policy.pred_horizon, policy.chunk_start)):
-            raise BCBenchError("a weak policy goes with --strategy bid and must predict the same chunks as the policy")
+        if weak is not None and (self.kind != "bid" or (weak.pred_horizon, weak.chunk_start, task_of(weak).name)
+                                 != (policy.pred_horizon, policy.chunk_start, task_of(policy).name)):
+            raise BCBenchError("a weak policy goes with --strategy bid and must predict the same chunks as the policy, "
+                               "on the same task")
         if self.kind == "prefix":
             if not isinstance(policy, PrefixPolicy):
                 raise BCBenchError(f"--strategy prefix: {policy.name} cannot continue a clean prefix (a flow or "
@@ -196,7 +198,7 @@ class Strategy:
         return out
 
     def _candidates(self, policy: ChunkPolicy, obs: Observation, n: int) -> np.ndarray:
-        """(B, n, Tp, 2): the policy's own batched sampler, else its observation rows repeated n times."""
+        """(B, n, Tp, A): the policy's own batched sampler, else its observation rows repeated n times."""
         if isinstance(policy, CandidatePolicy):
             return np.asarray(self._timed(policy, lambda: policy.predict_candidates(obs, n)))
         gens = obs.get("generators")
@@ -207,7 +209,7 @@ class Strategy:
 
     def request(self, obs: Observation, target: np.ndarray | None = None, weights: np.ndarray | None = None,
                 weak_generators: list[torch.Generator] | None = None) -> np.ndarray:
-        """(B, Tp, 2) chunks for a batch of observations; target (B, Tp, 2) and weights (B, Tp) for rtc and bid."""
+        """(B, Tp, A) chunks for a batch of observations; target (B, Tp, A) and weights (B, Tp) for rtc and bid."""
         self._compute, self._calls_wall, t0 = 0.0, 0.0, time.perf_counter()
         if self.kind == "rtc":
             chunks = self._timed(self.policy, lambda: self.policy.predict_guided_chunk(
@@ -246,7 +248,7 @@ class Strategy:
         return total
 
     def correct(self, obs: Observation, actions: np.ndarray, ages: np.ndarray, indices: np.ndarray) -> np.ndarray:
-        """The per-step hook: (B, 2) actions the executing chunks planned for this step, corrected (A2C2); timed."""
+        """The per-step hook: (B, A) actions the executing chunks planned for this step, corrected (A2C2); timed."""
         assert self.head is not None
         t = time.perf_counter()
         out = np.asarray(self.head.correct(obs, actions, ages, indices), dtype=np.float32)

@@ -23,6 +23,7 @@ from bcbench.evaluation.evaluate import EvalConfig, evaluate
 from bcbench.policies.checkpoint import configure_runner, load_runner
 from bcbench.policies.learned import PolicyRunner
 from bcbench.stats import fmt_estimate, paired_bootstrap
+from bcbench.tasks import task_of
 from bcbench.utils.io import atomic_path, write_json
 from bcbench.utils.system import provenance
 
@@ -61,7 +62,8 @@ def run_tiers(run_dir: str | Path, modes: list[str], episodes: int, sampler: str
     evals = {}
     for mode in [BASE, *modes]:
         apply_mode(runner, mode)
-        evals[mode] = evaluate(runner, EvalConfig(episodes=episodes, seed_start=seed_start), out / f"eval-{mode}",
+        cfg = EvalConfig(episodes=episodes, seed_start=seed_start, task=task_of(runner).name)
+        evals[mode] = evaluate(runner, cfg, out / f"eval-{mode}",
                                progress=progress)
     rows = [{"mode": m, "max_deviation_px": deviation.get(m, 0.0), "score": evals[m]["summary"]["mean_score"],
              "paired_vs_fast": paired(evals[BASE], evals[m]) if m != BASE else None} for m in [BASE, *modes]]

@@ -138,5 +138,5 @@ class ScriptedPolicy(_Baseline):
         return self._path(agent, waypoints)
 
     def predict_action_chunk(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        image, agent_pos = obs["image"][:, -1], obs["agent_pos"][:, -1]  # newest frame: (B, H, W, 3), (B, 2)
+        image, agent_pos = obs["image"][:, -1], obs["agent_pos"][:, -1]  # newest frame: (B, H, W, 3), (B, A)
         return np.stack([self._plan_one(im, ag) for im, ag in zip(image, agent_pos, strict=True)]).astype(np.float32)

@@ -86,13 +86,13 @@ class BCTPolicy(BCPolicy):
         self.action_head = nn.Linear(c.d_model, self.action_dim)
 
     def forward(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:
-        obs = torch.cat([self.encoder(image), agent_pos], dim=-1)  # (B, To, F + 2)
+        obs = torch.cat([self.encoder(image), agent_pos], dim=-1)  # (B, To, F + S)
         tokens = self.obs_proj(obs) + self.obs_pos  # (B, To, D)
         queries = self.queries.expand(tokens.shape[0], -1, -1)  # (B, Tp, D)
         # No mask: every query attends to every observation and to the other queries, so the chunk is
         # predicted jointly (temporally consistent), not step by step.
         x = self.transformer(torch.cat([tokens, queries], dim=1))  # (B, To + Tp, D)
-        return self.action_head(self.norm(x[:, tokens.shape[1]:]))  # (B, Tp, 2)
+        return self.action_head(self.norm(x[:, tokens.shape[1]:]))  # (B, Tp, A)
 
     def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         pred = self(batch["image"], batch["agent_pos"])

@@ -163,16 +163,16 @@ class BeTPolicy(BCPolicy):
         return [{"params": decay, "weight_decay": weight_decay}, {"params": no_decay, "weight_decay": 0.0}]
 
     def encode_actions(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(..., 2) -> nearest bin (...,) and the residual offset (..., 2): bin centre + offset = action."""
+        """(..., A) -> nearest bin (...,) and the residual offset (..., A): bin centre + offset = action."""
         bins = torch.cdist(action.reshape(-1, self.action_dim), self.centres).argmin(-1).view(action.shape[:-1])
         return bins, action - self.centres[bins]
 
     def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         logits, offsets = self.heads(batch["image"], batch["agent_pos"])
-        bins, target_offset = self.encode_actions(batch["action"])  # (B, Tp), (B, Tp, 2)
+        bins, target_offset = self.encode_actions(batch["action"])  # (B, Tp), (B, Tp, A)
         logp = F.log_softmax(logits, dim=-1).gather(-1, bins[..., None]).squeeze(-1)  # (B, Tp)
         focal = -((1 - logp.exp()) ** self.config.focal_gamma * logp).mean()
-        chosen = offsets.gather(2, bins[..., None, None].expand(-1, -1, 1, self.action_dim)).squeeze(2)  # (B, Tp, 2)
+        chosen = offsets.gather(2, bins[..., None, None].expand(-1, -1, 1, self.action_dim)).squeeze(2)  # (B, Tp, A)
         return focal + self.config.offset_weight * F.mse_loss(chosen, target_offset)
 
     def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -185,4 +185,4 @@ class BeTPolicy(BCPolicy):
             bins = torch.stack([torch.multinomial(p.to(g.device), 1, generator=g).view(-1).to(p.device)
                                 for p, g in zip(probs, gens, strict=True)])  # sample a bin, as BeT does
         chosen = offsets.gather(2, bins[..., None, None].expand(-1, -1, 1, self.action_dim)).squeeze(2)
-        return self.centres[bins] + chosen  # (B, Tp, 2)
+        return self.centres[bins] + chosen  # (B, Tp, A)

@@ -72,4 +72,4 @@ class CNNMLPPolicy(ChunkRegressor):
         self.fc2 = nn.Linear(config.hidden, config.pred_horizon * self.action_dim)
 
     def forward(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:
-        return self.head(self.convs(self.merge(image)), agent_pos)  # (B, Tp, 2)
+        return self.head(self.convs(self.merge(image)), agent_pos)  # (B, Tp, A)

@@ -151,15 +151,15 @@ class CorrectionPolicy(BCPolicy):
                                f"({self.config.base}): train the head on the base's dataset and split")
 
     def features(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:
-        """The base encoder's features of an observation window: (B, To, 3, H, W), (B, To, 2) -> (B, To (F + 2))."""
+        """The base encoder's features of an observation window: (B, To, 3, H, W), (B, To, S) -> (B, To (F + S))."""
         with torch.no_grad():
             return torch.cat([self.base.model.encoder(image), agent_pos], dim=-1).flatten(1).detach()
 
     def residual(self, feats: torch.Tensor, action: torch.Tensor, age: torch.Tensor, index: torch.Tensor
                  ) -> torch.Tensor:
-        """r_phi: feats (B, G), planned action (B, 2) normalised, age and index (B,) -> residual (B, 2) normalised."""
+        """r_phi: feats (B, G), planned action (B, A) normalised, age and index (B,) -> residual (B, A) normalised."""
         c = self.config
-        scalars = torch.stack([age.float() / max(1, c.max_age), index.float() / c.pred_horizon], dim=-1)  # (B, 2)
+        scalars = torch.stack([age.float() / max(1, c.max_age), index.float() / c.pred_horizon], dim=-1)  # (B, A)
         return self.mlp(torch.cat([feats, action, scalars.to(feats.dtype)], dim=-1))
 
     def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -169,13 +169,13 @@ class CorrectionPolicy(BCPolicy):
         gens = [torch.Generator(device=image.device).manual_seed(s) for s in seeds]
         with torch.no_grad():
             plan = self.base.model.predict_action_chunk({"image": image[:, :to], "agent_pos": pos[:, :to],
-                                                         "generators": gens})  # (B, Tp, 2), from t0's observation
+                                                         "generators": gens})  # (B, Tp, A), from t0's observation
         age = (self.train_draw(batch, torch.rand) * (c.max_age + 1)).long().clamp_(max=c.max_age)  # (B,)
         rows = torch.arange(len(age), device=age.device)
         window = age[:, None] + torch.arange(to, device=age.device)  # (B, To): the frames ending at t0 + a
         feats = self.features(image[rows[:, None], window], pos[rows[:, None], window])
         index = cs + age
-        planned = plan[rows, index].float()  # (B, 2): the base's action for step t0 + a
+        planned = plan[rows, index].float()  # (B, A): the base's action for step t0 + a
         return F.mse_loss(planned + self.residual(feats, planned, age, index), action[rows, index])
 
     def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -204,7 +204,7 @@ class CorrectionRunner:
     def correct(self, obs: Observation, actions: np.ndarray, ages: np.ndarray, indices: np.ndarray) -> np.ndarray:
         prepared = self.model.base.prepare(obs)  # image (B, To, 3, H, W) in [0, 1], agent_pos normalised
         feats = self.model.features(prepared["image"].to(self.device), prepared["agent_pos"].to(self.device))
-        planned = torch.as_tensor(np.asarray(actions, dtype=np.float32), device=self.device)  # (B, 2) pixels
+        planned = torch.as_tensor(np.asarray(actions, dtype=np.float32), device=self.device)  # (B, A) pixels
         ages_t, index_t = torch.as_tensor(ages, device=self.device), torch.as_tensor(indices, device=self.device)
         res = self.model.residual(feats, self.normalizer.normalize("action", planned), ages_t, index_t)
         zero = torch.zeros_like(res)

@@ -105,7 +105,7 @@ class DenoiserPolicy(BCPolicy):
         return self.unet.obs_film(self.encode(image, agent_pos))
 
     def denoise(self, x: torch.Tensor, film: torch.Tensor) -> torch.Tensor:
-        """Graph: one U-Net evaluation given all FiLM terms: x (B, Tp, 2), film (B, F) -> (B, Tp, 2). Traced for
+        """Graph: one U-Net evaluation given all FiLM terms: x (B, Tp, A), film (B, F) -> (B, Tp, A). Traced for
         export (OpenVINO, ONNX Runtime) in the U-Net's channels-last matrix form, the faster one there."""
         return self.unet.forward_film(x, film, time_last=torch.jit.is_tracing())
 
@@ -119,7 +119,7 @@ class DenoiserPolicy(BCPolicy):
         return {"obs_film": (image, pos), "denoise": (x, film)}
 
     def net_input(self, x: torch.Tensor, prefix: Prefix | None) -> torch.Tensor:
-        """What the U-Net reads for state x (B, Tp, 2): x itself, or for a delay-conditioned network [x with the prefix
+        """What the U-Net reads for state x (B, Tp, A): x itself, or for a delay-conditioned network [x with the prefix
         imposed ; its mask] (an all-zero mask without a prefix)."""
         if not self.delay_conditioned:
             return x

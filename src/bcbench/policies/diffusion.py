@@ -92,7 +92,7 @@ class DiffusionPolicy(DenoiserPolicy):
 
     def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         cond = self.encode(batch["image"], batch["agent_pos"])
-        action = batch["action"]  # (B, Tp, 2) in [-1, 1]
+        action = batch["action"]  # (B, Tp, A) in [-1, 1]
         noise = self.train_draw(batch, torch.randn, tuple(action.shape[1:]))
         n_t = self.config.num_train_timesteps
         t = (self.train_draw(batch, torch.rand) * n_t).long().clamp_(max=n_t - 1)  # uniform over 0..n_t-1

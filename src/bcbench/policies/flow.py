@@ -79,12 +79,12 @@ class FlowPolicy(DenoiserPolicy):
         self.sampler_kind, self.sampler_steps, self.sampler_spacing = kind, steps, None
 
     def velocity(self, x: torch.Tensor, t: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
-        """v(x_t, t): x (B, Tp, 2), t (B,) in [0, 1]."""
+        """v(x_t, t): x (B, Tp, A), t (B,) in [0, 1]."""
         return self.unet(x, t * TIME_SCALE, cond)
 
     def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         cond = self.encode(batch["image"], batch["agent_pos"])
-        action = batch["action"]  # (B, Tp, 2) in [-1, 1]
+        action = batch["action"]  # (B, Tp, A) in [-1, 1]
         noise = self.train_draw(batch, torch.randn, tuple(action.shape[1:]))
         a, b = self.config.time_beta
         if b == 1.0:  # Beta(a, 1) by inversion, u^(1/a): drawn per row like the noise

@@ -48,7 +48,7 @@ import torch
 
 @dataclass
 class Guide:
-    """What the new chunk is inpainted towards: target (B, Tp, 2) normalised, weights (B, Tp) in [0, 1]."""
+    """What the new chunk is inpainted towards: target (B, Tp, A) normalised, weights (B, Tp) in [0, 1]."""
 
     target: torch.Tensor
     weights: torch.Tensor
@@ -82,7 +82,7 @@ def correction(clean: Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]
     with torch.enable_grad():  # the runner samples guided chunks under no_grad, not inference mode
         x_in = x.detach().clone().requires_grad_(True)
         out, estimate = clean(x_in)
-        error = (guide.target - estimate.detach()) * guide.weights[..., None]  # (B, Tp, 2)
+        error = (guide.target - estimate.detach()) * guide.weights[..., None]  # (B, Tp, A)
         (g,) = torch.autograd.grad(estimate, x_in, grad_outputs=error)
     return out.detach(), g
 
@@ -96,7 +96,7 @@ def guided_velocity(velocity: Callable[[torch.Tensor], torch.Tensor], x: torch.T
         return velocity(x)  # no guidance: exactly the unguided step (and no backward pass)
     if not guide.jacobian:
         v = velocity(x)
-        error = guide.weights[..., None] * (guide.target - (x + (1 - tau) * v))  # (B, Tp, 2)
+        error = guide.weights[..., None] * (guide.target - (x + (1 - tau) * v))  # (B, Tp, A)
         return v + clean_fraction(tau, guide.max_guidance) / (1 - tau) * error
 
     def clean(x_in: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -113,4 +113,4 @@ def inpaint_clean(x0: torch.Tensor, alpha_bar: float, guide: Guide) -> torch.Ten
     f = clean_fraction(a / (a + s), guide.max_guidance)
     if f == 0.0:
         return x0  # no guidance: exactly the unguided step
-    return x0 + f * guide.weights[..., None] * (guide.target - x0)  # (B, Tp, 2)
+    return x0 + f * guide.weights[..., None] * (guide.target - x0)  # (B, Tp, A)

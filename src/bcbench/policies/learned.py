@@ -1,9 +1,9 @@
 """The learned-policy interface and the runner that puts a trained model in the control loop.
 
 A `BCPolicy` is an nn.Module that works entirely in normalised units:
-    compute_loss(batch)          batch: image (B, To, 3, H, W) in [0, 1], agent_pos (B, To, 2) and
-                                 action (B, Tp, 2) in [-1, 1]  ->  scalar loss
-    predict_action_chunk(obs)    obs: image, agent_pos as above  ->  (B, Tp, 2) in [-1, 1]
+    compute_loss(batch)          batch: image (B, To, 3, H, W) in [0, 1], agent_pos (B, To, S) and
+                                 action (B, Tp, A) in [-1, 1]  ->  scalar loss
+    predict_action_chunk(obs)    obs: image, agent_pos as above  ->  (B, Tp, A) in [-1, 1]
 Stochastic policies (Diffusion Policy, BeT) draw their noise with `BCPolicy.randn` / `generators`: when
 the observation carries `generators` (one torch.Generator per row, made by the controller from the
 policy seed and the episode seed), row i's noise comes from its own stream only, so an episode's actions
@@ -194,7 +194,7 @@ class PolicyRunner:
     def prepare(self, obs: dict[str, Any]) -> dict[str, Any]:
         image = torch.from_numpy(np.ascontiguousarray(obs["image"])).to(self.device)  # (B, To, H, W, 3) uint8
         image = image.permute(0, 1, 4, 2, 3).float().div_(255.0)  # (B, To, 3, H, W)
-        agent_pos = torch.as_tensor(obs["agent_pos"], dtype=torch.float32, device=self.device)  # (B, To, 2)
+        agent_pos = torch.as_tensor(obs["agent_pos"], dtype=torch.float32, device=self.device)  # (B, To, S)
         out: dict[str, Any] = {"image": image, "agent_pos": self.normalizer.normalize("agent_pos", agent_pos)}
         if obs.get("generators") is not None:
             out["generators"] = obs["generators"]  # per-episode noise streams, from the controller
@@ -229,7 +229,7 @@ class PolicyRunner:
     @torch.inference_mode()
     def predict_action_chunk(self, obs: Observation) -> np.ndarray:
         with glue_threads(self.model):
-            chunk = self.model.predict_action_chunk(self.prepare(obs))  # (B, Tp, 2) normalised
+            chunk = self.model.predict_action_chunk(self.prepare(obs))  # (B, Tp, A) normalised
             return self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()
 
     def guidance_unavailable(self, jacobian: bool = True) -> str | None:
@@ -244,7 +244,7 @@ class PolicyRunner:
 
     def predict_guided_chunk(self, obs: Observation, target: np.ndarray, weights: np.ndarray,
                              max_guidance: float, jacobian: bool = True) -> np.ndarray:
-        """Real-Time Chunking: a chunk inpainted towards `target` (B, Tp, 2) pixels with soft mask `weights` (B, Tp)."""
+        """Real-Time Chunking: a chunk inpainted towards `target` (B, Tp, A) pixels with soft mask `weights` (B, Tp)."""
         reason = self.guidance_unavailable(jacobian)
         if reason:
             raise BCBenchError(reason)
@@ -256,7 +256,7 @@ class PolicyRunner:
             guide = Guide(self.normalizer.normalize("action", target_t),
                           torch.as_tensor(np.array(weights, dtype=np.float32), device=self.device), float(max_guidance),
                           jacobian)
-            chunk = self.model.predict_action_chunk(self.prepare(obs), guide=guide)  # (B, Tp, 2) normalised
+            chunk = self.model.predict_action_chunk(self.prepare(obs), guide=guide)  # (B, Tp, A) normalised
             return self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()
 
     def prefix_unavailable(self) -> str | None:
@@ -269,7 +269,7 @@ class PolicyRunner:
 
     @torch.inference_mode()
     def predict_prefixed_chunk(self, obs: Observation, prefix: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        """Training-time RTC: a chunk continuing `prefix` (B, Tp, 2) pixels where `mask` (B, Tp) is 1."""
+        """Training-time RTC: a chunk continuing `prefix` (B, Tp, A) pixels where `mask` (B, Tp) is 1."""
         reason = self.prefix_unavailable()
         if reason:
             raise BCBenchError(reason)
@@ -277,14 +277,14 @@ class PolicyRunner:
             actions = torch.as_tensor(np.array(prefix, dtype=np.float32), device=self.device)
             given = Prefix(self.normalizer.normalize("action", actions),
                            torch.as_tensor(np.array(mask, dtype=np.float32), device=self.device))
-            chunk = self.model.predict_action_chunk(self.prepare(obs), prefix=given)  # (B, Tp, 2) normalised
+            chunk = self.model.predict_action_chunk(self.prepare(obs), prefix=given)  # (B, Tp, A) normalised
             out = self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()
         # the prefix is what executes: returned exactly as given (not through the normaliser's round trip)
         return np.where(np.asarray(mask)[..., None] > 0, np.asarray(prefix, dtype=np.float32), out)
 
     @torch.inference_mode()
     def predict_candidates(self, obs: Observation, n: int) -> np.ndarray:
-        """n chunks per observation row (B, n, Tp, 2), for Bidirectional Decoding. Row r's candidates draw their noise
+        """n chunks per observation row (B, n, Tp, A), for Bidirectional Decoding. Row r's candidates draw their noise
         one after the other from row r's stream, so n = 1 is exactly predict_action_chunk."""
         with glue_threads(self.model):
             return self._candidates(obs, n)
@@ -299,7 +299,7 @@ class PolicyRunner:
         else:
             prepared["image"] = prepared["image"].repeat_interleave(n, 0)
             prepared["agent_pos"] = prepared["agent_pos"].repeat_interleave(n, 0)
-        chunk = self.model.predict_action_chunk(prepared)  # (B n, Tp, 2) normalised
+        chunk = self.model.predict_action_chunk(prepared)  # (B n, Tp, A) normalised
         out = self.normalizer.unnormalize("action", chunk.float()).cpu().numpy()
         return out.reshape(rows, n, *out.shape[1:])
 

@@ -25,7 +25,8 @@ from typing import Any
 import numpy as np
 
 from bcbench.errors import BCBenchError
-from bcbench.interface import ChunkPolicy, example_observation
+from bcbench.interface import ChunkPolicy
+from bcbench.tasks import task_of
 
 ENTRY_POINT_GROUP = "bcbench.policies"
 REQUIRED = ("name", "obs_horizon", "pred_horizon", "action_horizon", "chunk_start", "predict_action_chunk",
@@ -102,7 +103,7 @@ def outside_policy(name: str, kwargs: dict[str, Any] | None = None) -> ChunkPoli
 
 def check_contract(policy: object, source: str, batch: int = 2) -> None:
     """What bcbench relies on, checked once before any episode: attributes, horizons, and one call's output
-    (shape (B, pred_horizon, 2), a float ndarray, finite), and a JSON-ready describe()."""
+    (shape (B, pred_horizon, A) for its task's A, a float ndarray, finite), and a JSON-ready describe()."""
     missing = [a for a in REQUIRED if not hasattr(policy, a)]
     if missing:
         raise BCBenchError(f"policy '{source}' lacks {', '.join(missing)} (the bcbench.ChunkPolicy interface)")
@@ -113,18 +114,19 @@ def check_contract(policy: object, source: str, batch: int = 2) -> None:
                            f">= 0), got {horizons}")
     if horizons["chunk_start"] + horizons["action_horizon"] > horizons["pred_horizon"]:
         raise BCBenchError(f"policy '{source}': chunk_start + action_horizon exceeds pred_horizon ({horizons})")
-    obs = example_observation(batch, horizons["obs_horizon"])
+    task = task_of(policy)  # a policy's `task` (a name) where it declares one, else Push-T
+    obs = task.example_observation(batch, horizons["obs_horizon"])
     try:
         out = policy.predict_action_chunk(obs)
     except Exception as e:
         raise BCBenchError(f"policy '{source}': predict_action_chunk raised {type(e).__name__}: {e}") from None
-    want = (batch, horizons["pred_horizon"], 2)
+    want = (batch, horizons["pred_horizon"], task.action_dim)
     if not isinstance(out, np.ndarray):
         raise BCBenchError(f"policy '{source}': predict_action_chunk must return a numpy array, got "
                            f"{type(out).__name__}")
     if out.shape != want:
         raise BCBenchError(f"policy '{source}': predict_action_chunk returned shape {out.shape}, expected {want} "
-                           "(batch, pred_horizon, 2)")
+                           f"(batch, pred_horizon, {task.name}'s {task.action_dim} action values)")
     if not np.issubdtype(out.dtype, np.floating):
         raise BCBenchError(f"policy '{source}': predict_action_chunk returned dtype {out.dtype}, expected float32 "
                            "positions in pixels")

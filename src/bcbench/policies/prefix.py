@@ -33,13 +33,13 @@ from bcbench.errors import BCBenchError
 
 @dataclass
 class Prefix:
-    """Actions given clean: `actions` (B, Tp, 2) normalised (read where `mask` is 1), `mask` (B, Tp) 0/1 float."""
+    """Actions given clean: `actions` (B, Tp, A) normalised (read where `mask` is 1), `mask` (B, Tp) 0/1 float."""
 
     actions: torch.Tensor
     mask: torch.Tensor
 
     def impose(self, x: torch.Tensor) -> torch.Tensor:
-        """x (B, Tp, 2) with the clean actions at the masked positions."""
+        """x (B, Tp, A) with the clean actions at the masked positions."""
         return torch.where(self.mask[..., None] > 0, self.actions.to(x.dtype), x)
 
     def network_input(self, x: torch.Tensor) -> torch.Tensor:
@@ -73,13 +73,13 @@ def train_prefix(policy: Any, batch: dict[str, Any], delay_train: tuple[int, int
     """The training prefix of a batch: d ~ uniform{lo..hi} per row, drawn like the policy's other per-row
     randomness (BCPolicy.train_draw: shard-invariant, resumed exactly), the batch's own actions as the clean values."""
     lo, hi = delay_train
-    action = batch["action"]  # (B, Tp, 2)
+    action = batch["action"]  # (B, Tp, A)
     u = policy.train_draw(batch, torch.rand)  # (B,) in [0, 1)
     delays = (lo + (u * (hi - lo + 1)).long()).clamp_(max=hi)
     return Prefix(action, delay_mask(delays, chunk_start, action.shape[1]))
 
 
 def masked_mse(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """Mean squared error over the positions not given clean: pred, target (B, Tp, 2), mask (B, Tp) 1 = left out."""
+    """Mean squared error over the positions not given clean: pred, target (B, Tp, A), mask (B, Tp) 1 = left out."""
     free = (1.0 - mask)[..., None]  # (B, Tp, 1)
     return ((pred - target) ** 2 * free).sum() / (free.sum() * pred.shape[-1]).clamp(min=1.0)

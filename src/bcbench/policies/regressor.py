@@ -44,7 +44,7 @@ class ChunkRegressor(BCPolicy):
 
     graphs = ("forward",)  # the whole policy is one graph: (image, agent_pos) -> chunk
 
-    def forward(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:  # -> (B, Tp, 2)
+    def forward(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:  # -> (B, Tp, A)
         raise NotImplementedError
 
     def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -55,7 +55,7 @@ class ChunkRegressor(BCPolicy):
         return self.call_graph("forward", obs["image"], obs["agent_pos"])
 
     def head(self, features: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:
-        """Flattened features (+ agent positions) -> two fully connected layers -> (B, Tp, 2)."""
+        """Flattened features (+ agent positions) -> two fully connected layers -> (B, Tp, A)."""
         x = features.flatten(1)
         if self.config.use_agent_pos:
             x = torch.cat([x, agent_pos.flatten(1)], dim=1)  # (B, F + To*S)

@@ -85,4 +85,4 @@ class ResNet50Policy(ChunkRegressor):
 
     def forward(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:
         x = self.backbone(self.to_rgb(self.merge(image)))  # (B, 2048, 3, 3) at paper size
-        return self.head(self.reduce(x), agent_pos)  # (B, Tp, 2)
+        return self.head(self.reduce(x), agent_pos)  # (B, Tp, A)

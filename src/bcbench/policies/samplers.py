@@ -112,7 +112,7 @@ def plan(train_scheduler, kind: str, steps: int, spacing: str = DEFAULT_SPACING)
     return p
 
 
-# Edits the clipped clean estimate x0 (B, Tp, 2) at a visited timestep t (Real-Time Chunking's inpainting).
+# Edits the clipped clean estimate x0 (B, Tp, A) at a visited timestep t (Real-Time Chunking's inpainting).
 CleanEdit = Callable[[torch.Tensor, int], torch.Tensor]
 
 

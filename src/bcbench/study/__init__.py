@@ -12,7 +12,7 @@ from bcbench.study.on_ray import run_on_ray
 from bcbench.study.progress import LAUNCH_FILE
 from bcbench.study.runner import StudyRunner
 from bcbench.study.spec import StudySpec
-from bcbench.utils.io import write_json
+from bcbench.utils.io import read_json, write_json
 
 __all__ = ["StudyRunner", "StudySpec", "run_study"]
 
@@ -20,7 +20,11 @@ __all__ = ["StudyRunner", "StudySpec", "run_study"]
 def run_study(spec: StudySpec, out: str | Path | None = None, data: str | None = None,
               progress: bool = True, ray: str | None = None, ray_cpus: int | None = None) -> dict[str, Any]:
     """Run a study in this process, or with ray = 'local' (a local Ray instance) / 'auto' / an address."""
-    out = (Path(out) if out else Path("runs") / "studies" / spec.name).resolve()  # Ray workers: any cwd
+    default = spec.name if spec.task == "pusht" else f"{spec.name}-{spec.task.replace('/', '-')}"
+    out = (Path(out) if out else Path("runs") / "studies" / default).resolve()  # Ray workers: any cwd
+    written = out / "spec.json"
+    if written.is_file() and (was := read_json(written).get("task", "pusht")) != spec.task:
+        raise BCBenchError(f"{out} holds a study of {was}, not {spec.task}: give another --out")
     if not spec.runs:
         raise BCBenchError("the study has no runs")
     problem = check_purpose(spec.purpose, spec.seed_start, spec.episodes)  # a spec built in code, not parsed

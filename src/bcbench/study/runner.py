@@ -157,7 +157,7 @@ class StudyRunner:
                          skip_missing_profiles=True,  # e.g. the study gives no A100 time for BeT
                          done=read_json(partial) if partial.exists() else None,
                          on_setting=lambda results: write_json(partial, results),
-                         execution_horizon=rt.get("execution_horizon"), strategy=strategy)
+                         execution_horizon=rt.get("execution_horizon"), strategy=strategy, task=self.spec.task)
         extra = {**asdict(variant), "strategy": kind, **strategy.variant_extra()}
         return realtime_record(settings, self.spec.name, strategy_label(run.label, kind), extra, self.spec.margin,
                                self.device, run.policy if run.outside else None)

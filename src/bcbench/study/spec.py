@@ -315,7 +315,8 @@ def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
         if not isinstance(study["task"], str):
             raise BCBenchError(f"study.task must be a task's name, got {study['task']!r}")
         spec.task = get_task(study["task"]).name  # an unknown name: one line naming the choices
-        spec.max_steps = get_task(spec.task).max_steps  # the task's cap unless study.max_steps says otherwise
+        # the task's cap and control rate (what latency verdicts read) unless study.max_steps / rate_hz say otherwise
+        spec.max_steps, spec.rate_hz = get_task(spec.task).max_steps, get_task(spec.task).control_hz
     for key, typ, ok in (("episodes", int, lambda v: v >= 1), ("seed_start", int, lambda v: v >= 0),
                          ("val_fraction", float, lambda v: 0 < v < 1), ("latency", bool, lambda v: True),
                          ("threads", int, lambda v: v >= 1), ("max_steps", int, lambda v: 1 <= v <= 10_000),
@@ -343,6 +344,10 @@ def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
         spec.runs.extend(_run_specs(i, run))
     _check_doubling(spec)
     _check_strategies(spec)
+    baselines = [r.label for r in spec.runs if not r.learned and not r.outside]
+    if spec.task != DEFAULT_TASK and baselines:  # refused now, not at their evaluation after hours of training
+        raise BCBenchError(f"{', '.join(sorted(set(baselines)))}: the baselines act in Push-T's world, not "
+                           f"{spec.task}")
     return spec
 
 
@@ -406,6 +411,8 @@ def load_spec(path: str | Path, task: str | None = None) -> StudySpec:
         data = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
         raise BCBenchError(f"{path} is not valid TOML: {exc}") from None
-    if task is not None and isinstance(data.get("study"), dict):
-        data["study"]["task"] = task
+    if task is not None:
+        data.setdefault("study", {})
+        if isinstance(data["study"], dict):
+            data["study"]["task"] = task
     return parse_spec(data, str(path))

@@ -86,6 +86,8 @@ class Task:
     """test episodes use seeds test_seed_start + i"""
     validation_seed_start: int = VALIDATION_SEED_START
     """validation episodes use seeds validation_seed_start + i"""
+    step_limit: int | None = None
+    """the most steps the simulator allows in an episode (MetaWorld raises past 500), None: no limit"""
     action_hold: tuple[bool, ...] | None = None
     """what the robot does while no action is queued (waiting for a chunk): per action dimension, True = the last
     command is kept (a gripper's), False = zeroed (a displacement); None = every dimension kept, the actions being
@@ -113,6 +115,8 @@ class Task:
             raise BCBenchError(f"task {self.name}: action_low, action_high and action_names differ in length")
         if any(lo >= hi for lo, hi in zip(self.action_low, self.action_high, strict=True)):
             raise BCBenchError(f"task {self.name}: every action_low must be below its action_high")
+        if self.step_limit is not None and self.max_steps > self.step_limit:
+            raise BCBenchError(f"task {self.name}: cap {self.max_steps} above the simulator's limit {self.step_limit}")
         if self.action_hold is not None and len(self.action_hold) != len(self.action_names):
             raise BCBenchError(f"task {self.name}: action_hold needs one entry per action dimension")
 
@@ -136,15 +140,16 @@ class Task:
         return CONTROL_DT_S if self.delay_rate is None else 1.0 / self.control_hz
 
     def hold_action(self, obs: Obs) -> np.ndarray:
-        """The action that keeps the robot where it is before any chunk arrived: an absolute-target task's current
-        position (Push-T), a displacement task's zero (the gripper neither opening nor closing)."""
+        """The action (A,) that keeps the robot where it is before any chunk arrived: an absolute-target task's
+        current position (Push-T), a displacement task's zero (MetaWorld's gripper is a position actuator, 0 keeps
+        it open, as every episode starts)."""
         if self.action_hold is None:
             return np.asarray(obs["agent_pos"], dtype=np.float32)
         return np.zeros(self.action_dim, dtype=np.float32)
 
     def waiting_action(self, last: np.ndarray) -> np.ndarray:
-        """The action of a step with no action queued, after `last`: `last` itself for absolute targets (Push-T's
-        target held), else `last` with its displacements zeroed (stand still, keep the grip)."""
+        """The action (A,) of a step with no action queued, after `last` (A,): `last` itself for absolute targets
+        (Push-T's target held), else `last` with its displacements zeroed (stand still, keep the grip)."""
         if self.action_hold is None:
             return last
         return np.where(np.asarray(self.action_hold), last, 0.0).astype(np.float32)
@@ -172,4 +177,6 @@ class Task:
                 "action_units": self.action_units, "control_hz": self.control_hz, "max_steps": self.max_steps,
                 "score": self.score, "success": self.success, "progress": self.progress,
                 "test_seed_start": self.test_seed_start, "validation_seed_start": self.validation_seed_start,
+                "step_limit": self.step_limit, "action_hold": None if self.action_hold is None else
+                list(self.action_hold), "state_range": list(self.state_range),
                 "difficulty": self.difficulty, "notes": self.notes}

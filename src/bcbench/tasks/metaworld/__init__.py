@@ -18,8 +18,8 @@ from pathlib import Path
 
 from bcbench.data.replay_buffer import ReplayBuffer
 from bcbench.errors import BCBenchError, DatasetError
-from bcbench.tasks.metaworld.reader import load_metaworld_buffer
-from bcbench.tasks.metaworld.table import CAMERA, CONTROL_HZ, IMAGE_SIZE, TASKS, state_names
+from bcbench.tasks.metaworld.reader import load_metaworld_buffer, store_info
+from bcbench.tasks.metaworld.table import CAMERA, CONTROL_HZ, IMAGE_SIZE, MAX_PATH_LENGTH, TASKS, state_names
 from bcbench.tasks.spec import Episode, Task
 
 __all__ = ["TASKS", "default_dataset_path", "load_metaworld_buffer", "metaworld_task"]
@@ -52,7 +52,11 @@ def _dataset(name: str, path: str | None) -> Path:
     return chosen
 
 
-def _load(path: Path, images: bool) -> ReplayBuffer:
+def _load(name: str, path: Path, images: bool) -> ReplayBuffer:
+    """The store at `path`, refused in one line when its generator wrote another task's demonstrations."""
+    wrote = store_info(path).get("task")
+    if wrote != f"metaworld/{name}":
+        raise DatasetError(f"{path} holds demonstrations of {wrote}, not metaworld/{name}")
     return load_metaworld_buffer(path, images=images, image_size=IMAGE_SIZE)
 
 
@@ -84,6 +88,8 @@ def metaworld_task(name: str) -> Task:
         success="MetaWorld's info['success'] (the episode ends)",
         progress="MetaWorld's shaped reward / 10 (in [0, 1]; its shaping, not always 1 at success)",
         make_episode=functools.partial(_episode, name), dataset=functools.partial(_dataset, name),
-        load_buffer=_load, action_hold=(False, False, False, True), state_range=(-1.0, 1.0),
+        load_buffer=functools.partial(_load, name), step_limit=MAX_PATH_LENGTH,
+        action_hold=(False, False, False, True),  # while waiting: the hand stands still, the grip is kept
+        state_range=(-1.0, 1.0),
         difficulty=spec["difficulty"], notes=_notes(name),
     )
