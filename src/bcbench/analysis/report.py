@@ -23,15 +23,11 @@ from bcbench.analysis.convergence import NO_CHECK, NOT_CONVERGED, apply_checks, 
 from bcbench.analysis.fewstep import fewstep_lines, load_paired, one_interleaved_run
 from bcbench.analysis.figures import figure3, figure4, figure5_realtime, learning_curves, realtime_figure
 from bcbench.analysis.findings import DEFAULT_MARGIN, Finding, judge, points_from_rows, shared_timing, with_interleaved
-from bcbench.analysis.provenance import (
-    MACHINES_HEADER,
-    lead_line,
-    machine_rows,
-    paired_conditions,
-    provenance_notes,
-    sweep_provenance,
-)
-from bcbench.analysis.realtime import margin_power_sentence, naive_sweep_of, pooled_sentence, safe_delay_sentence
+from bcbench.analysis.provenance import MACHINES_HEADER, lead_line, machine_rows, paired_conditions, provenance_notes
+from bcbench.analysis.report_realtime import REALTIME_COLUMNS as REALTIME_COLUMNS  # the real-time section, re-exported
+from bcbench.analysis.report_realtime import realtime_lines
+from bcbench.analysis.report_realtime import realtime_table as realtime_table
+from bcbench.analysis.report_realtime import same_as_fixed as same_as_fixed
 from bcbench.analysis.results import (
     Row,
     cpu_text,
@@ -163,66 +159,6 @@ def _spacing_note(rows: list[Row]) -> str:
     return ("Diffusion Policy timestep spacing: " + ", ".join(spacings) + " (trailing: every step count starts "
             "from pure noise at t = 99; leading: diffusers' and the study's default, which starts K = 1 at t = 0 "
             "and K = 40 at t = 78; variants marked -LEADING use it).")
-
-
-REALTIME_COLUMNS = ("sync", *(f"{e}-d{d}" for e in ("async", "blocking") for d in (1, 2, 4, 8)),
-                    "async-measured", "blocking-measured", "async-a100")
-
-
-def same_as_fixed(settings: dict[str, Any], name: str) -> str | None:
-    """The fixed-delay setting a measured or profile setting repeats, if every one of its calls had the same d
-    (e.g. a call under 100 ms is d = 1 at 10 Hz): then its episodes are that setting's, not separate evidence."""
-    if name.rsplit("-", 1)[-1].startswith("d") or name == "realtime-sync":
-        return None
-    steps = settings[name]["summary"].get("delay_steps") or {}
-    mode = name.removeprefix("realtime-").split("-")[0]
-    if len(steps) == 1 and f"realtime-{mode}-d{next(iter(steps))}" in settings:
-        return f"{mode}-d{next(iter(steps))}"
-    return None
-
-
-def realtime_table(realtime: dict[str, dict[str, Any]]) -> list[str]:
-    """Mean score per policy (rows) and setting (columns); measured settings with their median call; a setting
-    that repeats a fixed-delay one is marked '= thatsetting'."""
-    def cell(settings: dict[str, Any], col: str) -> str:
-        r = settings.get(f"realtime-{col}")
-        if r is None:
-            return "-"
-        ms = r["summary"].get("latency_source", {}).get("median_ms") if col.endswith("measured") else None
-        same = same_as_fixed(settings, f"realtime-{col}")
-        return (f"{r['summary']['mean_score']['value']:.3f}" + (f" ({ms:.0f} ms)" if ms is not None else "")
-                + (f" = {same}" if same else ""))
-
-    head = "| policy | " + " | ".join(REALTIME_COLUMNS) + " |"
-    rows = [f"| {label} | " + " | ".join(cell(settings, c) for c in REALTIME_COLUMNS) + " |"
-            for label, settings in realtime.items()]
-    return [head, "|---" * (len(REALTIME_COLUMNS) + 1) + "|", *rows]
-
-
-def realtime_lines(realtime: dict[str, dict[str, Any]], margin: float, rows: list[Row] | None = None) -> list[str]:
-    """Per swept policy: sync, each delay, measured and profile scores, the largest safe delay and rate; `rows` (one
-    per run): what the sweeps ran on where it differs from them (`provenance.sweep_provenance`)."""
-    if not realtime:
-        return []
-    intro = (f"Largest safe delay, per execution mode: the largest d up to which every score stays within the margin "
-             f"({margin}) of the sync score (paired interval of the difference above -margin); at 10 Hz, d steps "
-             "allow a call of up to d x 100 ms. Highest safe control rate, in the mode with the larger safe delay: "
-             "the fastest rate at which the policy's measured call "
-             "(median; slowest timed call) still takes at most that many steps (d / L), reading the delay curve "
-             "as holding in steps at other rates.")
-    out = ["## Under real-time execution (10 Hz control)", "",
-           " ".join(filter(None, [intro, pooled_sentence(realtime), sweep_provenance(realtime, rows or []),
-                                 margin_power_sentence(realtime, margin)])), ""]
-    out += [*realtime_table(realtime), "", "Every setting with its 95% interval, and what the sweep says (a measured "
-            "or profile setting whose calls all took the same d repeats that fixed-delay setting and is marked so):",
-            ""]
-    for label, settings in realtime.items():
-        parts = [f"{name.removeprefix('realtime-')} " + (f"= {same} (every call d = {same.rsplit('-d', 1)[1]}: the "
-                 "same episodes, not separate evidence)" if (same := same_as_fixed(settings, name))
-                 else fmt_estimate(r["summary"]["mean_score"])) for name, r in settings.items()]
-        out.append(f"- {label}: " + "; ".join(parts) + ". "
-                   + safe_delay_sentence(settings, margin, naive_sweep_of(realtime, label)))
-    return [*out, ""]
 
 
 def time_lines(results: Path) -> list[str]:
