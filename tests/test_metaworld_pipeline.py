@@ -90,9 +90,12 @@ set = {{ {dp}, "optim.max_steps" = 2, "optim.batch_size" = 4, "optim.warmup_step
 eval = [{{ sampler = "ddim", steps = [2] }}]
 """)
     out = tmp_path / "study"
-    assert main(["study", str(spec), "--task", TASK, "--data", str(demos), "--out", str(out), "--quiet",
-                 "--no-report"]) == 0
+    assert main(["study", str(spec), "--task", TASK, "--data", str(demos), "--out", str(out), "--quiet"]) == 0
     runs = list((out / "runs").iterdir())
     assert len(runs) == 1 and json.loads((runs[0] / "run.json").read_text())["task"] == TASK
     evals = list(out.rglob("eval*.json"))
     assert evals and all(json.loads(f.read_text())["eval_config"]["task"] == TASK for f in evals)
+    report = (out / "report" / "report.md").read_text()
+    assert f"mw-smoke on {TASK}" in report and "the study's A100 numbers are Push-T's" in report
+    row = next(line for line in report.splitlines() if line.startswith("| diffusion (quick)") and " M | " in line)
+    assert row.rstrip(" |").endswith("-")  # no published Push-T number beside a MetaWorld row

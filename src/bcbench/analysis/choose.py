@@ -29,7 +29,14 @@ from bcbench.analysis.published import (
     reproduction_text,
     sweeps_of,
 )
-from bcbench.analysis.realtime import highest_safe_rate, largest_safe_delay, rate_text, seed_scores, too_few_episodes
+from bcbench.analysis.realtime import (
+    highest_safe_rate,
+    largest_safe_delay,
+    rate_text,
+    seed_scores,
+    step_rate,
+    too_few_episodes,
+)
 from bcbench.analysis.results import Row
 from bcbench.modes import EXACT_MODES
 from bcbench.protocol import delay_steps as protocol_delay_steps
@@ -98,7 +105,7 @@ def _rate_cell(settings: dict[str, Any] | None, ms: float | None, margin: float)
     if not d:
         return "none shown: no delay swept is shown within the margin of sync"
     rate = highest_safe_rate(d, ms) or 0.0
-    return rate_text(rate, f"{mode}, up to d = {d}")
+    return rate_text(rate, f"{mode}, up to d = {d}", step_rate(settings))
 
 
 def control_loop_rows(rows: list[Row], realtime: dict[str, dict[str, Any]], margin: float,
@@ -120,6 +127,8 @@ def control_loop_rows(rows: list[Row], realtime: dict[str, dict[str, Any]], marg
 def control_loop_lines(rows: list[Row], realtime: dict[str, dict[str, Any]], margin: float,
                        paired: dict[str, dict[str, Any]] | None = None) -> list[str]:
     table = control_loop_rows(rows, realtime, margin, paired)
+    top, task = next((step_rate(s) for s in realtime.values()), (10.0, "Push-T"))  # the sweeps' step rate
+    header = [*HEADER[:-1], HEADER[-1].replace("Push-T's 10 Hz", f"{task}'s {top:g} Hz")]
     run = one_interleaved_run(paired or {})
     source = (f" Times marked 'interleaved' come from one run that timed every policy and mode in turn, "
               f"{next(iter(run.values()))['rounds']} rounds (latency-paired*.json), so that neither a drifting "
@@ -131,10 +140,11 @@ def control_loop_lines(rows: list[Row], realtime: dict[str, dict[str, Any]], mar
             "fastest exact mode timed on this machine, and "
             f"the highest control rate at which its score stays within {margin} of sync under real-time execution "
             "(the larger safe delay of async and blocking, divided by that call time; the sweeps count delay in "
-            "Push-T's 0.1 s steps, so a rate above 10 Hz is shown as 10 Hz with what the calls alone would allow, "
+            f"{task}'s {1 / top:g} s steps, so a rate above {top:g} Hz is shown as {top:g} Hz with what the calls "
+            "alone would allow, "
             "and a policy's rate says nothing of how good its score is). The machine is named once, "
             "at the top; each run's training under 'Training: converged?'." + source, "",
-            "| " + " | ".join(HEADER) + " |", "|---" * len(HEADER) + "|",
+            "| " + " | ".join(header) + " |", "|---" * len(header) + "|",
             *("| " + " | ".join(r) + " |" for r in table), ""]
 
 

@@ -239,14 +239,14 @@ def step_rate(settings: dict[str, dict[str, Any]]) -> tuple[float, str]:
     return 1 / CONTROL_DT_S, "Push-T"
 
 
-def rate_text(hz: float, extra: str = "") -> str:
+def rate_text(hz: float, extra: str = "", step: tuple[float, str] = (1 / CONTROL_DT_S, "Push-T")) -> str:
     """A safe control rate, capped at what the simulator shows: delay is counted in Push-T's 10 Hz steps, so a
     rate above 10 Hz says only that the calls would allow it ("10 Hz (Push-T's step rate; calls alone allow 5599
-    Hz)"); `extra` goes inside the same parentheses."""
-    top = 1 / CONTROL_DT_S
+    Hz)"); `extra` goes inside the same parentheses; `step`: the sweep's step rate and task (`step_rate`)."""
+    top, task = step
     if hz <= top + 1e-9:
         return f"{hz:.1f} Hz" + (f" ({extra})" if extra else "")
-    return f"{top:g} Hz (Push-T's step rate; calls alone allow {hz:.0f} Hz" + (f"; {extra})" if extra else ")")
+    return f"{top:g} Hz ({task}'s step rate; calls alone allow {hz:.0f} Hz" + (f"; {extra})" if extra else ")")
 
 
 def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float, plain: dict[str, Any] | None = None

@@ -275,8 +275,13 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     multi = any(r.seed_scores for r in settings)
     columns = [*COLUMNS[:3], "per training seed", *COLUMNS[3:]] if multi else COLUMNS
     table = table_rows(settings, multi)
-    intro = ("Scores: mean over the evaluation episodes of the max reward min(coverage/0.95, 1), with 95% bootstrap "
-             "intervals. " + (SEEDS_NOTE if multi else "")
+    task = study_spec(results).get("task") or "pusht"
+    pusht_scores = ("Scores: mean over the evaluation episodes of the max reward min(coverage/0.95, 1), with 95% "
+                    "bootstrap intervals. ")
+    scores = pusht_scores if task == "pusht" else (
+        f"Task {task}: an episode scores 1 when it succeeds at any step, else 0, so the mean score is the success rate "
+        "(its Wilson interval under 'success'); the study's A100 numbers are Push-T's and stand beside no row here. ")
+    intro = (scores + (SEEDS_NOTE if multi else "")
              + "Latency: one call at batch 1, raw observation in, chunk out (median, and the p99 from at "
              "least 100 calls or else the maximum, labelled 'max of N'). The study's numbers were measured by the "
              "study on an A100; ours on the hardware named at the top. " + _spacing_note(rows))
@@ -289,7 +294,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     # labels quoted and joined with "and": a label with a comma in it ("ResNet-50 CNN, twice the steps") reads as two
     leaving = [f"; leaves out {' and '.join(repr(x) for x in labels)} of {study}"
                for study, labels in left_out(results).items()]
-    name = (study_spec(results).get("name") or results.name) + (  # the spec's name, not the output folder's
+    name = (study_spec(results).get("name") or results.name) + (f" on {task}" if task != "pusht" else "") + (
         f" (combines {', '.join(sources)}{''.join(leaving)})" if sources else "")
     lead = lead_line(name, settings, mixed=any("mix several commits" in n for n in notes), runs=rows)
     trained = [r for r in rows if r.converged is not None]

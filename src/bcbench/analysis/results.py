@@ -82,6 +82,7 @@ class Row:
     # runs; empty for a single run, whose episode scores are `scores`
     seed_scores: list[dict[int, float]] = field(default_factory=list)
     seed_ids: list[int] = field(default_factory=list)
+    task: str = "pusht"  # the task its episodes ran (a record from before tasks: Push-T)
 
     def est(self, name: str) -> dict[str, Any]:
         return self.summary[name]
@@ -100,7 +101,10 @@ class Row:
         return min(timed, key=lambda t: t[1]) if timed else None
 
     @property
-    def reference_key(self) -> str:
+    def reference_key(self) -> str | None:
+        """The published study's number to stand beside this row's: Push-T's only (None on another task)."""
+        if self.task != "pusht":
+            return None
         return f"{self.policy}:{self.variant}" if self.sampler else self.policy
 
 
@@ -134,7 +138,8 @@ def _row_from_eval(path: Path, margin: float = 0.05, role: dict[str, Any] | None
               beta_schedule=cfg.get("beta_schedule"), params=params, summary=ev["summary"],
               scores={int(e["seed"]): float(e["score"]) for e in ev.get("episodes", [])},
               git_commit=ev.get("git_commit"), hardware=ev.get("hardware", {}), source=str(path),
-              train_seed=cfg.get("seed") if "run_dir" in pol else None)
+              train_seed=cfg.get("seed") if "run_dir" in pol else None,
+              task=(ev.get("eval_config") or {}).get("task") or "pusht")
     lat = run_dir / f"latency-{vkey}.json"
     if lat.exists():
         record = read_json(lat)
