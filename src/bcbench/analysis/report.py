@@ -276,6 +276,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     columns = [*COLUMNS[:3], "per training seed", *COLUMNS[3:]] if multi else COLUMNS
     table = table_rows(settings, multi)
     task = study_spec(results).get("task") or "pusht"
+    step = (float(study_spec(results).get("rate_hz", 10.0)), "Push-T" if task == "pusht" else task)
     pusht_scores = ("Scores: mean over the evaluation episodes of the max reward min(coverage/0.95, 1), with 95% "
                     "bootstrap intervals. ")
     scores = pusht_scores if task == "pusht" else (
@@ -304,7 +305,8 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     machines = machine_rows(rows)
     machines_md = ["## Machines", "", _md_table(MACHINES_HEADER, machines), ""] if machines else []
     md = ["# bcbench report", "", lead, "",
-          *([f"![{FIG5}]({fig5.name})", ""] if fig5 else []), *control_loop_lines(settings, realtime, margin, paired),
+          *([f"![{FIG5}]({fig5.name})", ""] if fig5 else []),
+          *control_loop_lines(settings, realtime, margin, paired, step),
           *([_informed_sentence(informed), ""] if informed else []),
           *machines_md, "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
     md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
