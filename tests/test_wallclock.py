@@ -69,7 +69,7 @@ def thread_server(tmp_path):
 
 def test_a_wall_clock_run_records_the_known_delay_and_never_blocks_the_simulator(tmp_path, capsys):
     """The real thing: `bcbench serve` started as another process on a free loopback port, a policy that takes
-    250 ms a call. Every call is measured at 250-350 ms and (nearly all) d = 3; control steps keep their 100 ms
+    250 ms a call. Every call is measured at 250-400 ms and (nearly all) d = 3; control steps keep their 100 ms
     period while a call is out (a client that waited for the policy would show periods of 250 ms and more); then
     the simulated twin and the comparison are written."""
     out = tmp_path / "wc"
@@ -82,7 +82,9 @@ def test_a_wall_clock_run_records_the_known_delay_and_never_blocks_the_simulator
     s = record["summary"]
     calls = record["episodes"][0]["calls"]
     assert len(calls) >= 5 and s["delays"]["calls"] == len(calls)  # 30 steps, a request every 5
-    assert all(0.25 <= c["delay_s"] < 0.35 for c in calls), [c["delay_s"] for c in calls]  # sleep + < 100 ms
+    # sleep + the round trip: under 100 ms on a quiet machine, under 150 beside a test suite on the same 2 cores
+    # (one call of a suite run took 107 ms more); d = 3 or 4 either way, as checked below
+    assert all(0.25 <= c["delay_s"] < 0.4 for c in calls), [c["delay_s"] for c in calls]
     assert s["delays"]["median_steps"] == 3 and s["simulated_delay"] == 3
     assert s["plan_delay"].get("3", 0) >= len(calls) - 1  # the threshold learnt from the calls (the first: warm-up)
     assert {c["delay_steps"] for c in calls} <= {3, 4}
