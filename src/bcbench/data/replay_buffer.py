@@ -73,7 +73,8 @@ class ReplayBuffer:
         }
 
 
-def _open_group(path: Path):
+def open_group(path: Path):
+    """A zarr store folder opened read-only, or one DatasetError line (a missing folder, not a zarr group)."""
     import zarr  # only where the store is opened: `bcbench report` and the analysis never load it
 
     if not path.is_dir():
@@ -135,7 +136,7 @@ def _read_images_uint8(root, path: Path, n: int) -> np.ndarray:
 def load_replay_buffer(path: str | Path, *, images: bool = True) -> ReplayBuffer:
     """Load and validate a Push-T replay buffer. `images=False` skips the (slow, large) image store."""
     path = Path(path)
-    root = _open_group(path)
+    root = open_group(path)
     n = _check_structure(root, path)
     ends = _read(root, "meta/episode_ends", path).astype(np.int64)
     if np.any(np.diff(ends) <= 0) or ends[0] <= 0 or ends[-1] != n:

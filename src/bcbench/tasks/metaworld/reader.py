@@ -13,22 +13,11 @@ from typing import Any
 
 import numpy as np
 
-from bcbench.data.replay_buffer import ReplayBuffer
+from bcbench.data.replay_buffer import ReplayBuffer, open_group
 from bcbench.errors import DatasetError
 
 FORMAT = "bcbench-metaworld-v1"
 ACTION_DIM = 4
-
-
-def _open(path: Path) -> Any:
-    import zarr  # only where a store is opened
-
-    if not path.is_dir():
-        raise DatasetError(f"MetaWorld demonstrations not found: {path} is not a folder")
-    try:
-        return zarr.open_group(str(path), mode="r")
-    except Exception as exc:  # zarr raises several types for a folder that is not a group
-        raise DatasetError(f"{path} is not a readable zarr group ({type(exc).__name__}: {exc})") from None
 
 
 def _array(root: Any, key: str, path: Path) -> Any:
@@ -70,7 +59,7 @@ def load_metaworld_buffer(path: str | Path, *, images: bool = True, image_size: 
     """Load and validate a MetaWorld demonstration store as a `ReplayBuffer` (state = proprioception (N, S),
     action (N, 4), images uint8 (N, 96, 96, 3) or None with `images=False`; no keypoint or n_contacts)."""
     path = Path(path)
-    root = _open(path)
+    root = open_group(path)
     n, _ = _check_shapes(root, path, image_size)
     ends = _read(root["meta/episode_ends"], "meta/episode_ends", path).astype(np.int64)
     if np.any(np.diff(ends) <= 0) or ends[0] <= 0 or ends[-1] != n:
@@ -89,7 +78,7 @@ def load_metaworld_buffer(path: str | Path, *, images: bool = True, image_size: 
 def store_info(path: str | Path) -> dict[str, Any]:
     """The store's attrs (task, generator settings, counts, versions) and its episode seeds."""
     path = Path(path)
-    root = _open(path)
+    root = open_group(path)
     info = dict(root.attrs)
     info["seeds"] = _read(_array(root, "meta/seeds", path), "meta/seeds", path).astype(np.int64).tolist()
     return info
