@@ -28,7 +28,7 @@ from bcbench.evaluation.latency_sources import LatencySource
 from bcbench.evaluation.strategies import Strategy
 from bcbench.interface import ChunkPolicy, CorrectionHead
 from bcbench.stats import score_summary
-from bcbench.tasks import Task, get_task
+from bcbench.tasks import Task, declared_task, get_task
 from bcbench.tasks.workers import WorkerPool
 from bcbench.utils.io import write_json
 from bcbench.utils.system import provenance
@@ -54,8 +54,7 @@ def episode_task(policy: ChunkPolicy, name: str) -> Task:
     """The task `name`, checked against the one the policy was trained on (a trained runner's, or an outside
     policy's `task` attribute where it has one): one line when they differ."""
     task = get_task(name)
-    own = getattr(policy, "task", None)
-    own = getattr(own, "name", own)
+    own = declared_task(policy)
     if own is not None and own != task.name:
         raise BCBenchError(f"{getattr(policy, 'name', 'the policy')} was trained on {own}, not {task.name}: "
                            f"pass --task {own} (or leave --task out)")
@@ -168,7 +167,7 @@ def evaluate(policy: ChunkPolicy, cfg: EvalConfig, out_dir: str | Path | None = 
         "type": "evaluation",
         "created": datetime.now(UTC).isoformat(timespec="seconds"),
         "policy": describe,
-        "task": episode_task(policy, cfg.task).describe(),
+        "task": get_task(cfg.task).describe(),  # checked against the policy's by run_episodes
         "eval_config": asdict(cfg),
         "summary": summary,
         "episodes": [asdict(e) for e in episodes],

@@ -15,7 +15,17 @@ from bcbench.tasks.spec import Episode, Task
 DEFAULT_TASK = "pusht"
 FAMILIES = ("pusht", "metaworld")
 
-__all__ = ["DEFAULT_TASK", "FAMILIES", "Episode", "Task", "example_for", "get_task", "task_names", "task_of"]
+__all__ = [
+    "DEFAULT_TASK",
+    "FAMILIES",
+    "Episode",
+    "Task",
+    "declared_task",
+    "example_for",
+    "get_task",
+    "task_names",
+    "task_of",
+]
 
 
 def get_task(name: str | None = None) -> Task:
@@ -33,11 +43,17 @@ def get_task(name: str | None = None) -> Task:
     raise BCBenchError(f"unknown task '{name}' (choose pusht or metaworld/NAME: {', '.join(task_names())})")
 
 
-def task_of(policy: object) -> Task:
-    """The task a policy was made for: a trained runner's (its run's), an outside policy's `task` (a name) where it
-    declares one, else Push-T."""
+def declared_task(policy: object) -> str | None:
+    """The name of the task a policy says it was made for (a trained runner's Task, an outside policy's `task`
+    name), or None where it says none."""
     task = getattr(policy, "task", None)
-    return task if isinstance(task, Task) else get_task(task if isinstance(task, str) else None)
+    return task.name if isinstance(task, Task) else task if isinstance(task, str) else None
+
+
+def task_of(policy: object) -> Task:
+    """The task a policy was made for (`declared_task`), else Push-T."""
+    task = getattr(policy, "task", None)
+    return task if isinstance(task, Task) else get_task(declared_task(policy))
 
 
 def example_for(policy: object, batch: int = 1, seed: int = 0) -> dict[str, Any]:
