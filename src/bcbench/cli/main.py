@@ -83,11 +83,13 @@ def cmd_train(args: argparse.Namespace) -> int:
     dist = Distributed(pick_device(args.device))  # under torchrun: join the process group (else world 1)
 
     opts = TrainOptions(max_minutes=args.max_minutes, threads=args.threads, device=args.device, data=args.data,
-                        eval_every=args.eval_every, eval_episodes=args.eval_episodes, progress=not args.quiet)
+                        eval_every=args.eval_every, eval_episodes=args.eval_episodes, progress=not args.quiet,
+                        demos=args.demos)
     if args.resume:
         run_dir = Path(args.resume)
-        if args.precision or args.set or args.pretrained:
-            raise BCBenchError("--precision, --set and --pretrained define a new run; a resumed run keeps its config")
+        if args.precision or args.set or args.pretrained or args.demos:
+            raise BCBenchError("--precision, --set, --pretrained and --demos define a new run; a resumed run keeps "
+                               "its config")
     else:
         if not args.policy:
             raise BCBenchError("choose --policy NAME (or --resume RUN_DIR)")

@@ -64,6 +64,7 @@ def _add_train_eval_commands(sub: Any) -> None:
                         "computes bf16 natively, else fp32)")
     _field(p, "--eval-every", TrainOptions, type=_positive_int, metavar="STEPS")
     _field(p, "--eval-episodes", TrainOptions, type=_positive_int, metavar="N")
+    _field(p, "--demos", TrainOptions, type=_positive_int, metavar="N")
     _field(p, "--threads", TrainOptions, type=_positive_int)
     _field(p, "--device", TrainOptions, choices=["auto", "cpu", "cuda"])
     _add_task_flag(p)

@@ -104,10 +104,17 @@ def fit_normalizer(buffer: ReplayBuffer, train_episodes: np.ndarray, state_dim: 
 
 def make_datasets(
     buffer: ReplayBuffer, val_fraction: float = 0.1, seed: int = 0, obs_horizon: int = 2,
-    pred_horizon: int = 16, action_horizon: int = 8, state_dim: int = 2,
+    pred_horizon: int = 16, action_horizon: int = 8, state_dim: int = 2, demos: int | None = None,
 ) -> tuple[SequenceDataset, SequenceDataset, MinMaxNormalizer]:
-    """Split by episode, fit the normalizer on the training split, build both datasets."""
+    """Split by episode, fit the normalizer on the training split, build both datasets. `demos` keeps only the
+    training split's first N episodes (lowest indices, so smaller counts nest in larger ones) and leaves the
+    validation split as it is, so validation losses compare across counts."""
     train_eps, val_eps = split_episodes(buffer.n_episodes, val_fraction, seed)
+    if demos is not None:
+        if not 1 <= demos <= len(train_eps):
+            raise BCBenchError(f"demos {demos}: the training split has {len(train_eps)} episodes "
+                               f"({buffer.n_episodes} in the buffer, {len(val_eps)} held out)")
+        train_eps = train_eps[:demos]
     norm = fit_normalizer(buffer, train_eps, state_dim)
     kw = {"obs_horizon": obs_horizon, "pred_horizon": pred_horizon, "action_horizon": action_horizon,
           "state_dim": state_dim}

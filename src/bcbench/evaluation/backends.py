@@ -201,11 +201,11 @@ def set_mode(model: BCPolicy, mode: str, export_dir: Path | None = None,
 def dataset_observations(model: BCPolicy, split: str, n: int, seed: int = 0,
                          data_split: dict[str, Any] | None = None) -> list[dict[str, torch.Tensor]]:
     """`n` single observation windows (normalised, batch 1) of the training or validation split; `data_split`
-    is a run's (run.json: val_fraction, split_seed), so its training episodes are the ones it trained on."""
+    is a run's (run.json: val_fraction, split_seed, demos), so its training episodes are the ones it trained on."""
     c = model.config
     d = data_split or {}
     train, val, _ = make_datasets(model.task.demonstrations(), d.get("val_fraction", 0.1), d.get("split_seed", 0),
-                                  c.obs_horizon, c.pred_horizon, c.action_horizon, model.state_dim)
+                                  c.obs_horizon, c.pred_horizon, c.action_horizon, model.state_dim, d.get("demos"))
     ds = train if split == "train" else val
     ids = np.random.default_rng(seed).choice(len(ds), size=min(n, len(ds)), replace=False)
     batches = (ds.get_batch(np.array([i])) for i in ids)

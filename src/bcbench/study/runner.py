@@ -102,7 +102,7 @@ class StudyRunner:
     def _train(self, run: RunSpec) -> None:
         opts = TrainOptions(max_minutes=run.max_minutes, threads=self.spec.threads, data=self.data,
                             val_fraction=self.spec.val_fraction, progress=self.progress, device=self.device,
-                            eval_every=run.eval_every, eval_episodes=self.spec.curve_episodes)
+                            eval_every=run.eval_every, eval_episodes=self.spec.curve_episodes, demos=run.demos)
         d = self.run_dir(run)
         if not (d / "run.json").exists():
             new_run(run.policy, run.config, {**run.overrides, "seed": run.seed}, d, opts, self.spec.task)

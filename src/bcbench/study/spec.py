@@ -2,6 +2,7 @@
 
     [study]
     name = "quick"          # results go to runs/studies/NAME unless --out says otherwise
+    task = "pusht"          # the task every run trains and is evaluated on (`bcbench data tasks`; default pusht)
     episodes = 40           # evaluation episodes per variant (the study's 40)
     seed_start = 100000     # Diffusion Policy's test seeds
     val_fraction = 0.1      # the study's 90/10 split
@@ -39,6 +40,8 @@
                             # (check-*.json); the doubling run is not evaluated on the test seeds
     check_episodes = 400    # a doubling run only: its check on this many validation episodes (default: the
                             # study's); a changed count re-runs the check of both runs, not the rest
+    demos = 10              # train on the first 10 episodes of the training split (optional; default all): the
+                            # demonstration-count axis; validation split unchanged; the count is in the run key
 
 Validation happens before anything runs and names the offending entry in one line.
 """

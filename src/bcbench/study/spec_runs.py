@@ -18,7 +18,7 @@ from bcbench.protocol import MIN_CHOICE_EPISODES
 from bcbench.tasks import DEFAULT_TASK
 
 RUN_KEYS = {"policy", "preset", "config", "steps", "max_minutes", "seeds", "set", "eval", "label", "eval_every",
-            "realtime", "args", "doubles", "check_episodes"}
+            "realtime", "args", "doubles", "check_episodes", "demos"}
 
 
 @dataclass(frozen=True)
@@ -52,6 +52,7 @@ class RunSpec:
     args: dict[str, Any] = field(default_factory=dict)  # an outside policy's factory arguments
     doubles: str | None = None  # the label of the run whose convergence this run checks (twice its steps)
     check_episodes: int | None = None  # a doubling run's check size, where it differs from the study's
+    demos: int | None = None  # train on the training split's first N demonstrations (None: all of them)
 
     @property
     def outside(self) -> bool:
@@ -66,10 +67,12 @@ class RunSpec:
         return config_to_dict(make_config(self.policy, self.config, {**self.overrides, "seed": self.seed}))
 
     def key(self, val_fraction: float, task: str = DEFAULT_TASK) -> str:
-        """policy-config-sSEED-HASH: the hash covers the task, the full config and the split, so a change retrains
-        (Push-T is left out of the hash, so that every run key from before tasks existed still holds)."""
+        """policy-config-sSEED-HASH: the hash covers the task, the full config, the split and the demonstration
+        count, so a change retrains (Push-T and all demonstrations are left out of the hash, so that every run key
+        from before either existed still holds)."""
         blob = json.dumps({"policy": self.policy, "config": self.config_dict(), "val_fraction": val_fraction,
-                           **({"task": task} if task != DEFAULT_TASK else {})}, sort_keys=True)
+                           **({"task": task} if task != DEFAULT_TASK else {}),
+                           **({"demos": self.demos} if self.demos is not None else {})}, sort_keys=True)
         return f"{self.policy}-{self.config}-s{self.seed}-{hashlib.sha256(blob.encode()).hexdigest()[:8]}"
 
 
@@ -173,7 +176,14 @@ def _run_specs(i: int, run: Any) -> list[RunSpec]:
         raise BCBenchError(f"{_where(i, run)}: check_episodes goes on a doubling run (doubles = ...) and must be a "
                            f"whole number >= {MIN_CHOICE_EPISODES}, got {n!r}")
     return [RunSpec(policy, config, s, minutes, overrides, variants, label, every, realtime, doubles=doubles,
-                    check_episodes=n) for s in seeds]
+                    check_episodes=n, demos=_demos(i, run)) for s in seeds]
+
+
+def _demos(i: int, run: dict[str, Any]) -> int | None:
+    n = run.get("demos")
+    if n is not None and (not isinstance(n, int) or isinstance(n, bool) or n < 1):
+        raise BCBenchError(f"{_where(i, run)}: demos must be a whole number of demonstrations >= 1, got {n!r}")
+    return n
 
 
 def _seeds(i: int, run: dict[str, Any]) -> list[int]:
@@ -189,7 +199,7 @@ def _outside_run_specs(i: int, run: dict[str, Any], policy: str) -> list[RunSpec
         load_factory(policy)
     except BCBenchError as exc:
         raise BCBenchError(f"{_where(i, run)}: {exc}") from None
-    extra = sorted(set(run) & {"preset", "config", "steps", "max_minutes", "set", "eval", "eval_every"})
+    extra = sorted(set(run) & {"preset", "config", "steps", "max_minutes", "set", "eval", "eval_every", "demos"})
     if extra:
         raise BCBenchError(f"{_where(i, run)}: an outside policy is run as given: {', '.join(extra)} do not apply")
     args = run.get("args", {})

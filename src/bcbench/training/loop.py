@@ -136,7 +136,8 @@ def new_run(policy: str, preset: str, overrides: dict[str, Any], out: str | Path
         "preset_values": {k: dotted_value(preset_dict, k) for k in overrides},  # what the analysis compares with
         **({"preset_deviations": CPU_DEVIATIONS[policy]} if preset.startswith("cpu") and policy in CPU_DEVIATIONS
            else {}),
-        "data_split": {"val_fraction": opts.val_fraction, "split_seed": opts.split_seed},
+        "data_split": {"val_fraction": opts.val_fraction, "split_seed": opts.split_seed,
+                       **({"demos": opts.demos} if opts.demos is not None else {})},
         "created": datetime.now(UTC).isoformat(timespec="seconds"), **provenance(),
     })
     return run_dir
@@ -173,7 +174,7 @@ def prepare(run_dir: str | Path, opts: TrainOptions) -> Run:
                            "bcbench realtime --strategy correction")
     train_ds, val_ds, norm = make_datasets(buf, split.get("val_fraction", opts.val_fraction),
                                            split.get("split_seed", opts.split_seed), *model.data_window(),
-                                           model.state_dim)
+                                           model.state_dim, split.get("demos"))
     if len(train_ds) < o.batch_size:
         raise BCBenchError(f"only {len(train_ds)} training windows for a batch of {o.batch_size}")
     steps_per_epoch = len(train_ds) // o.batch_size  # drop_last: every batch is full

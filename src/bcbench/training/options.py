@@ -27,6 +27,9 @@ class TrainOptions:
     """share of episodes held out for validation (the study's 90/10)"""
     split_seed: int = 0
     """seed of the episode split"""
+    demos: int | None = None
+    """train on only the first N episodes (by index) of the training split, the validation split unchanged: the
+    demonstration-count axis, nested (the 10 are among the 50), default all"""
     eval_every: int | None = None
     """closed-loop rollouts every this many optimiser steps (and at the end): the learning curve"""
     eval_episodes: int = 20
@@ -42,5 +45,7 @@ class TrainOptions:
             raise BCBenchError(f"--max-minutes must be > 0, got {self.max_minutes}")
         if self.eval_every is not None and self.eval_every < 1:
             raise BCBenchError(f"--eval-every must be >= 1, got {self.eval_every}")
+        if self.demos is not None and self.demos < 1:
+            raise BCBenchError(f"--demos must be >= 1, got {self.demos}")
         if self.eval_episodes < 1:
             raise BCBenchError(f"--eval-episodes must be >= 1, got {self.eval_episodes}")
