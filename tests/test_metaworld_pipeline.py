@@ -85,14 +85,19 @@ latency_min_calls = 2
 latency_min_seconds = 0.0
 
 [[run]]
+policy = "random"
+
+[[run]]
 policy = "diffusion"
 set = {{ {dp}, "optim.max_steps" = 2, "optim.batch_size" = 4, "optim.warmup_steps" = 0 }}
 eval = [{{ sampler = "ddim", steps = [2] }}]
 """)
     out = tmp_path / "study"
     assert main(["study", str(spec), "--task", TASK, "--data", str(demos), "--out", str(out), "--quiet"]) == 0
-    runs = list((out / "runs").iterdir())
+    runs = [r for r in (out / "runs").iterdir() if (r / "run.json").exists()]
     assert len(runs) == 1 and json.loads((runs[0] / "run.json").read_text())["task"] == TASK
+    chance = json.loads(next((out / "runs").glob("random-*/eval-default.json")).read_text())
+    assert chance["eval_config"]["task"] == TASK and chance["policy"]["task"] == TASK  # random acts on this task
     evals = list(out.rglob("eval*.json"))
     assert evals and all(json.loads(f.read_text())["eval_config"]["task"] == TASK for f in evals)
     report = (out / "report" / "report.md").read_text()

@@ -107,7 +107,9 @@ def test_evaluation_refuses_a_task_the_policy_was_not_trained_on():
     with pytest.raises(BCBenchError, match="trained on fake/task, not pusht"):
         episode_task(runner, "pusht")
     with pytest.raises(BCBenchError, match="acts in Push-T"):
-        make_policy("random", "quick", fake_task())
+        make_policy("scripted", "quick", fake_task())
+    with pytest.raises(BCBenchError, match=r"(made|trained) for fake/task, not pusht|trained on fake/task, not pusht"):
+        episode_task(make_policy("random", "quick", fake_task()), "pusht")  # random takes a task, and says which
 
 
 def test_pusht_run_keys_are_those_from_before_tasks_and_another_task_retrains():
@@ -123,13 +125,14 @@ def test_pusht_run_keys_are_those_from_before_tasks_and_another_task_retrains():
     assert mw.task == "metaworld/drawer-open" and mw.max_steps == get_task("metaworld/drawer-open").max_steps
 
 
-def test_a_study_of_another_task_refuses_baselines_and_a_folder_of_another_task(tmp_path):
+def test_a_study_of_another_task_refuses_the_scripted_baseline_and_a_folder_of_another_task(tmp_path):
     from bcbench.study import run_study
     from bcbench.study.spec import parse_spec
 
-    with pytest.raises(BCBenchError, match="baselines act in Push-T's world"):
-        parse_spec({"study": {"name": "b", "task": "metaworld/drawer-open", "purpose": "explore", "episodes": 50,
-                              "seed_start": 200_000}, "run": [{"policy": "random"}]})
+    study = {"name": "b", "task": "metaworld/drawer-open", "purpose": "explore", "episodes": 50, "seed_start": 200_000}
+    with pytest.raises(BCBenchError, match="the scripted baseline acts in Push-T's world"):
+        parse_spec({"study": study, "run": [{"policy": "scripted"}]})
+    assert parse_spec({"study": study, "run": [{"policy": "random"}]}).runs[0].policy == "random"  # chance, anywhere
     (tmp_path / "spec.json").write_text('{"task": "pusht"}')
     spec = parse_spec({"study": {"name": "b", "task": "metaworld/drawer-open"},
                        "run": [{"policy": "cnn_mlp", "preset": "quick"}]})
@@ -150,3 +153,25 @@ def test_the_safe_rate_sentence_counts_in_the_sweep_s_task_rate():
     assert step_rate({"realtime-sync": {}}) == (10.0, "Push-T")  # a record from before tasks
     mw = {"realtime-sync": {"task": get_task("metaworld/drawer-open").describe()}}
     assert step_rate(mw) == (80.0, "metaworld/drawer-open")
+
+
+def test_random_acts_within_each_tasks_bounds_and_keeps_pusht_as_it_was():
+    from bcbench.policies import make_policy
+    from bcbench.policies.baselines import BaselineConfig, RandomPolicy
+
+    task = get_task("metaworld/peg-insert-side")
+    rand = make_policy("random", "quick", task, seed=3)
+    assert rand.task == task.name  # evaluation checks it against the episodes' task
+    gens = [torch.Generator().manual_seed(s) for s in (1, 2)]
+    chunk = rand.predict_action_chunk({"agent_pos": np.zeros((2, 2, 4)), "generators": gens})
+    assert chunk.shape == (2, 16, 4) and chunk.dtype == np.float32
+    assert (chunk >= np.array(task.action_low)).all() and (chunk <= np.array(task.action_high)).all()
+    assert chunk.min() < -0.5 and chunk.max() > 0.5  # spread over [-1, 1], not Push-T's [0, 512]
+    with pytest.raises(BCBenchError, match="the scripted baseline acts in Push-T's world; it has no version"):
+        make_policy("scripted", "quick", task)
+    # Push-T's random: the same numbers with or without the task given (its committed scores rest on them)
+    old, new = RandomPolicy(BaselineConfig()), make_policy("random", "quick", get_task("pusht"))
+    g = [torch.Generator().manual_seed(7)], [torch.Generator().manual_seed(7)]
+    np.testing.assert_array_equal(old.predict_action_chunk({"agent_pos": np.zeros((1, 2, 2)), "generators": g[0]}),
+                                  new.predict_action_chunk({"agent_pos": np.zeros((1, 2, 2)), "generators": g[1]}))
+    assert new.task == "pusht"

@@ -14,6 +14,11 @@ STUDY_PARAMETERS: dict[str, int] = {"cnn_mlp": 1_365_494, "resnet50": 34_527_593
                                     "diffusion": 91_123_778}
 DIFFUSION_PARAMETERS = {"encoder": 11_176_512, "unet": 79_947_266, "total": 91_123_778}
 
+# 3D Diffusion Policy (Ze et al., RSS 2024), its MetaWorld table: image Diffusion Policy trained on 10 scripted
+# demonstrations, mean success per difficulty group (Seo et al.'s grouping). Issue 75's yardstick for bcbench's image
+# DP on each MetaWorld task of that group; the groups hold many tasks, so a single task's number can sit far from it.
+IMAGE_DP_3DDP: dict[str, float] = {"easy": 0.836, "medium": 0.311, "hard": 0.090, "very hard": 0.266}
+
 # The study's networks at full width (ResNet base width 64) and, for ResNet-50, ImageNet-initialised: a model that
 # departs from them is named with its own size wherever it is shown (`sized_label`), since a reader of "ResNet-50 CNN"
 # assumes the study's 34.5 M ImageNet network. Flow matching runs Diffusion Policy's network; BeT's study size is

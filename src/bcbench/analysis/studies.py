@@ -163,16 +163,21 @@ def study_files(results: str | Path, pattern: str) -> list[tuple[Path, Path]]:
 
 
 def study_spec(results: Path) -> dict[str, Any]:
-    """The study's spec.json; for a combined report, the margin and purpose its studies share (they must: one rule
-    judges every finding)."""
+    """The study's spec.json; for a combined report, the margin, purpose, task and control rate its studies share
+    (they must: one rule judges every finding, on one task; studies of several tasks are read side by side by a
+    report across tasks, `bcbench.analysis.across`)."""
     specs = [read_json(d / "spec.json") if (d / "spec.json").exists() else {} for d in study_dirs(results)]
     if len(specs) == 1:
         return specs[0]
-    for key in ("margin", "purpose"):
+    for s in specs:  # a study from before tasks existed ran Push-T at 10 Hz
+        s.setdefault("task", "pusht")
+    for key in ("margin", "purpose", "task"):
         if len({str(s.get(key)) for s in specs}) > 1:
             raise BCBenchError(f"{results}: its studies differ in {key} ({', '.join(str(s.get(key)) for s in specs)}); "
-                               "a combined report needs one")
-    return {"margin": specs[0].get("margin"), "purpose": specs[0].get("purpose")}
+                               "a combined report needs one" + (" (a report across tasks reads several: across.json)"
+                                                                if key == "task" else ""))
+    shared = {k: specs[0].get(k) for k in ("margin", "purpose", "task")}
+    return {**shared, **({"rate_hz": specs[0]["rate_hz"]} if "rate_hz" in specs[0] else {})}
 
 
 def mixing_reason(results: Path) -> str:

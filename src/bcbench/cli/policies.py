@@ -56,6 +56,7 @@ def load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
     """The policy to evaluate and the default output folder."""
     from bcbench.policies import REGISTRY, is_learned, make_policy
     from bcbench.policies.outside import outside_policy, parse_kwargs
+    from bcbench.tasks import DEFAULT_TASK, get_task
 
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     if args.checkpoint:
@@ -82,7 +83,8 @@ def load_eval_policy(args: argparse.Namespace) -> tuple[Any, Path]:
     if args.policy in REGISTRY:
         if args.policy_arg:
             raise BCBenchError("--policy-arg goes with an outside policy (module:factory or a plug-in)")
-        return make_policy(args.policy, args.preset, seed=args.seed), Path("runs") / f"eval-{args.policy}-{stamp}"
+        task = get_task(getattr(args, "task", None) or DEFAULT_TASK)
+        return make_policy(args.policy, args.preset, task, seed=args.seed), Path("runs") / f"eval-{args.policy}-{stamp}"
     policy = outside_policy(args.policy, parse_kwargs(args.policy_arg))  # checked before anything runs
     return policy, Path("runs") / f"eval-{safe_name(policy.name)}-{stamp}"
 

@@ -73,11 +73,12 @@ def make_config(name: str, preset: str = "quick", overrides: dict[str, Any] | No
 
 def make_policy(name: str, preset: str = "quick", task: Task | None = None, **overrides: Any) -> BCPolicy | ChunkPolicy:
     """Build a registered policy from a preset with (dotted) field overrides: a baseline is a ready ChunkPolicy
-    (Push-T's), a learned policy an untrained BCPolicy network in `task`'s shapes (default Push-T; wrap it in a
-    PolicyRunner to run it on raw observations)."""
+    (Push-T's; random also `task`'s), a learned policy an untrained BCPolicy network in `task`'s shapes (default
+    Push-T; wrap it in a PolicyRunner to run it on raw observations)."""
     cfg = make_config(name, preset, overrides)
     if not is_learned(name):
-        if task is not None and task.name != "pusht":
-            raise BCBenchError(f"the {name} baseline acts in Push-T's world; it has no version for {task.name}")
-        return REGISTRY[name][1](cfg)
+        if task is not None and task.name != "pusht" and name != "random":
+            raise BCBenchError(f"the {name} baseline acts in Push-T's world; it has no version for {task.name} "
+                               "(random acts on every task)")
+        return REGISTRY[name][1](cfg, task) if name == "random" else REGISTRY[name][1](cfg)
     return REGISTRY[name][1](cfg, task)

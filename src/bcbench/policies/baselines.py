@@ -1,6 +1,7 @@
 """Two non-learned baselines that exercise the harness and bracket what a cloned policy should beat.
 
-- `random`: every target position uniform over the 512x512 world.
+- `random`: every action uniform within the task's action bounds (Push-T: a target position over the 512x512
+  world), on any task: the chance level finding 5 compares BeT with.
 - `scripted`: a vision-only heuristic. It finds the T in the 96x96 image by colour, walks around it to
   the side opposite the goal, then pushes it in a straight line towards the goal (translation only: it
   never tries to turn the T, so it rarely reaches the 95% coverage that counts as success).
@@ -15,6 +16,7 @@ import numpy as np
 import torch
 
 from bcbench.errors import BCBenchError
+from bcbench.tasks import Task
 from bcbench.tasks.pusht.env import WORLD_SIZE, goal_centroid
 
 _BLOCK_RGB = np.array([119, 136, 153], dtype=np.float32)  # pygame's LightSlateGray, the T's colour
@@ -55,7 +57,7 @@ class BaselineConfig:
 class _Baseline:
     name = "baseline"
     chunk_start = 0
-    task = "pusht"  # both act in Push-T's world (positions in its 512 px): evaluation refuses another task
+    task = "pusht"  # Push-T's unless made for another task (random only): evaluation refuses any other
 
     def __init__(self, config: BaselineConfig) -> None:
         self.config = config
@@ -69,19 +71,34 @@ class _Baseline:
         return self.config.seed
 
     def describe(self) -> dict[str, Any]:
-        return {"name": self.name, "parameters": 0, "config": asdict(self.config)}
+        return {"name": self.name, "parameters": 0, "config": asdict(self.config),
+                **({"task": self.task} if self.task != "pusht" else {})}  # Push-T's records stay as they were
 
 
 class RandomPolicy(_Baseline):
     name = "random"
 
+    def __init__(self, config: BaselineConfig, task: Task | None = None) -> None:
+        super().__init__(config)
+        if task is not None and task.name != "pusht":  # Push-T keeps its own arithmetic: its scores stay the same
+            self.task = task.name
+            self._low = np.asarray(task.action_low, dtype=np.float64)
+            self._span = np.asarray(task.action_high, dtype=np.float64) - self._low
+        else:
+            self._low, self._span = None, None
+
     def predict_action_chunk(self, obs: dict[str, Any]) -> np.ndarray:
         gens = obs.get("generators")  # per-episode streams from the controller: rows independent of batching
+        dim = 2 if self._span is None else len(self._span)
         if gens is None:
             b = obs["agent_pos"].shape[0]
-            return self.rng.uniform(0.0, WORLD_SIZE, size=(b, self.pred_horizon, 2)).astype(np.float32)
-        u = torch.cat([torch.rand((1, self.pred_horizon, 2), generator=g, dtype=torch.float64) for g in gens])
-        return (u.numpy() * WORLD_SIZE).astype(np.float32)
+            if self._span is None:
+                return self.rng.uniform(0.0, WORLD_SIZE, size=(b, self.pred_horizon, 2)).astype(np.float32)
+            return (self._low + self.rng.uniform(size=(b, self.pred_horizon, dim)) * self._span).astype(np.float32)
+        u = torch.cat([torch.rand((1, self.pred_horizon, dim), generator=g, dtype=torch.float64) for g in gens])
+        if self._span is None:
+            return (u.numpy() * WORLD_SIZE).astype(np.float32)
+        return (self._low + u.numpy() * self._span).astype(np.float32)  # (B, Tp, A)
 
 
 def block_centroid(image: np.ndarray) -> np.ndarray | None:

@@ -37,6 +37,7 @@ from bcbench.policies.checkpoint import configure_runner, load_runner
 from bcbench.policies.outside import outside_policy
 from bcbench.protocol import VALIDATION_SEED_START, strategy_label, training_done
 from bcbench.study.spec import RunSpec, StudySpec, Variant
+from bcbench.tasks import get_task
 from bcbench.training.loop import TrainOptions, new_run, train
 from bcbench.utils.device import pick_device
 from bcbench.utils.io import append_jsonl, read_json, safe_name, write_json
@@ -114,7 +115,7 @@ class StudyRunner:
         if run.outside:
             return outside_policy(run.policy, run.args)
         if not run.learned:
-            return make_policy(run.policy, run.config, seed=run.seed)
+            return make_policy(run.policy, run.config, get_task(self.spec.task), seed=run.seed)
         runner = load_runner(self.run_dir(run), use_ema=True, device=self.device)
         configure_runner(runner, variant.sampler, variant.steps, run.seed, variant.spacing)
         apply_mode(runner, mode_name(self.spec.backend, self.spec.precision), torch_only=torch_only)

@@ -1,0 +1,301 @@
+"""A report across tasks: one table of policy x task, and the study's findings re-read on each task.
+
+`bcbench report DIR` on a folder holding `across.json` reads the study folders it names (each a study's own folder
+or a combined report's, each on one task) side by side:
+
+    {"tasks": ["../metaworld-explore-1", "../metaworld-explore-1-peg"],    # one folder per task, in this order
+     "demos": "../metaworld-demos",                                         # optional: the generated stores' records
+     "difficulty": {"metaworld/drawer-open": "easy"},   # optional: only for records written before they held it
+     "why": "what the reader gets from reading them together"}
+
+Each folder keeps its own report (Figure 5, Figure 3, learning curves, its findings in full); this one holds what
+only a side-by-side reading shows: per task the success of every policy setting with its interval and training-seed
+count and its latency at batch 1 in the fastest exact mode timed; the findings' verdicts per task (their rules
+unchanged: `bcbench.analysis.findings`); per task whether the best setting reaches the issue's 80% and where image
+Diffusion Policy stands against 3D Diffusion Policy's image-DP number for the task's difficulty group.
+Reads result files only.
+"""
+
+from __future__ import annotations
+
+import html
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from bcbench.analysis.findings import DEFAULT_MARGIN, Finding, judge, points_from_rows
+from bcbench.analysis.results import Row, file_commits, load_rows
+from bcbench.analysis.seeds import merge_training_seeds
+from bcbench.analysis.studies import study_spec
+from bcbench.errors import BCBenchError
+from bcbench.reference import IMAGE_DP_3DDP
+from bcbench.stats import wilson
+from bcbench.utils.io import atomic_path, read_json
+
+ACROSS_FILE = "across.json"
+GOAL = 0.80  # issue 75: the best policy on every task at >= 80% success over 3 training seeds
+ORDER = ["random", "scripted", "cnn_mlp", "resnet50", "bet", "bct", "diffusion", "flow"]
+
+
+@dataclass
+class TaskColumn:
+    """One task's study folder read back: its settings (one row per setting, training seeds merged)."""
+
+    folder: Path
+    task: str
+    difficulty: str | None
+    purpose: str
+    settings: list[Row]
+    findings: list[Finding]
+    commits: list[str]
+
+
+def is_across(results: str | Path) -> bool:
+    return (Path(results) / ACROSS_FILE).is_file()
+
+
+def read_across(results: Path) -> tuple[dict[str, Any], list[TaskColumn]]:
+    """across.json validated, and each task's folder read back."""
+    f = results / ACROSS_FILE
+    spec = read_json(f)
+    names = spec.get("tasks") if isinstance(spec, dict) else None
+    if not isinstance(names, list) or len(names) < 1 or not all(isinstance(n, str) and n for n in names):
+        raise BCBenchError(f"{f}: 'tasks' must list the study folders it reads, one per task (paths relative to it)")
+    stated = spec.get("difficulty", {})
+    if not isinstance(stated, dict) or not all(isinstance(v, str) for v in stated.values()):
+        raise BCBenchError(f"{f}: 'difficulty' maps a task name to its difficulty group (for records without one)")
+    columns = [_column(results / n, f, stated) for n in names]
+    seen: dict[str, Path] = {}
+    for c in columns:
+        if c.task in seen:
+            raise BCBenchError(f"{f}: {seen[c.task].name} and {c.folder.name} are both on {c.task}; name one folder "
+                               "per task (a combined report's folder joins the studies of one task)")
+        seen[c.task] = c.folder
+    return spec, columns
+
+
+def _column(folder: Path, f: Path, stated: dict[str, str]) -> TaskColumn:
+    if not ((folder / "spec.json").is_file() or (folder / "combine.json").is_file()):
+        raise BCBenchError(f"{f} names {folder.name}, which is not a study or combined report folder")
+    spec = study_spec(folder)
+    margin = spec.get("margin") or DEFAULT_MARGIN
+    rows = load_rows(folder, None, margin)
+    settings = merge_training_seeds(rows)
+    task = spec.get("task") or "pusht"
+    recorded = {read_json(Path(r.source)).get("task", {}).get("difficulty") for r in rows} - {None}
+    if len(recorded) > 1 or (recorded and task in stated and stated[task] not in recorded):
+        raise BCBenchError(f"{f}: {task}'s records name difficulty {', '.join(sorted(recorded))}"
+                           + (f", across.json {stated[task]}" if task in stated else ""))
+    difficulty = next(iter(recorded), stated.get(task))
+    return TaskColumn(folder, task, difficulty, spec.get("purpose") or "", settings,
+                      judge(points_from_rows(settings), margin), sorted(file_commits(folder)))
+
+
+def _key(r: Row) -> tuple[str, str]:
+    """A setting is the same across tasks by its study label and variant (its size moves with the task's shapes)."""
+    return (r.run_label or r.label, r.variant)
+
+
+def success_cell(r: Row) -> str:
+    """'92.0% [81.2, 96.8], 1 seed' (Wilson over the episodes) or '85.3% [78.0, 92.6], 3 seeds' (t over the training
+    seeds' success rates)."""
+    if r.seed_scores:
+        v, (lo, hi) = r.summary["mean_score"]["value"], r.summary["mean_score"]["ci95"]
+        return f"{100 * v:.1f}% [{100 * max(lo, 0):.1f}, {100 * min(hi, 1):.1f}], {len(r.seed_scores)} seeds"
+    n = int(r.summary.get("n") or len(r.scores))
+    v = r.summary.get("success_rate", r.summary["mean_score"])["value"]
+    lo, hi = wilson(round(v * n), n)
+    return f"{100 * v:.1f}% [{100 * lo:.1f}, {100 * hi:.1f}], 1 seed"
+
+
+def latency_cell(r: Row) -> str:
+    fast = r.deployed_ms()
+    if fast:
+        return f"{fast[1]:.1f} ms ({fast[0]})"
+    ref = r.latency_ms("reference")
+    return "not timed" if ref is None else f"{ref:.1f} ms (reference)"
+
+
+def _name(r: Row) -> str:
+    return r.label + ("" if r.variant == "default" else f" {r.variant.upper()}")
+
+
+def table(columns: list[TaskColumn]) -> tuple[list[str], list[list[str]]]:
+    """policy setting x task: success [interval], training seeds; latency at batch 1 (fastest exact mode timed)."""
+    by_key: dict[tuple[str, str], dict[str, Row]] = {}
+    first: dict[tuple[str, str], Row] = {}
+    for c in columns:
+        for r in c.settings:
+            by_key.setdefault(_key(r), {})[c.task] = r
+            first.setdefault(_key(r), r)
+    order = sorted(by_key, key=lambda k: (ORDER.index(first[k].policy) if first[k].policy in ORDER else 99, k))
+    header = ["policy", *(f"{c.task} ({c.difficulty or '-'})" for c in columns)]
+    rows = [[_name(first[k]), *(f"{success_cell(by_key[k][c.task])}; {latency_cell(by_key[k][c.task])}"
+                                if c.task in by_key[k] else "-" for c in columns)] for k in order]
+    ref = [IMAGE_DP_3DDP.get(c.difficulty or "") for c in columns]
+    if any(v is not None for v in ref):
+        rows.append(["3D Diffusion Policy's image DP, 10 demos (its difficulty group's mean; published)",
+                     *("-" if v is None else f"{100 * v:.1f}%" for v in ref)])
+    return header, rows
+
+
+def findings_table(columns: list[TaskColumn]) -> tuple[list[str], list[list[str]]]:
+    header = ["finding", *(c.task for c in columns)]
+    claims = {f.number: f.claim for c in columns for f in c.findings}
+    verdicts = {(c.task, f.number): f.verdict + (" (not evaluated)" if _unevaluated(f) else "")
+                for c in columns for f in c.findings}
+    return header, [[f"{n}. {claims[n]}", *(verdicts.get((c.task, n), "-") for c in columns)] for n in sorted(claims)]
+
+
+def _unevaluated(f: Finding) -> bool:
+    """A verdict for want of the settings it compares ("... are not both evaluated"), not for a wide interval."""
+    return f.evidence.endswith(("not evaluated", "not both evaluated", "not all evaluated", "not evaluated and timed"))
+
+
+def trained_on(r: Row, kept: int | None) -> int | None:
+    """The demonstrations a run trained on: its `demos`, else its store's kept episodes less the held-out split
+    (`bcbench.data.split_episodes`' rule), where the store's record is given; None where neither is known."""
+    split = read_json(Path(r.source).parent / "run.json").get("data_split", {}) if Path(
+        r.source).parent.joinpath("run.json").is_file() else {}
+    if split.get("demos"):
+        return int(split["demos"])
+    if kept is None:
+        return None
+    vf = float(split.get("val_fraction", 0.1))
+    return kept - (max(1, round(kept * vf)) if vf > 0 else 0)
+
+
+def goal_lines(columns: list[TaskColumn], kept: dict[str, int] | None = None) -> list[str]:
+    """Per task: the best setting against the 80% goal, and image DP against 3D-DP's group number (`kept`: each
+    task's demonstration store size, from the records across.json names)."""
+    kept = kept or {}
+    out = []
+    for c in columns:
+        learned = [r for r in c.settings if r.train_seed is not None or r.seed_scores]
+        if not learned:
+            continue
+        best = max(learned, key=lambda r: r.score)
+        seeds = len(best.seed_scores) or 1
+        verdict = "reaches" if best.score >= GOAL else "does not reach"
+        line = (f"- **{c.task}**: best {_name(best)} {success_cell(best)}: {verdict} {GOAL:.0%}"
+                + ("" if seeds >= 3 else f" (on {seeds} training seed{'s' if seeds > 1 else ''}; the goal reads 3)"))
+        ref = IMAGE_DP_3DDP.get(c.difficulty or "")
+        dps = [r for r in learned if r.policy == "diffusion"]
+        if ref is not None and dps:
+            dp = max(dps, key=lambda r: r.score)
+            side = "at or above" if dp.score >= ref else "below"
+            n = trained_on(dp, kept.get(c.task))
+            line += (f"; image DP's best here ({_name(dp)}, {100 * dp.score:.1f}%, trained on "
+                     f"{'an unrecorded number of' if n is None else n} demonstrations) is {side} 3D Diffusion "
+                     f"Policy's image-DP {100 * ref:.1f}% for the {c.difficulty} group (10 demonstrations there)")
+        out.append(line + ".")
+    return out
+
+
+def _rel(target: Path, start: Path) -> str:
+    return Path(os.path.relpath(target, start)).as_posix()
+
+
+def figure_lines(columns: list[TaskColumn], out: Path) -> list[str]:
+    """Each task's own report and its Figure 5 and Figure 3, where its report drew them."""
+    lines = []
+    for c in columns:
+        rep = c.folder / "report"
+        lines.append(f"- {c.task}: [its report]({_rel(rep / 'report.md', out)})")
+        for title, name in (("Figure 5", "fig5_accuracy_vs_latency.png"), ("Figure 3", "fig3_denoising_steps.png")):
+            if (rep / name).is_file():
+                lines.append(f"  ![{title}, {c.task}]({_rel(rep / name, out)})")
+    return lines
+
+
+def _md_table(header: list[str], rows: list[list[str]]) -> str:
+    return "\n".join(["| " + " | ".join(header) + " |", "|" + "---|" * len(header),
+                      *("| " + " | ".join(r) + " |" for r in rows)])
+
+
+def _html_table(header: list[str], rows: list[list[str]]) -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(x)}</td>" for x in r) + "</tr>" for r in rows)
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def lead(spec: dict[str, Any], columns: list[TaskColumn], name: str) -> str:
+    purposes = {c.purpose for c in columns}
+    seeds = "validation seeds 200000+ (they make choices; they are not reported scores)" if purposes == {
+        "explore"} else ("test seeds 100000+" if purposes == {"confirm"} else "validation and test seeds (see each "
+                                                                              "task's report)")
+    n = sorted({int(r.summary.get("n") or 0) // max(len(r.seed_scores), 1) for c in columns for r in c.settings})
+    why = f" {spec['why']}" if spec.get("why") else ""
+    return (f"{name}: {len(columns)} task{'s' if len(columns) > 1 else ''} "
+            f"({', '.join(c.task for c in columns)}), on {seeds}, {'/'.join(map(str, n))} episodes a setting and "
+            f"training seed.{why}")
+
+
+def write_across_report(results: str | Path) -> dict[str, Any]:
+    results = Path(results)
+    spec, columns = read_across(results)
+    out = results / "report"
+    out.mkdir(parents=True, exist_ok=True)
+    head, rows = table(columns)
+    fhead, frows = findings_table(columns)
+    top = lead(spec, columns, results.name)
+    records = demo_records(results, spec, columns)
+    demos = _demo_lines(records, columns)
+    goals = goal_lines(columns, {t: int(d["kept"]) for t, d in records.items()})
+    notes = [f"{c.task}: {c.folder.name}, result files at commit(s) {', '.join(x[:7] for x in c.commits)}"
+             for c in columns]
+    md = ["# bcbench report across tasks", "", top, "", "## Success and latency per task", "",
+          "Each cell: success [95% interval] (Wilson over the episodes for one training seed, t over the training "
+          "seeds' success rates for several), training seeds; latency at batch 1 in the fastest exact mode timed "
+          "(median; 'not timed' where the study timed nothing).", "", _md_table(head, rows), "",
+          "## Against the goals", "", *goals, "", "## The study's findings per task", "",
+          "Each task's verdicts under the rules of its own report (paired over its episodes; '-' where a task has "
+          "no evidence for a finding).", "", _md_table(fhead, frows), "",
+          *(["## Demonstrations", "", *demos, ""] if demos else []),
+          "## Each task's report and figures", "", *figure_lines(columns, out), "",
+          "## Provenance", "", *[f"- {n}" for n in notes], ""]
+    md_path = out / "report.md"
+    with atomic_path(md_path) as tmp:
+        tmp.write_text("\n".join(md) + "\n")
+    html_path = out / "report.html"
+    css = ("body{font-family:system-ui,sans-serif;max-width:1400px;margin:0 auto 2em;padding:0 1em;color:#222}"
+           "table{border-collapse:collapse;font-size:12px}td,th{border:1px solid #ccc;padding:3px 6px;text-align:left}"
+           "th{background:#f3f3f3}")
+    body = (f"<h1>bcbench report across tasks</h1><p>{html.escape(top)}</p><h2>Success and latency per task</h2>"
+            f"{_html_table(head, rows)}<h2>Against the goals</h2><ul>"
+            + "".join(f"<li>{html.escape(x[2:].replace('**', ''))}</li>" for x in goals)
+            + f"</ul><h2>The study's findings per task</h2>{_html_table(fhead, frows)}"
+            + (("<h2>Demonstrations</h2><ul>" + "".join(f"<li>{html.escape(x[2:])}</li>" for x in demos) + "</ul>")
+               if demos else "")
+            + "<h2>Provenance</h2><ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
+    with atomic_path(html_path) as tmp:
+        tmp.write_text(f"<!doctype html><html><head><meta charset='utf-8'><title>bcbench report across tasks</title>"
+                       f"<style>{css}</style></head><body>{body}</body></html>\n")
+    return {"markdown": str(md_path), "html": str(html_path), "dir": str(out), "warnings": []}
+
+
+def demo_records(results: Path, spec: dict[str, Any], columns: list[TaskColumn]) -> dict[str, dict[str, Any]]:
+    """Task -> its generated store's record (bcbench data generate; scripts/demo_records.py), where across.json
+    names their folder and it holds one."""
+    if "demos" not in spec:
+        return {}
+    folder = results / spec["demos"]
+    files = {c.task: folder / f"{c.task.split('/')[-1]}.json" for c in columns}
+    return {t: read_json(f) for t, f in files.items() if f.is_file()}
+
+
+def _demo_lines(records: dict[str, dict[str, Any]], columns: list[TaskColumn]) -> list[str]:
+    """Per task the expert's success and the demonstrations kept."""
+    if not records:
+        return []
+    out = []
+    for c in columns:
+        if c.task not in records:
+            out.append(f"- {c.task}: no record of its demonstrations")
+            continue
+        d = records[c.task]
+        out.append(f"- {c.task}: {d['kept']} demonstrations kept of {d['attempted']} scripted episodes (expert "
+                   f"success {100 * d['scripted_success_rate']:.1f}%), lengths {d['episode_length']['min']}-"
+                   f"{d['episode_length']['max']} steps")
+    return out

@@ -1,0 +1,131 @@
+"""The report across tasks (`across.json`): one table of policy x task from each task's own study folder, the
+findings' verdicts per task, the 80% goal and 3D Diffusion Policy's image-DP yardstick per difficulty group; and a
+combined report, which reads studies of one task, refusing studies of several."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from bcbench.analysis.across import write_across_report
+from bcbench.analysis.studies import study_spec
+from bcbench.cli.main import main
+from bcbench.errors import BCBenchError
+from bcbench.utils.io import write_json
+
+
+def _eval(policy: str, label: str, task: str, difficulty: str | None, successes: int, n: int = 50,
+          seed: int = 0, variant: tuple[str, int] | None = None) -> dict:
+    pol = {"name": policy, "parameters": 1000, "run_dir": "x", "config": {"seed": seed}}
+    if variant:
+        pol.update({"sampler": variant[0], "steps": variant[1]})
+    episodes = [{"seed": 200_000 + i, "score": float(i < successes)} for i in range(n)]
+    est = {"value": successes / n, "ci95": [0.0, 1.0]}
+    return {"type": "evaluation", "policy": pol, "study": {"label": label}, "episodes": episodes,
+            "eval_config": {"task": task}, "task": {"name": task, **({"difficulty": difficulty} if difficulty else {})},
+            "summary": {"n": n, "mean_score": est, "share_above_0.5": est, "share_above_0.9": est,
+                        "success_rate": est}, "hardware": {"cpu_model": "test cpu", "torch_threads": 2},
+            "git_commit": "abc1234"}
+
+
+def _study(folder: Path, task: str, difficulty: str | None, runs: dict[str, dict]) -> Path:
+    write_json(folder / "spec.json", {"name": folder.name, "task": task, "purpose": "explore", "margin": 0.05})
+    for name, ev in runs.items():
+        write_json(folder / "runs" / name / f"eval-{name.split('@')[-1]}.json", ev)
+    return folder
+
+
+def _two_tasks(tmp_path: Path, drawer_difficulty: str | None = "easy") -> Path:
+    d, p = "metaworld/drawer-open", "metaworld/peg-insert-side"
+    _study(tmp_path / "drawer", d, drawer_difficulty, {
+        "cnn@default": _eval("cnn_mlp", "CNN-MLP", d, drawer_difficulty, 50),
+        **{f"dp{s}@ddim10": _eval("diffusion", "Diffusion Policy", d, drawer_difficulty, 40 + s, seed=s,
+                                  variant=("ddim", 10)) for s in range(3)}})
+    _study(tmp_path / "peg", p, "medium", {"pcnn@default": _eval("cnn_mlp", "CNN-MLP", p, "medium", 20),
+                                           "pdp0@ddim10": _eval("diffusion", "Diffusion Policy", p, "medium", 46,
+                                                               variant=("ddim", 10))})
+    out = tmp_path / "across"
+    write_json(out / "across.json", {"tasks": ["../drawer", "../peg"], "why": "Two tasks side by side."})
+    return out
+
+
+def test_the_table_reads_each_task_with_its_interval_seeds_and_yardstick(tmp_path):
+    out = _two_tasks(tmp_path)
+    md = Path(write_across_report(out)["markdown"]).read_text()
+    assert "across: 2 tasks (metaworld/drawer-open, metaworld/peg-insert-side), on validation seeds 200000+" in md
+    assert "| policy | metaworld/drawer-open (easy) | metaworld/peg-insert-side (medium) |" in md
+    # one training seed: Wilson over the 50 episodes (20/50 -> [27.6, 53.8]); three: t over the seeds' rates
+    assert "| CNN-MLP | 100.0% [92.9, 100.0], 1 seed; not timed | 40.0% [27.6, 53.8], 1 seed; not timed |" in md
+    assert "| Diffusion Policy DDIM10 | 82.0% [" in md and "], 3 seeds; not timed | 92.0% [81.2, 96.8], 1 seed;" in md
+    assert "| 3D Diffusion Policy's image DP, 10 demos (its difficulty group's mean; published) | 83.6% | 31.1% |" in md
+    assert ("**metaworld/drawer-open**: best CNN-MLP 100.0% [92.9, 100.0], 1 seed: reaches 80% (on 1 training seed; "
+            "the goal reads 3); image DP's best here (Diffusion Policy DDIM10, 82.0%, trained on an unrecorded number "
+            "of demonstrations) is below 3D Diffusion Policy's image-DP 83.6% for the easy group") in md
+    assert "is at or above 3D Diffusion Policy's image-DP 31.1% for the medium group" in md
+    assert "## Demonstrations" not in md  # across.json names no records
+    unjudged = "inconclusive (not evaluated)"
+    assert f"| 5. BeT fails (scores no better than chance) | {unjudged} | {unjudged} |" in md
+    assert "[its report](../../drawer/report/report.md)" in md
+    assert "result files at commit(s) abc1234" in md
+    assert "<table>" in (out / "report" / "report.html").read_text()
+
+
+def test_the_demonstrations_trained_on_come_from_the_run_or_its_stores_record(tmp_path):
+    out = _two_tasks(tmp_path)
+    records = tmp_path / "demos"
+    write_json(records / "drawer-open.json", {"kept": 200, "attempted": 200, "scripted_success_rate": 1.0,
+                                              "episode_length": {"min": 86, "max": 93}})
+    for s in range(3):  # drawer's DP trained on 10 (its run.json); peg's on its store less the 10% held out
+        write_json(tmp_path / "drawer" / "runs" / f"dp{s}@ddim10" / "run.json", {"data_split": {"demos": 10}})
+    write_json(records / "peg-insert-side.json", {"kept": 200, "attempted": 228, "scripted_success_rate": 0.877,
+                                                  "episode_length": {"min": 60, "max": 352}})
+    write_json(tmp_path / "peg" / "runs" / "pdp0@ddim10" / "run.json", {"data_split": {"val_fraction": 0.1}})
+    write_json(out / "across.json", {"tasks": ["../drawer", "../peg"], "demos": "../demos"})
+    md = Path(write_across_report(out)["markdown"]).read_text()
+    assert "(Diffusion Policy DDIM10, 82.0%, trained on 10 demonstrations)" in md
+    assert "(Diffusion Policy DDIM10, 92.0%, trained on 180 demonstrations)" in md
+    assert ("- metaworld/peg-insert-side: 200 demonstrations kept of 228 scripted episodes (expert success 87.7%), "
+            "lengths 60-352 steps") in md
+
+
+def test_a_record_without_its_difficulty_takes_the_stated_one_and_a_clash_is_refused(tmp_path):
+    out = _two_tasks(tmp_path, drawer_difficulty=None)
+    assert "| metaworld/drawer-open (-) |" in Path(write_across_report(out)["markdown"]).read_text()
+    spec = json.loads((out / "across.json").read_text())
+    write_json(out / "across.json", {**spec, "difficulty": {"metaworld/drawer-open": "easy"}})
+    assert "| metaworld/drawer-open (easy) |" in Path(write_across_report(out)["markdown"]).read_text()
+    write_json(out / "across.json", {**spec, "difficulty": {"metaworld/peg-insert-side": "hard"}})
+    with pytest.raises(BCBenchError, match=r"peg-insert-side's records name difficulty medium, across.json hard"):
+        write_across_report(out)
+
+
+@pytest.mark.parametrize("spec, message", [
+    ({"tasks": []}, "'tasks' must list the study folders"),
+    ({"tasks": ["../nowhere"]}, "names nowhere, which is not a study or combined report folder"),
+    ({"tasks": ["../drawer", "../drawer2"]}, "drawer and drawer2 are both on metaworld/drawer-open"),
+    ({"tasks": ["../drawer"], "difficulty": {"metaworld/drawer-open": 1}}, "'difficulty' maps a task name"),
+])
+def test_bad_across_files_are_one_line_errors(tmp_path, spec, message, capsys):
+    _two_tasks(tmp_path)
+    _study(tmp_path / "drawer2", "metaworld/drawer-open", "easy",
+           {"cnn2@default": _eval("cnn_mlp", "CNN-MLP", "metaworld/drawer-open", "easy", 50)})
+    write_json(tmp_path / "bad" / "across.json", spec)
+    assert main(["report", str(tmp_path / "bad")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
+    assert main(["report", str(tmp_path / "bad"), "--export", str(tmp_path / "e")]) == 2
+    assert "has no result files of its own" in capsys.readouterr().err
+
+
+def test_a_combined_report_keeps_its_studies_task_and_refuses_two_tasks(tmp_path):
+    out = _two_tasks(tmp_path)
+    assert main(["report", str(out)]) == 0
+    write_json(tmp_path / "one" / "combine.json", {"studies": ["../drawer", "../drawer2"]})
+    _study(tmp_path / "drawer2", "metaworld/drawer-open", "easy",
+           {"cnn2@default": _eval("cnn_mlp", "CNN-MLP 2", "metaworld/drawer-open", "easy", 49)})
+    assert study_spec(tmp_path / "one")["task"] == "metaworld/drawer-open"  # not Push-T's by default
+    write_json(tmp_path / "two" / "combine.json", {"studies": ["../drawer", "../peg"]})
+    with pytest.raises(BCBenchError, match=r"differ in task .* needs one \(a report across tasks reads several"):
+        study_spec(tmp_path / "two")
