@@ -43,7 +43,9 @@ def _two_tasks(tmp_path: Path, drawer_difficulty: str | None = "easy") -> Path:
         "cnn@default": _eval("cnn_mlp", "CNN-MLP", d, drawer_difficulty, 50),
         **{f"dp{s}@ddim10": _eval("diffusion", "Diffusion Policy", d, drawer_difficulty, 40 + s, seed=s,
                                   variant=("ddim", 10)) for s in range(3)}})
+    chance = {**_eval("random", "random", p, "medium", 0), "policy": {"name": "random", "parameters": 0}}
     _study(tmp_path / "peg", p, "medium", {"pcnn@default": _eval("cnn_mlp", "CNN-MLP", p, "medium", 20),
+                                           "prandom@default": chance,
                                            "pdp0@ddim10": _eval("diffusion", "Diffusion Policy", p, "medium", 46,
                                                                variant=("ddim", 10))})
     out = tmp_path / "across"
@@ -54,16 +56,24 @@ def _two_tasks(tmp_path: Path, drawer_difficulty: str | None = "easy") -> Path:
 def test_the_table_reads_each_task_with_its_interval_seeds_and_yardstick(tmp_path):
     out = _two_tasks(tmp_path)
     md = Path(write_across_report(out)["markdown"]).read_text()
-    assert "across: 2 tasks (metaworld/drawer-open, metaworld/peg-insert-side), on validation seeds 200000+" in md
+    assert ("across: 2 tasks (metaworld/drawer-open, metaworld/peg-insert-side), on episode seeds 200000-200049 "
+            "(validation: they make choices; they are not reported scores)") in md
     assert "| policy | metaworld/drawer-open (easy) | metaworld/peg-insert-side (medium) |" in md
     # one training seed: Wilson over the 50 episodes (20/50 -> [27.6, 53.8]); three: t over the seeds' rates
-    assert "| CNN-MLP | 100.0% [92.9, 100.0], 1 seed; not timed | 40.0% [27.6, 53.8], 1 seed; not timed |" in md
-    assert "| Diffusion Policy DDIM10 | 82.0% [" in md and "], 3 seeds; not timed | 92.0% [81.2, 96.8], 1 seed;" in md
+    assert ("| CNN-MLP | 100.0% [92.9, 100.0], 1 training seed; not timed | 40.0% [27.6, 53.8], 1 training seed; "
+            "not timed |") in md
+    # three seeds at 40, 41, 42 of 50: mean 0.82; t_2 * 0.01 / sqrt(3) = 0.025 is narrower than the episodes allow,
+    # so the half-width is theirs, 1.96 * sqrt(mean p(1-p)/50 / 3) = 0.062
+    assert ("| Diffusion Policy DDIM10 | 82.0% [75.8, 88.2], 3 training seeds; not timed | 92.0% [81.2, 96.8], "
+            "1 training seed; not timed |") in md
+    assert "| random | - | 0.0% [0.0, 7.1], no training; not timed |" in md  # a baseline has no training seed
     assert "| 3D Diffusion Policy's image DP, 10 demos (its difficulty group's mean; published) | 83.6% | 31.1% |" in md
-    assert ("**metaworld/drawer-open**: best CNN-MLP 100.0% [92.9, 100.0], 1 seed: reaches 80% (on 1 training seed; "
-            "the goal reads 3); image DP's best here (Diffusion Policy DDIM10, 82.0%, trained on an unrecorded number "
-            "of demonstrations) is below 3D Diffusion Policy's image-DP 83.6% for the easy group") in md
-    assert "is at or above 3D Diffusion Policy's image-DP 31.1% for the medium group" in md
+    assert ("**metaworld/drawer-open**: best CNN-MLP 100.0% [92.9, 100.0], 1 training seed: its whole interval is at "
+            "or above 80% (on 1 training seed; the goal reads 3); image DP's best here (Diffusion Policy DDIM10, "
+            "82.0%) trained on an unrecorded number of demonstrations: not comparable with 3D Diffusion Policy's "
+            "image-DP 83.6% (the easy group's mean, 10 demonstrations)") in md
+    assert ("**metaworld/peg-insert-side**: best Diffusion Policy DDIM10 92.0% [81.2, 96.8], 1 training seed: its "
+            "whole interval is at or above 80%") in md
     assert "## Demonstrations" not in md  # across.json names no records
     unjudged = "inconclusive (not evaluated)"
     assert f"| 5. BeT fails (scores no better than chance) | {unjudged} | {unjudged} |" in md
@@ -84,8 +94,11 @@ def test_the_demonstrations_trained_on_come_from_the_run_or_its_stores_record(tm
     write_json(tmp_path / "peg" / "runs" / "pdp0@ddim10" / "run.json", {"data_split": {"val_fraction": 0.1}})
     write_json(out / "across.json", {"tasks": ["../drawer", "../peg"], "demos": "../demos"})
     md = Path(write_across_report(out)["markdown"]).read_text()
-    assert "(Diffusion Policy DDIM10, 82.0%, trained on 10 demonstrations)" in md
-    assert "(Diffusion Policy DDIM10, 92.0%, trained on 180 demonstrations)" in md
+    assert ("image DP's best here on 10 demonstrations (Diffusion Policy DDIM10, 82.0% [75.8, 88.2]) is not "
+            "separated from 3D Diffusion Policy's image-DP 83.6% (the easy group's mean, 10 demonstrations); one task "
+            "against a group's mean, under bcbench's protocol, not theirs") in md
+    assert ("image DP's best here (Diffusion Policy DDIM10, 92.0%) trained on 180 demonstrations: not comparable "
+            "with 3D Diffusion Policy's image-DP 31.1%") in md
     assert ("- metaworld/peg-insert-side: 200 demonstrations kept of 228 scripted episodes (expert success 87.7%), "
             "lengths 60-352 steps") in md
 
@@ -106,11 +119,14 @@ def test_a_record_without_its_difficulty_takes_the_stated_one_and_a_clash_is_ref
     ({"tasks": ["../nowhere"]}, "names nowhere, which is not a study or combined report folder"),
     ({"tasks": ["../drawer", "../drawer2"]}, "drawer and drawer2 are both on metaworld/drawer-open"),
     ({"tasks": ["../drawer"], "difficulty": {"metaworld/drawer-open": 1}}, "'difficulty' maps a task name"),
+    ({"tasks": ["../drawer"], "demos": 3}, "'demos' names the folder of the demonstration records"),
+    ({"tasks": ["../drawer"], "demos": "../bogus"}, "not a demonstration record (no attempted, scripted"),
 ])
 def test_bad_across_files_are_one_line_errors(tmp_path, spec, message, capsys):
     _two_tasks(tmp_path)
     _study(tmp_path / "drawer2", "metaworld/drawer-open", "easy",
            {"cnn2@default": _eval("cnn_mlp", "CNN-MLP", "metaworld/drawer-open", "easy", 50)})
+    write_json(tmp_path / "bogus" / "drawer-open.json", {"kept": 200})
     write_json(tmp_path / "bad" / "across.json", spec)
     assert main(["report", str(tmp_path / "bad")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -129,3 +145,21 @@ def test_a_combined_report_keeps_its_studies_task_and_refuses_two_tasks(tmp_path
     write_json(tmp_path / "two" / "combine.json", {"studies": ["../drawer", "../peg"]})
     with pytest.raises(BCBenchError, match=r"differ in task .* needs one \(a report across tasks reads several"):
         study_spec(tmp_path / "two")
+
+
+def test_each_tasks_figure_5_and_3_are_drawn_where_its_study_timed_and_stepped(tmp_path):
+    out = _two_tasks(tmp_path)
+    peg = tmp_path / "peg" / "runs"
+    write_json(peg / "pdp0@ddim100" / "eval-ddim100.json",
+               _eval("diffusion", "Diffusion Policy", "metaworld/peg-insert-side", "medium", 47, variant=("ddim", 100)))
+    for run, variant, ms in (("pdp0@ddim10", "ddim10", 20.0), ("pdp0@ddim100", "ddim100", 200.0),
+                             ("pcnn@default", "default", 2.0)):
+        m = {"median_ms": ms, "p99_ms": ms * 1.2, "tail_ms": ms * 1.2, "tail_stat": "p99"}
+        modes = {"reference": m, "fast": {**m, "median_ms": ms / 2}}
+        write_json(peg / run / f"latency-{variant}.json", {"type": "latency", "git_commit": "abc1234", "modes": modes})
+    md = Path(write_across_report(out)["markdown"]).read_text()
+    for fig in ("fig5_metaworld-peg-insert-side.png", "fig3_metaworld-peg-insert-side.png"):
+        assert (out / "report" / fig).stat().st_size > 1000 and f"]({fig})" in md
+    assert "(no Figure 5: its study timed nothing; no Figure 3: fewer than two step counts" in md  # drawer's
+    assert "92.0% [81.2, 96.8], 1 training seed; 10.0 ms (fast)" in md  # the fastest exact mode's median
+    assert "src='fig5_metaworld-peg-insert-side.png'" in (out / "report" / "report.html").read_text()

@@ -23,9 +23,16 @@ def test_committed_report_regenerates_identically(study, tmp_path):
     """A fresh copy (as in a clone: no checkpoints, no runs/) rebuilds the same Markdown report."""
     copy = tmp_path / study.name
     shutil.copytree(study, copy, ignore=shutil.ignore_patterns("report"))
-    combine = study / "combine.json"  # a combined report: the study folders it names come along, as in a clone
-    for name in json.loads(combine.read_text())["studies"] if combine.exists() else []:
-        shutil.copytree((study / name).resolve(), (copy / name).resolve(), ignore=shutil.ignore_patterns("report"))
+    combine, across = study / "combine.json", study / "across.json"  # the folders these name come along, as in a
+    named = json.loads(combine.read_text())["studies"] if combine.exists() else []  # clone
+    if across.exists():  # a report across tasks: each task's folder (and its own studies) and the records
+        spec = json.loads(across.read_text())
+        named = [*spec["tasks"], *([spec["demos"]] if "demos" in spec else [])]
+        named += [str(Path(t) / s) for t in spec["tasks"] if (study / t / "combine.json").exists()
+                  for s in json.loads((study / t / "combine.json").read_text())["studies"]]
+    for name in named:
+        if not (copy / name).resolve().exists():
+            shutil.copytree((study / name).resolve(), (copy / name).resolve(), ignore=shutil.ignore_patterns("report"))
     assert not list(copy.rglob("*.safetensors"))  # result files only
     paths = write_report(copy)
     assert Path(paths["markdown"]).read_text() == (study / "report" / "report.md").read_text()

@@ -11,6 +11,7 @@ import pytest
 
 from bcbench.cli import main
 from bcbench.data import make_datasets, split_episodes
+from bcbench.data.sequence import fit_normalizer
 from bcbench.errors import BCBenchError
 from bcbench.study.spec_runs import _run_specs
 from tests.conftest import make_synthetic_buffer
@@ -39,8 +40,9 @@ def test_demos_keep_the_first_training_episodes_nested_and_leave_validation_alon
         assert not seen or seen[-1] < eps  # nested: the smaller count's episodes are inside the larger's
         seen.append(eps)
     # the normaliser is fit on the episodes trained on, as a user holding only those would fit it
-    few = make_datasets(buf, 0.1, 0, demos=2)[2].stats["action"]["max"]
-    assert not np.array_equal(few, make_datasets(buf, 0.1, 0)[2].stats["action"]["max"])
+    few = make_datasets(buf, 0.1, 0, demos=2)[2].to_dict()
+    assert few == fit_normalizer(buf, train_all[:2]).to_dict()
+    assert few != make_datasets(buf, 0.1, 0)[2].to_dict()
     with pytest.raises(BCBenchError, match="demos 10: the training split has 9 episodes"):
         make_datasets(buf, 0.1, 0, demos=10)
 
@@ -64,6 +66,15 @@ def test_a_study_run_key_holds_the_count_only_when_given():
     for bad in (0, -3, 2.5, True, "10"):
         with pytest.raises(BCBenchError, match=r"\[\[run\]\] #1 \(cnn_mlp\): demos must be a whole number"):
             _run_specs(0, _run(demos=bad))
+    with pytest.raises(BCBenchError, match=r"demos applies to a policy that trains, not the random baseline"):
+        _run_specs(0, {"policy": "random", "demos": 10})
+    from bcbench.study.spec import parse_spec
+
+    base = {"policy": "diffusion", "preset": "quick", "steps": 10, "label": "DP", "demos": 10}
+    twice = {**base, "steps": 20, "label": "DP 2x", "doubles": "DP"}
+    assert parse_spec({"study": {"name": "d"}, "run": [base, twice]}).runs[1].demos == 10
+    with pytest.raises(BCBenchError, match=r"run 'DP 2x' must train on the same demos as 'DP' \(10\), got 50"):
+        parse_spec({"study": {"name": "d"}, "run": [base, {**twice, "demos": 50}]})
 
 
 def _sets() -> list[str]:

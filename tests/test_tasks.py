@@ -169,9 +169,14 @@ def test_random_acts_within_each_tasks_bounds_and_keeps_pusht_as_it_was():
     assert chunk.min() < -0.5 and chunk.max() > 0.5  # spread over [-1, 1], not Push-T's [0, 512]
     with pytest.raises(BCBenchError, match="the scripted baseline acts in Push-T's world; it has no version"):
         make_policy("scripted", "quick", task)
-    # Push-T's random: the same numbers with or without the task given (its committed scores rest on them)
-    old, new = RandomPolicy(BaselineConfig()), make_policy("random", "quick", get_task("pusht"))
-    g = [torch.Generator().manual_seed(7)], [torch.Generator().manual_seed(7)]
-    np.testing.assert_array_equal(old.predict_action_chunk({"agent_pos": np.zeros((1, 2, 2)), "generators": g[0]}),
-                                  new.predict_action_chunk({"agent_pos": np.zeros((1, 2, 2)), "generators": g[1]}))
-    assert new.task == "pusht"
+    # Push-T's random: the numbers its committed scores rest on (u * 512 in float64, then float32), with or without
+    # the task given, on both paths (the controller's per-episode generators; the policy's own numpy stream)
+    for pusht in (RandomPolicy(BaselineConfig()), make_policy("random", "quick", get_task("pusht"))):
+        assert pusht.task == "pusht"
+        got = pusht.predict_action_chunk({"agent_pos": np.zeros((1, 2, 2)),
+                                          "generators": [torch.Generator().manual_seed(7)]})
+        u = torch.rand((1, 16, 2), generator=torch.Generator().manual_seed(7), dtype=torch.float64)
+        np.testing.assert_array_equal(got, (u.numpy() * 512.0).astype(np.float32))
+        own = pusht.predict_action_chunk({"agent_pos": np.zeros((3, 2, 2))})
+        expected = np.random.default_rng(0).uniform(0.0, 512.0, size=(3, 16, 2)).astype(np.float32)
+        np.testing.assert_array_equal(own, expected)

@@ -24,6 +24,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from bcbench.analysis.accuracy_latency import figure5
+from bcbench.analysis.figures import figure3
 from bcbench.analysis.findings import DEFAULT_MARGIN, Finding, judge, points_from_rows
 from bcbench.analysis.results import Row, file_commits, load_rows
 from bcbench.analysis.seeds import merge_training_seeds
@@ -62,6 +64,8 @@ def read_across(results: Path) -> tuple[dict[str, Any], list[TaskColumn]]:
     names = spec.get("tasks") if isinstance(spec, dict) else None
     if not isinstance(names, list) or len(names) < 1 or not all(isinstance(n, str) and n for n in names):
         raise BCBenchError(f"{f}: 'tasks' must list the study folders it reads, one per task (paths relative to it)")
+    if "demos" in spec and not (isinstance(spec["demos"], str) and spec["demos"]):
+        raise BCBenchError(f"{f}: 'demos' names the folder of the demonstration records (a path relative to it)")
     stated = spec.get("difficulty", {})
     if not isinstance(stated, dict) or not all(isinstance(v, str) for v in stated.values()):
         raise BCBenchError(f"{f}: 'difficulty' maps a task name to its difficulty group (for records without one)")
@@ -97,16 +101,27 @@ def _key(r: Row) -> tuple[str, str]:
     return (r.run_label or r.label, r.variant)
 
 
-def success_cell(r: Row) -> str:
-    """'92.0% [81.2, 96.8], 1 seed' (Wilson over the episodes) or '85.3% [78.0, 92.6], 3 seeds' (t over the training
-    seeds' success rates)."""
-    if r.seed_scores:
-        v, (lo, hi) = r.summary["mean_score"]["value"], r.summary["mean_score"]["ci95"]
-        return f"{100 * v:.1f}% [{100 * max(lo, 0):.1f}, {100 * min(hi, 1):.1f}], {len(r.seed_scores)} seeds"
+def success(r: Row) -> tuple[float, float, float, str]:
+    """A setting's success rate, its 95% interval and how it was formed. On a task scored by success (MetaWorld) the
+    mean score is the success rate: Wilson over the episodes for one run, the report's interval over training seeds
+    (t, widened to the episodes' where the seeds agree: bcbench.stats.over_training_seeds) for several. On Push-T
+    (scored by coverage) the success share is read instead, pooled over the seeds' episodes with Wilson's interval
+    (the pooled interval ignores the training seeds' spread: said so)."""
     n = int(r.summary.get("n") or len(r.scores))
-    v = r.summary.get("success_rate", r.summary["mean_score"])["value"]
+    if r.seed_scores and r.task != "pusht":
+        v, (lo, hi) = r.summary["mean_score"]["value"], r.summary["mean_score"]["ci95"]
+        return v, max(lo, 0.0), min(hi, 1.0), f"{len(r.seed_scores)} training seeds"
+    v = float(r.summary.get("success_rate", r.summary["mean_score"])["value"])
     lo, hi = wilson(round(v * n), n)
-    return f"{100 * v:.1f}% [{100 * lo:.1f}, {100 * hi:.1f}], 1 seed"
+    how = ("no training" if r.train_seed is None and not r.seed_scores else
+           f"{len(r.seed_scores)} training seeds, episodes pooled" if r.seed_scores else "1 training seed")
+    return v, lo, hi, how
+
+
+def success_cell(r: Row) -> str:
+    """'92.0% [81.2, 96.8], 1 training seed' or '85.3% [78.0, 92.6], 3 training seeds'."""
+    v, lo, hi, how = success(r)
+    return f"{100 * v:.1f}% [{100 * lo:.1f}, {100 * hi:.1f}], {how}"
 
 
 def latency_cell(r: Row) -> str:
@@ -167,46 +182,66 @@ def trained_on(r: Row, kept: int | None) -> int | None:
 
 
 def goal_lines(columns: list[TaskColumn], kept: dict[str, int] | None = None) -> list[str]:
-    """Per task: the best setting against the 80% goal, and image DP against 3D-DP's group number (`kept`: each
-    task's demonstration store size, from the records across.json names)."""
+    """Per task: the best setting's success against the 80% goal (point estimate and interval), and image DP against
+    3D-DP's group number, compared only where it trained on their 10 demonstrations (`kept`: each task's store
+    size, from the records across.json names)."""
     kept = kept or {}
     out = []
     for c in columns:
         learned = [r for r in c.settings if r.train_seed is not None or r.seed_scores]
         if not learned:
             continue
-        best = max(learned, key=lambda r: r.score)
+        best = max(learned, key=lambda r: success(r)[0])
+        v, lo, _, _ = success(best)
         seeds = len(best.seed_scores) or 1
-        verdict = "reaches" if best.score >= GOAL else "does not reach"
-        line = (f"- **{c.task}**: best {_name(best)} {success_cell(best)}: {verdict} {GOAL:.0%}"
+        verdict = (f"its whole interval is at or above {GOAL:.0%}" if lo >= GOAL else
+                   f"its point estimate is at or above {GOAL:.0%}, its interval reaches below" if v >= GOAL else
+                   f"its point estimate is below {GOAL:.0%}")
+        line = (f"- **{c.task}**: best {_name(best)} {success_cell(best)}: {verdict}"
                 + ("" if seeds >= 3 else f" (on {seeds} training seed{'s' if seeds > 1 else ''}; the goal reads 3)"))
         ref = IMAGE_DP_3DDP.get(c.difficulty or "")
         dps = [r for r in learned if r.policy == "diffusion"]
         if ref is not None and dps:
-            dp = max(dps, key=lambda r: r.score)
-            side = "at or above" if dp.score >= ref else "below"
-            n = trained_on(dp, kept.get(c.task))
-            line += (f"; image DP's best here ({_name(dp)}, {100 * dp.score:.1f}%, trained on "
-                     f"{'an unrecorded number of' if n is None else n} demonstrations) is {side} 3D Diffusion "
-                     f"Policy's image-DP {100 * ref:.1f}% for the {c.difficulty} group (10 demonstrations there)")
+            line += "; " + _against_3ddp(max(dps, key=lambda r: success(r)[0]), ref, c, kept.get(c.task))
         out.append(line + ".")
     return out
+
+
+def _against_3ddp(dp: Row, ref: float, c: TaskColumn, kept: int | None) -> str:
+    n = trained_on(dp, kept)
+    v, lo, hi, _ = success(dp)
+    theirs = f"3D Diffusion Policy's image-DP {100 * ref:.1f}% (the {c.difficulty} group's mean, 10 demonstrations)"
+    if n != 10:
+        return (f"image DP's best here ({_name(dp)}, {100 * v:.1f}%) trained on "
+                f"{'an unrecorded number of' if n is None else n} demonstrations: not comparable with {theirs}")
+    side = ("above" if lo > ref else "below" if hi < ref else "not separated from")
+    return (f"image DP's best here on 10 demonstrations ({_name(dp)}, {100 * v:.1f}% [{100 * lo:.1f}, {100 * hi:.1f}]) "
+            f"is {side} {theirs}; one task against a group's mean, under bcbench's protocol, not theirs")
 
 
 def _rel(target: Path, start: Path) -> str:
     return Path(os.path.relpath(target, start)).as_posix()
 
 
-def figure_lines(columns: list[TaskColumn], out: Path) -> list[str]:
-    """Each task's own report and its Figure 5 and Figure 3, where its report drew them."""
-    lines = []
+def figure_lines(columns: list[TaskColumn], out: Path) -> tuple[list[str], dict[str, Path]]:
+    """Per task a link to its own report, and its Figure 5 (success against latency; only where its study timed)
+    and Figure 3 (against denoising steps; only where it evaluated several), drawn here from its settings."""
+    lines, figs = [], {}
     for c in columns:
-        rep = c.folder / "report"
-        lines.append(f"- {c.task}: [its report]({_rel(rep / 'report.md', out)})")
-        for title, name in (("Figure 5", "fig5_accuracy_vs_latency.png"), ("Figure 3", "fig3_denoising_steps.png")):
-            if (rep / name).is_file():
-                lines.append(f"  ![{title}, {c.task}]({_rel(rep / name, out)})")
-    return lines
+        slug = c.task.replace("/", "-")
+        lines.append(f"- {c.task}: [its report]({_rel(c.folder / 'report' / 'report.md', out)})")
+        drawn = {"Figure 5": figure5(c.settings, out / f"fig5_{slug}.png")[0],
+                 "Figure 3": figure3(c.settings, out / f"fig3_{slug}.png")}
+        for title, path in drawn.items():
+            if path:
+                lines.append(f"  ![{title}, {c.task}]({path.name})")
+                figs[f"{title}, {c.task}"] = path
+        missing = [text for title, text in (("Figure 5", "no Figure 5: its study timed nothing"),
+                                            ("Figure 3", "no Figure 3: fewer than two step counts of a generative "
+                                                         "policy")) if not drawn[title]]
+        if missing:
+            lines.append(f"  ({'; '.join(missing)})")
+    return lines, figs
 
 
 def _md_table(header: list[str], rows: list[list[str]]) -> str:
@@ -222,14 +257,15 @@ def _html_table(header: list[str], rows: list[list[str]]) -> str:
 
 def lead(spec: dict[str, Any], columns: list[TaskColumn], name: str) -> str:
     purposes = {c.purpose for c in columns}
-    seeds = "validation seeds 200000+ (they make choices; they are not reported scores)" if purposes == {
-        "explore"} else ("test seeds 100000+" if purposes == {"confirm"} else "validation and test seeds (see each "
-                                                                              "task's report)")
+    seeds = sorted({s for c in columns for r in c.settings for sc in (r.seed_scores or [r.scores]) for s in sc})
+    span = f"episode seeds {seeds[0]}-{seeds[-1]}" if seeds else "no episodes"
+    kind = (" (validation: they make choices; they are not reported scores)" if purposes == {"explore"} else
+            " (test)" if purposes == {"confirm"} else " (validation and test: see each task's report)")
     n = sorted({int(r.summary.get("n") or 0) // max(len(r.seed_scores), 1) for c in columns for r in c.settings})
     why = f" {spec['why']}" if spec.get("why") else ""
     return (f"{name}: {len(columns)} task{'s' if len(columns) > 1 else ''} "
-            f"({', '.join(c.task for c in columns)}), on {seeds}, {'/'.join(map(str, n))} episodes a setting and "
-            f"training seed.{why}")
+            f"({', '.join(c.task for c in columns)}), on {span}{kind}, {'/'.join(map(str, n))} episodes a setting "
+            f"and training seed.{why}")
 
 
 def write_across_report(results: str | Path) -> dict[str, Any]:
@@ -243,17 +279,19 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
     records = demo_records(results, spec, columns)
     demos = _demo_lines(records, columns)
     goals = goal_lines(columns, {t: int(d["kept"]) for t, d in records.items()})
+    fig_lines, figs = figure_lines(columns, out)
     notes = [f"{c.task}: {c.folder.name}, result files at commit(s) {', '.join(x[:7] for x in c.commits)}"
              for c in columns]
     md = ["# bcbench report across tasks", "", top, "", "## Success and latency per task", "",
-          "Each cell: success [95% interval] (Wilson over the episodes for one training seed, t over the training "
-          "seeds' success rates for several), training seeds; latency at batch 1 in the fastest exact mode timed "
-          "(median; 'not timed' where the study timed nothing).", "", _md_table(head, rows), "",
+          "Each cell: success [95% interval] (Wilson over the episodes for one training seed; for several, the "
+          "findings' interval over training seeds, t widened to the episodes' where the seeds agree), training seeds; "
+          "latency at batch 1 in the fastest exact mode timed (median; 'not timed' where the study timed nothing).",
+          "", _md_table(head, rows), "",
           "## Against the goals", "", *goals, "", "## The study's findings per task", "",
           "Each task's verdicts under the rules of its own report (paired over its episodes; '-' where a task has "
           "no evidence for a finding).", "", _md_table(fhead, frows), "",
           *(["## Demonstrations", "", *demos, ""] if demos else []),
-          "## Each task's report and figures", "", *figure_lines(columns, out), "",
+          "## Each task's report and figures", "", *fig_lines, "",
           "## Provenance", "", *[f"- {n}" for n in notes], ""]
     md_path = out / "report.md"
     with atomic_path(md_path) as tmp:
@@ -268,6 +306,10 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
             + f"</ul><h2>The study's findings per task</h2>{_html_table(fhead, frows)}"
             + (("<h2>Demonstrations</h2><ul>" + "".join(f"<li>{html.escape(x[2:])}</li>" for x in demos) + "</ul>")
                if demos else "")
+            + "<h2>Each task's report and figures</h2><ul>"
+            + "".join(f"<li><a href='{_rel(c.folder / 'report' / 'report.html', out)}'>{html.escape(c.task)}</a></li>"
+                      for c in columns) + "</ul>"
+            + "".join(f"<h2>{html.escape(t)}</h2><img src='{p.name}' style='max-width:100%'>" for t, p in figs.items())
             + "<h2>Provenance</h2><ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
     with atomic_path(html_path) as tmp:
         tmp.write_text(f"<!doctype html><html><head><meta charset='utf-8'><title>bcbench report across tasks</title>"
@@ -282,7 +324,13 @@ def demo_records(results: Path, spec: dict[str, Any], columns: list[TaskColumn])
         return {}
     folder = results / spec["demos"]
     files = {c.task: folder / f"{c.task.split('/')[-1]}.json" for c in columns}
-    return {t: read_json(f) for t, f in files.items() if f.is_file()}
+    out = {t: read_json(f) for t, f in files.items() if f.is_file()}
+    for t, d in out.items():
+        missing = [k for k in ("kept", "attempted", "scripted_success_rate", "episode_length") if k not in d]
+        if missing:
+            raise BCBenchError(f"{files[t]}: not a demonstration record (no {', '.join(missing)}; "
+                               "scripts/demo_records.py writes them)")
+    return out
 
 
 def _demo_lines(records: dict[str, dict[str, Any]], columns: list[TaskColumn]) -> list[str]:

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from bcbench.analysis.accuracy_latency import figure5
+from bcbench.analysis.across import is_across, write_across_report
 from bcbench.analysis.baseline import HEADER as BASELINE_HEADER
 from bcbench.analysis.baseline import baseline_lines, baseline_rows
 from bcbench.analysis.choose import HEADER as CHOOSE_HEADER
@@ -244,6 +245,8 @@ def _html_table(header: list[str], rows: list[list[str]]) -> str:
 
 def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> dict[str, str]:
     results = Path(results)
+    if is_across(results):  # one study per task, read side by side
+        return write_across_report(results)
     margin = study_spec(results).get("margin", DEFAULT_MARGIN)
     rows = load_rows(results, extra_dirs, margin)
     check_rows = load_check_rows(results)  # a confirm study compares on validation episodes, apart from its table

@@ -171,13 +171,13 @@ def study_spec(results: Path) -> dict[str, Any]:
         return specs[0]
     for s in specs:  # a study from before tasks existed ran Push-T at 10 Hz
         s.setdefault("task", "pusht")
-    for key in ("margin", "purpose", "task"):
+        s["rate_hz"] = float(s.get("rate_hz", 10.0))
+    for key in ("margin", "purpose", "task", "rate_hz"):
         if len({str(s.get(key)) for s in specs}) > 1:
             raise BCBenchError(f"{results}: its studies differ in {key} ({', '.join(str(s.get(key)) for s in specs)}); "
                                "a combined report needs one" + (" (a report across tasks reads several: across.json)"
                                                                 if key == "task" else ""))
-    shared = {k: specs[0].get(k) for k in ("margin", "purpose", "task")}
-    return {**shared, **({"rate_hz": specs[0]["rate_hz"]} if "rate_hz" in specs[0] else {})}
+    return {k: specs[0].get(k) for k in ("margin", "purpose", "task", "rate_hz")}
 
 
 def mixing_reason(results: Path) -> str:

@@ -188,17 +188,13 @@ def cmd_study(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from bcbench.analysis.across import is_across, write_across_report
+    from bcbench.analysis.across import is_across
     from bcbench.analysis.export import export_results
     from bcbench.analysis.report import write_report
 
-    if is_across(args.results):  # a report across tasks reads other folders' files and has none of its own
-        if args.export or args.include:
-            raise BCBenchError("a report across tasks (across.json) has no result files of its own: export or "
-                               "--include each task's folder")
-        paths = write_across_report(args.results)
-        print(f"report: {paths['markdown']}  and  {paths['html']}")
-        return 0
+    if is_across(args.results) and (args.export or args.include):  # it reads other folders' files, has none
+        raise BCBenchError("a report across tasks (across.json) has no result files of its own: export or "
+                           "--include each task's folder")
     if args.export:
         n, left_out = export_results(args.results, args.export)
         print(f"exported {n} result files to {args.export}"

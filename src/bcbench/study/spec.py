@@ -204,6 +204,9 @@ def _check_doubling(spec: StudySpec) -> None:
                                "doubling can be checked")
         if r.variants != base.variants:
             raise BCBenchError(f"run '{r.label}' must evaluate the same variants as '{r.doubles}'")
+        if r.demos != base.demos:  # a check on other data would test the data, not the budget
+            raise BCBenchError(f"run '{r.label}' must train on the same demos as '{r.doubles}' ({base.demos}), "
+                               f"got {r.demos}")
 
 
 def _backend_keys(study: dict[str, Any], spec: StudySpec) -> None:

@@ -128,6 +128,8 @@ def _run_specs(i: int, run: Any) -> list[RunSpec]:
     if "args" in run:
         raise BCBenchError(f"{_where(i, run)}: args go with an outside policy (module:factory or a plug-in); "
                            "a registered policy takes set = {...}")
+    if "demos" in run and not is_learned(policy):
+        raise BCBenchError(f"{_where(i, run)}: demos applies to a policy that trains, not the {policy} baseline")
     if "preset" in run and "config" in run:
         raise BCBenchError(f"{_where(i, run)}: give preset (or its old name, config), not both")
     config = run.get("preset", run.get("config", "quick"))  # the preset's name
