@@ -23,7 +23,8 @@ needs_chromium = pytest.mark.skipif(EXE is None, reason="no Chromium on this mac
 @pytest.mark.parametrize("report", REPORTS, ids=[p.parent.parent.name for p in REPORTS])
 def test_committed_report_reads_in_one_screen(report):
     m = check.layout(EXE, report)
-    assert m["figures"] and not check.problems(m), check.problems(m)
+    across = (report.parent.parent / "across.json").exists()  # its figures are each task's, drawn where timed
+    assert (m["figures"] or across) and not check.problems(m), check.problems(m)
 
 
 @needs_chromium
