@@ -33,6 +33,12 @@ DROPPED_RUNS = "dropped-runs.jsonl"
 MIXING_REASON = "mixing-reason.txt"
 
 
+def held_out_episodes(n_episodes: int, val_fraction: float) -> int:
+    """Demonstration episodes a run holds out for its validation loss: round(n x val_fraction), at least 1 when any
+    (the study's 90/10 split; bcbench.data.split_episodes draws them, the analysis counts what a run trained on)."""
+    return max(1, round(n_episodes * val_fraction)) if val_fraction > 0 else 0
+
+
 def overlaps_test_seeds(seed_start: int, episodes: int) -> bool:
     """Whether episode seeds seed_start .. seed_start + episodes - 1 touch the test seeds."""
     return seed_start < TEST_SEED_START + TEST_EPISODES and seed_start + episodes > TEST_SEED_START

@@ -29,13 +29,14 @@ from bcbench.analysis.figures import figure3
 from bcbench.analysis.findings import DEFAULT_MARGIN, Finding, judge, points_from_rows
 from bcbench.analysis.results import Row, file_commits, load_rows
 from bcbench.analysis.seeds import merge_training_seeds
-from bcbench.analysis.studies import study_spec
+from bcbench.analysis.studies import ACROSS_FILE, study_spec
+from bcbench.analysis.tables import html_table, md_table
 from bcbench.errors import BCBenchError
+from bcbench.protocol import held_out_episodes
 from bcbench.reference import IMAGE_DP_3DDP
 from bcbench.stats import wilson
 from bcbench.utils.io import atomic_path, read_json
 
-ACROSS_FILE = "across.json"
 GOAL = 0.80  # issue 75: the best policy on every task at >= 80% success over 3 training seeds
 ORDER = ["random", "scripted", "cnn_mlp", "resnet50", "bet", "bct", "diffusion", "flow"]
 
@@ -87,7 +88,7 @@ def _column(folder: Path, f: Path, stated: dict[str, str]) -> TaskColumn:
     rows = load_rows(folder, None, margin)
     settings = merge_training_seeds(rows)
     task = spec.get("task") or "pusht"
-    recorded = {read_json(Path(r.source)).get("task", {}).get("difficulty") for r in rows} - {None}
+    recorded = {r.difficulty for r in rows} - {None}
     if len(recorded) > 1 or (recorded and task in stated and stated[task] not in recorded):
         raise BCBenchError(f"{f}: {task}'s records name difficulty {', '.join(sorted(recorded))}"
                            + (f", across.json {stated[task]}" if task in stated else ""))
@@ -132,10 +133,6 @@ def latency_cell(r: Row) -> str:
     return "not timed" if ref is None else f"{ref:.1f} ms (reference)"
 
 
-def _name(r: Row) -> str:
-    return r.label + ("" if r.variant == "default" else f" {r.variant.upper()}")
-
-
 def table(columns: list[TaskColumn]) -> tuple[list[str], list[list[str]]]:
     """policy setting x task: success [interval], training seeds; latency at batch 1 (fastest exact mode timed)."""
     by_key: dict[tuple[str, str], dict[str, Row]] = {}
@@ -146,7 +143,7 @@ def table(columns: list[TaskColumn]) -> tuple[list[str], list[list[str]]]:
             first.setdefault(_key(r), r)
     order = sorted(by_key, key=lambda k: (ORDER.index(first[k].policy) if first[k].policy in ORDER else 99, k))
     header = ["policy", *(f"{c.task} ({c.difficulty or '-'})" for c in columns)]
-    rows = [[_name(first[k]), *(f"{success_cell(by_key[k][c.task])}; {latency_cell(by_key[k][c.task])}"
+    rows = [[first[k].setting, *(f"{success_cell(by_key[k][c.task])}; {latency_cell(by_key[k][c.task])}"
                                 if c.task in by_key[k] else "-" for c in columns)] for k in order]
     ref = [IMAGE_DP_3DDP.get(c.difficulty or "") for c in columns]
     if any(v is not None for v in ref):
@@ -158,27 +155,18 @@ def table(columns: list[TaskColumn]) -> tuple[list[str], list[list[str]]]:
 def findings_table(columns: list[TaskColumn]) -> tuple[list[str], list[list[str]]]:
     header = ["finding", *(c.task for c in columns)]
     claims = {f.number: f.claim for c in columns for f in c.findings}
-    verdicts = {(c.task, f.number): f.verdict + (" (not evaluated)" if _unevaluated(f) else "")
+    verdicts = {(c.task, f.number): f.verdict + ("" if f.evaluated else " (not evaluated)")
                 for c in columns for f in c.findings}
     return header, [[f"{n}. {claims[n]}", *(verdicts.get((c.task, n), "-") for c in columns)] for n in sorted(claims)]
 
 
-def _unevaluated(f: Finding) -> bool:
-    """A verdict for want of the settings it compares ("... are not both evaluated"), not for a wide interval."""
-    return f.evidence.endswith(("not evaluated", "not both evaluated", "not all evaluated", "not evaluated and timed"))
-
-
 def trained_on(r: Row, kept: int | None) -> int | None:
     """The demonstrations a run trained on: its `demos`, else its store's kept episodes less the held-out split
-    (`bcbench.data.split_episodes`' rule), where the store's record is given; None where neither is known."""
-    split = read_json(Path(r.source).parent / "run.json").get("data_split", {}) if Path(
-        r.source).parent.joinpath("run.json").is_file() else {}
-    if split.get("demos"):
-        return int(split["demos"])
-    if kept is None:
-        return None
-    vf = float(split.get("val_fraction", 0.1))
-    return kept - (max(1, round(kept * vf)) if vf > 0 else 0)
+    (the split's rule, `bcbench.protocol.held_out_episodes`), where the store's record is given; None where neither
+    is known."""
+    if r.data_split.get("demos"):
+        return int(r.data_split["demos"])
+    return None if kept is None else kept - held_out_episodes(kept, float(r.data_split.get("val_fraction", 0.1)))
 
 
 def goal_lines(columns: list[TaskColumn], kept: dict[str, int] | None = None) -> list[str]:
@@ -197,7 +185,7 @@ def goal_lines(columns: list[TaskColumn], kept: dict[str, int] | None = None) ->
         verdict = (f"its whole interval is at or above {GOAL:.0%}" if lo >= GOAL else
                    f"its point estimate is at or above {GOAL:.0%}, its interval reaches below" if v >= GOAL else
                    f"its point estimate is below {GOAL:.0%}")
-        line = (f"- **{c.task}**: best {_name(best)} {success_cell(best)}: {verdict}"
+        line = (f"- **{c.task}**: best {best.setting} {success_cell(best)}: {verdict}"
                 + ("" if seeds >= 3 else f" (on {seeds} training seed{'s' if seeds > 1 else ''}; the goal reads 3)"))
         ref = IMAGE_DP_3DDP.get(c.difficulty or "")
         dps = [r for r in learned if r.policy == "diffusion"]
@@ -212,11 +200,12 @@ def _against_3ddp(dp: Row, ref: float, c: TaskColumn, kept: int | None) -> str:
     v, lo, hi, _ = success(dp)
     theirs = f"3D Diffusion Policy's image-DP {100 * ref:.1f}% (the {c.difficulty} group's mean, 10 demonstrations)"
     if n != 10:
-        return (f"image DP's best here ({_name(dp)}, {100 * v:.1f}%) trained on "
+        return (f"image DP's best here ({dp.setting}, {100 * v:.1f}%) trained on "
                 f"{'an unrecorded number of' if n is None else n} demonstrations: not comparable with {theirs}")
     side = ("above" if lo > ref else "below" if hi < ref else "not separated from")
-    return (f"image DP's best here on 10 demonstrations ({_name(dp)}, {100 * v:.1f}% [{100 * lo:.1f}, {100 * hi:.1f}]) "
-            f"is {side} {theirs}; one task against a group's mean, under bcbench's protocol, not theirs")
+    return (f"image DP's best here on 10 demonstrations ({dp.setting}, {100 * v:.1f}% [{100 * lo:.1f}, "
+            f"{100 * hi:.1f}]) is {side} {theirs}; one task against a group's mean, under bcbench's protocol, "
+            "not theirs")
 
 
 def _rel(target: Path, start: Path) -> str:
@@ -242,17 +231,6 @@ def figure_lines(columns: list[TaskColumn], out: Path) -> tuple[list[str], dict[
         if missing:
             lines.append(f"  ({'; '.join(missing)})")
     return lines, figs
-
-
-def _md_table(header: list[str], rows: list[list[str]]) -> str:
-    return "\n".join(["| " + " | ".join(header) + " |", "|" + "---|" * len(header),
-                      *("| " + " | ".join(r) + " |" for r in rows)])
-
-
-def _html_table(header: list[str], rows: list[list[str]]) -> str:
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(x)}</td>" for x in r) + "</tr>" for r in rows)
-    return f"<table><tr>{head}</tr>{body}</table>"
 
 
 def lead(spec: dict[str, Any], columns: list[TaskColumn], name: str) -> str:
@@ -286,10 +264,10 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
           "Each cell: success [95% interval] (Wilson over the episodes for one training seed; for several, the "
           "findings' interval over training seeds, t widened to the episodes' where the seeds agree), training seeds; "
           "latency at batch 1 in the fastest exact mode timed (median; 'not timed' where the study timed nothing).",
-          "", _md_table(head, rows), "",
+          "", md_table(head, rows), "",
           "## Against the goals", "", *goals, "", "## The study's findings per task", "",
           "Each task's verdicts under the rules of its own report (paired over its episodes; '-' where a task has "
-          "no evidence for a finding).", "", _md_table(fhead, frows), "",
+          "no evidence for a finding).", "", md_table(fhead, frows), "",
           *(["## Demonstrations", "", *demos, ""] if demos else []),
           "## Each task's report and figures", "", *fig_lines, "",
           "## Provenance", "", *[f"- {n}" for n in notes], ""]
@@ -301,9 +279,9 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
            "table{border-collapse:collapse;font-size:12px}td,th{border:1px solid #ccc;padding:3px 6px;text-align:left}"
            "th{background:#f3f3f3}")
     body = (f"<h1>bcbench report across tasks</h1><p>{html.escape(top)}</p><h2>Success and latency per task</h2>"
-            f"{_html_table(head, rows)}<h2>Against the goals</h2><ul>"
+            f"{html_table(head, rows)}<h2>Against the goals</h2><ul>"
             + "".join(f"<li>{html.escape(x[2:].replace('**', ''))}</li>" for x in goals)
-            + f"</ul><h2>The study's findings per task</h2>{_html_table(fhead, frows)}"
+            + f"</ul><h2>The study's findings per task</h2>{html_table(fhead, frows)}"
             + (("<h2>Demonstrations</h2><ul>" + "".join(f"<li>{html.escape(x[2:])}</li>" for x in demos) + "</ul>")
                if demos else "")
             + "<h2>Each task's report and figures</h2><ul>"

@@ -71,6 +71,7 @@ class Finding:
     verdict: str
     evidence: str
     rule: str = ""
+    evaluated: bool = True  # False: inconclusive for want of the settings it compares, not for a wide interval
 
 
 def _by_training_seed(p: Point, ids: list[int]) -> list[dict[int, float]]:
@@ -192,7 +193,8 @@ def finding_1(points: list[Point], m: float) -> Finding:
     timed = [p for p in points if p.latency_ms and p.policy not in ("random", "scripted") and (p.scores or p.seeds)]
     slow = dp_point(points, "ddpm", 100)
     if slow is None or not slow.latency_ms or not (slow.scores or slow.seeds):
-        return Finding(1, claim, INCONCLUSIVE, "DP cosine DDPM-100 is not evaluated and timed", rule)
+        return Finding(1, claim, INCONCLUSIVE, "DP cosine DDPM-100 is not evaluated and timed", rule,
+                       evaluated=False)
     fast = [p for p in timed if p.latency_ms * SLOWER <= slow.latency_ms]
     if not fast:
         return Finding(1, claim, INCONCLUSIVE, f"no setting is {SLOWER:g}x faster than {_fmt(slow)}", rule)
@@ -295,7 +297,8 @@ def finding_2(points: list[Point], m: float) -> Finding:
     rule = f"DDPM-10 minus DDPM-100 (cosine model): supported if the interval lies above -{m}, contradicted if below."
     p10, p100 = dp_point(points, "ddpm", 10), dp_point(points, "ddpm", 100)
     if p10 is None or p100 is None:
-        return Finding(2, claim, INCONCLUSIVE, "DDPM-10 and DDPM-100 of the cosine model are not both evaluated", rule)
+        return Finding(2, claim, INCONCLUSIVE, "DDPM-10 and DDPM-100 of the cosine model are not both evaluated", rule,
+                       evaluated=False)
     d = paired_interval(p10, [p100])
     evidence = f"{_fmt(p10)} vs {_fmt(p100)}: {_fmt_diff(d)}{seeds_note(d, [-m])}"
     return _finish(2, claim, rule, _at_least(d.lo, d.hi, -m), evidence, [p10, p100])
@@ -312,7 +315,8 @@ def finding_3(points: list[Point], m: float, ratios: dict[str, float] | None = N
     pairs = [(a, b) for k in range(1, 101) if (a := dp_point(points, "ddim", k)) and (b := dp_point(points, "ddpm", k))]
     tested = [(a, b) for a, b in pairs if a.variant == "ddim10"]
     if not tested:
-        return Finding(3, claim, INCONCLUSIVE, "DDIM-10 and DDPM-10 of the cosine model are not both evaluated", rule)
+        return Finding(3, claim, INCONCLUSIVE, "DDIM-10 and DDPM-10 of the cosine model are not both evaluated", rule,
+                       evaluated=False)
     pairs = tested + [ab for ab in pairs if ab not in tested]  # the tested pair first, then the descriptive ones
     notes, verdicts = [], []
     for a, b in pairs:
@@ -339,7 +343,8 @@ def finding_4(points: list[Point], m: float) -> Finding:
     by = {p.policy: p for p in points if p.variant == "default"}
     r, b, c = by.get("resnet50"), by.get("bct"), by.get("cnn_mlp")
     if not (r and b and c):
-        return Finding(4, claim, INCONCLUSIVE, "ResNet-50, BCT and CNN-MLP are not all evaluated", rule)
+        return Finding(4, claim, INCONCLUSIVE, "ResNet-50, BCT and CNN-MLP are not all evaluated", rule,
+                       evaluated=False)
     d1, d2 = paired_interval(r, [b]), paired_interval(b, [c])
     v1, v2 = _at_least(d1.lo, d1.hi, m), _at_least(d2.lo, d2.hi, m)
     # a verdict about miniatures is a verdict at their sizes (sized_label names them so), not about the study's nets
@@ -357,7 +362,8 @@ def finding_5(points: list[Point], m: float) -> Finding:
     by = {p.policy: p for p in points if p.variant == "default"}
     bet, rnd = by.get("bet"), by.get("random")
     if bet is None or rnd is None:
-        return Finding(5, claim, INCONCLUSIVE, "BeT and the random baseline are not both evaluated", rule)
+        return Finding(5, claim, INCONCLUSIVE, "BeT and the random baseline are not both evaluated", rule,
+                       evaluated=False)
     d = paired_interval(bet, [rnd])
     evidence = f"{_fmt(bet)} vs {_fmt(rnd)}: {_fmt_diff(d)}{seeds_note(d, [m])}"
     return _finish(5, claim, rule, _at_most(d.lo, d.hi, m), evidence, [bet])
@@ -370,7 +376,7 @@ def judge(points: list[Point], margin: float = DEFAULT_MARGIN, ratios: dict[str,
 
 
 def points_from_rows(rows: list, mode: str = "reference") -> list[Point]:
-    return [Point(r.label + ("" if r.variant == "default" else f" {r.variant.upper()}"), r.policy, r.variant, r.score,
+    return [Point(r.setting, r.policy, r.variant, r.score,
                   tuple(r.est("mean_score")["ci95"]), r.latency_ms(mode), r.beta_schedule, dict(r.scores),
                   getattr(r, "converged", None), r.label, [dict(sc) for sc in r.seed_scores], list(r.seed_ids),
                   None if r.seed_scores else r.train_seed)

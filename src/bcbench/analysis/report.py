@@ -51,6 +51,7 @@ from bcbench.analysis.studies import (
     study_spec,
     test_informed_lines,
 )
+from bcbench.analysis.tables import html_table, md_table
 from bcbench.reference import CPU_DEVIATIONS, STUDY_REFERENCE
 from bcbench.stats import fmt_estimate, fmt_share
 from bcbench.utils.io import atomic_path
@@ -136,7 +137,7 @@ def table_rows(rows: list[Row], multi: bool = False) -> list[list[str]]:
         tail = "-" if not ref else f"{_ms(ref.get('tail_ms', ref.get('p99_ms')))} ({ref.get('tail_stat', 'p99')})"
         fast = r.latency.get("fast", {})
         rate = fast.get("max_rate_every_step_hz") or (r.latency.get("reference") or {}).get("max_rate_every_step_hz")
-        name = r.label + ("" if r.variant == "default" else f" {r.variant.upper()}")
+        name = r.setting
         out.append([name, f"{r.params / 1e6:.2f} M", fmt_estimate(r.est("mean_score")),
                     *([per_seed_cell(r)] if multi else []),
                     *(fmt_share(r.est(k), int(r.summary.get("n") or len(r.scores)))
@@ -231,18 +232,6 @@ def convergence_lines(rows: list[Row]) -> list[str]:
     return out or ["- no trained runs"]
 
 
-def _md_table(header: list[str], rows: list[list[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(c.replace("|", "/") for c in row) + " |" for row in rows]
-    return "\n".join(lines)
-
-
-def _html_table(header: list[str], rows: list[list[str]]) -> str:
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in rows)
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
-
-
 def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> dict[str, str]:
     results = Path(results)
     if is_across(results):  # one study per task, read side by side
@@ -306,7 +295,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
         lead += (" None of its trained models is shown converged (smoke-sized or short trainings: see 'Training: "
                  "converged?'): read its scores as a check of the pipeline, not of the policies.")
     machines = machine_rows(rows)
-    machines_md = ["## Machines", "", _md_table(MACHINES_HEADER, machines), ""] if machines else []
+    machines_md = ["## Machines", "", md_table(MACHINES_HEADER, machines), ""] if machines else []
     md = ["# bcbench report", "", lead, "",
           *([f"![{FIG5}]({fig5.name})", ""] if fig5 else []),
           *control_loop_lines(settings, realtime, margin, paired, step),
@@ -314,7 +303,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
           *machines_md, "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
     md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
     versus = baseline_rows(settings, realtime)  # each learned policy against the scripted baseline
-    md += ["", *baseline_lines(settings, versus), "## Results", "", _md_table(columns, table), "",
+    md += ["", *baseline_lines(settings, versus), "## Results", "", md_table(columns, table), "",
            "## Training: converged?", "", *convergence_lines(rows), "",
            *check_lines(verdicts, strict, margin, validation=bool(check_rows)),
            *deviation_lines(rows),
@@ -333,13 +322,13 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
         choose = control_loop_rows(settings, realtime, margin, paired)
         under = _informed_sentence(informed) if informed else ""
         top = ((_img(FIG5, fig5, "lead", _lead_height(lead, choose, under)) if fig5 else "")
-               + "<h2>Which policy for my control loop</h2>" + _html_table(CHOOSE_HEADER, choose)
+               + "<h2>Which policy for my control loop</h2>" + html_table(CHOOSE_HEADER, choose)
                + (f"<p>{html.escape(under)}</p>" if under else "")
-               + ("<h2>Machines</h2>" + _html_table(MACHINES_HEADER, machines) if machines else ""))
+               + ("<h2>Machines</h2>" + html_table(MACHINES_HEADER, machines) if machines else ""))
         tail = (f"<h2>How to read the numbers</h2><p>{html.escape(intro)}</p><h2>Provenance</h2><ul>"
                 + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
         findings_html = _findings_html(findings, FINDINGS_INTRO.format(m=margin)) + (
-            "<h2>Against the scripted baseline</h2>" + _html_table(BASELINE_HEADER, versus) if versus else "")
+            "<h2>Against the scripted baseline</h2>" + html_table(BASELINE_HEADER, versus) if versus else "")
         tmp.write_text(_html(lead.replace("`", ""), findings_html, (columns, table), figs, convergence_lines(rows),
                              top, tail))
     return {"markdown": str(md_path), "html": str(html_path), "dir": str(out), "warnings": warnings}
@@ -388,5 +377,5 @@ def _html(intro: str, findings: str, table: tuple[list[str], list[list[str]]], f
     images = "".join(_img(title, path) for title, path in figs.items() if path)
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>bcbench report</title><style>{css}</style>"
             f"</head><body><h1>bcbench report</h1><p>{html.escape(intro)}</p>{lead}{findings}<h2>Results</h2>"
-            f"{_html_table(*table)}<h2>Training: converged?</h2><ul>{train_items}</ul>{images}{tail}"
+            f"{html_table(*table)}<h2>Training: converged?</h2><ul>{train_items}</ul>{images}{tail}"
             "</body></html>\n")

@@ -83,6 +83,13 @@ class Row:
     seed_scores: list[dict[int, float]] = field(default_factory=list)
     seed_ids: list[int] = field(default_factory=list)
     task: str = "pusht"  # the task its episodes ran (a record from before tasks: Push-T)
+    difficulty: str | None = None  # the task's published difficulty group, where its record names one
+    data_split: dict[str, Any] = field(default_factory=dict)  # its run.json's (val_fraction, split_seed, demos)
+
+    @property
+    def setting(self) -> str:
+        """'DP DDIM10': its label and, for a sampler setting, the variant (how tables and findings name it)."""
+        return self.label + ("" if self.variant == "default" else f" {self.variant.upper()}")
 
     def est(self, name: str) -> dict[str, Any]:
         return self.summary[name]
@@ -139,7 +146,8 @@ def _row_from_eval(path: Path, margin: float = 0.05, role: dict[str, Any] | None
               scores={int(e["seed"]): float(e["score"]) for e in ev.get("episodes", [])},
               git_commit=ev.get("git_commit"), hardware=ev.get("hardware", {}), source=str(path),
               train_seed=cfg.get("seed") if "run_dir" in pol else None,
-              task=(ev.get("eval_config") or {}).get("task") or "pusht")
+              task=(ev.get("eval_config") or {}).get("task") or "pusht",
+              difficulty=(ev.get("task") or {}).get("difficulty"))
     lat = run_dir / f"latency-{vkey}.json"
     if lat.exists():
         record = read_json(lat)
@@ -149,6 +157,7 @@ def _row_from_eval(path: Path, margin: float = 0.05, role: dict[str, Any] | None
         meta = read_json(run_dir / "run.json")
         row.overrides, row.preset_values = meta.get("overrides") or {}, meta.get("preset_values") or {}
         row.recipe = recipe_text((meta.get("config") or {}).get("optim") or {})
+        row.data_split = meta.get("data_split") or {}
     if (run_dir / "train_summary.json").exists():
         row.train = read_json(run_dir / "train_summary.json")
         row.curve = load_curve(run_dir)

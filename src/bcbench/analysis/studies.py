@@ -16,6 +16,7 @@ from bcbench.errors import BCBenchError
 from bcbench.protocol import MIXING_REASON, test_informed_entries
 from bcbench.utils.io import read_json
 
+ACROSS_FILE = "across.json"  # a report across tasks: one study folder per task, read side by side (analysis.across)
 COMBINE_FILE = "combine.json"  # {"studies": ["../a", "../b"], "why": "...", "leave_out": {"../a": ["label"]},
 #                                  "chosen_by": {"label": "the study that chose its preset, and the seeds it read"},
 #                                  "test_informed": [{"about": "label or stage", "decision": "...", "read": "file"}]}

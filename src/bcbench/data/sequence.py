@@ -15,6 +15,7 @@ import numpy as np
 from bcbench.data.normalizer import MinMaxNormalizer
 from bcbench.data.replay_buffer import ReplayBuffer
 from bcbench.errors import BCBenchError
+from bcbench.protocol import held_out_episodes
 
 
 def split_episodes(n_episodes: int, val_fraction: float = 0.1, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -24,8 +25,7 @@ def split_episodes(n_episodes: int, val_fraction: float = 0.1, seed: int = 0) ->
     if n_episodes < 2 and val_fraction > 0:
         raise BCBenchError(f"need at least 2 episodes to hold some out, got {n_episodes}")
     perm = np.random.default_rng(seed).permutation(n_episodes)
-    n_val = round(n_episodes * val_fraction)
-    n_val = max(1, n_val) if val_fraction > 0 else 0
+    n_val = held_out_episodes(n_episodes, val_fraction)
     return np.sort(perm[n_val:]), np.sort(perm[:n_val])
 
 

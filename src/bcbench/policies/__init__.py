@@ -72,13 +72,8 @@ def make_config(name: str, preset: str = "quick", overrides: dict[str, Any] | No
 
 
 def make_policy(name: str, preset: str = "quick", task: Task | None = None, **overrides: Any) -> BCPolicy | ChunkPolicy:
-    """Build a registered policy from a preset with (dotted) field overrides: a baseline is a ready ChunkPolicy
-    (Push-T's; random also `task`'s), a learned policy an untrained BCPolicy network in `task`'s shapes (default
-    Push-T; wrap it in a PolicyRunner to run it on raw observations)."""
-    cfg = make_config(name, preset, overrides)
-    if not is_learned(name):
-        if task is not None and task.name != "pusht" and name != "random":
-            raise BCBenchError(f"the {name} baseline acts in Push-T's world; it has no version for {task.name} "
-                               "(random acts on every task)")
-        return REGISTRY[name][1](cfg, task) if name == "random" else REGISTRY[name][1](cfg)
-    return REGISTRY[name][1](cfg, task)
+    """Build a registered policy from a preset with (dotted) field overrides: a baseline is a ready ChunkPolicy for
+    `task` (scripted: Push-T's only, refused elsewhere in one line), a learned policy an untrained BCPolicy network
+    in `task`'s shapes (default Push-T; wrap it in a PolicyRunner to run it on raw observations)."""
+    cfg = make_config(name, preset, overrides)  # an unknown name or preset: one line naming the choices
+    return REGISTRY[name][1](cfg, task)  # a baseline refuses a task it cannot act in

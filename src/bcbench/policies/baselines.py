@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from bcbench.errors import BCBenchError
-from bcbench.tasks import Task
+from bcbench.tasks import Task, get_task
 from bcbench.tasks.pusht.env import WORLD_SIZE, goal_centroid
 
 _BLOCK_RGB = np.array([119, 136, 153], dtype=np.float32)  # pygame's LightSlateGray, the T's colour
@@ -54,12 +54,22 @@ class BaselineConfig:
         return cls()
 
 
+def acts_in(task: str) -> str:
+    """'acts in Push-T's world': where a baseline with `only_task` can act, for its refusals."""
+    return f"acts in {'Push-T' if task == 'pusht' else task}'s world"
+
+
 class _Baseline:
     name = "baseline"
     chunk_start = 0
-    task = "pusht"  # Push-T's unless made for another task (random only): evaluation refuses any other
+    only_task: str | None = None  # the one task it can act in (None: any); a study or make_policy refuses others
 
-    def __init__(self, config: BaselineConfig) -> None:
+    def __init__(self, config: BaselineConfig, task: Task | None = None) -> None:
+        task = task or get_task()
+        if self.only_task not in (None, task.name):
+            raise BCBenchError(f"the {self.name} baseline {acts_in(self.only_task)}; it has no version for "
+                               f"{task.name} (random acts on every task)")
+        self.task = task.name  # evaluation refuses episodes of any other task
         self.config = config
         self.obs_horizon = config.obs_horizon
         self.pred_horizon = config.pred_horizon
@@ -79,26 +89,20 @@ class RandomPolicy(_Baseline):
     name = "random"
 
     def __init__(self, config: BaselineConfig, task: Task | None = None) -> None:
-        super().__init__(config)
-        if task is not None and task.name != "pusht":  # Push-T keeps its own arithmetic: its scores stay the same
-            self.task = task.name
-            self._low = np.asarray(task.action_low, dtype=np.float64)
-            self._span = np.asarray(task.action_high, dtype=np.float64) - self._low
-        else:
-            self._low, self._span = None, None
+        super().__init__(config, task)
+        bounds = task or get_task()
+        self._low = np.asarray(bounds.action_low, dtype=np.float64)  # (A,)
+        self._span = np.asarray(bounds.action_high, dtype=np.float64) - self._low
+        # Push-T's [0, 512]: 0 + u * 512 is bit for bit the u * 512 its committed scores were drawn with (tested)
 
     def predict_action_chunk(self, obs: dict[str, Any]) -> np.ndarray:
         gens = obs.get("generators")  # per-episode streams from the controller: rows independent of batching
-        dim = 2 if self._span is None else len(self._span)
+        shape = (1, self.pred_horizon, len(self._span))
         if gens is None:
-            b = obs["agent_pos"].shape[0]
-            if self._span is None:
-                return self.rng.uniform(0.0, WORLD_SIZE, size=(b, self.pred_horizon, 2)).astype(np.float32)
-            return (self._low + self.rng.uniform(size=(b, self.pred_horizon, dim)) * self._span).astype(np.float32)
-        u = torch.cat([torch.rand((1, self.pred_horizon, dim), generator=g, dtype=torch.float64) for g in gens])
-        if self._span is None:
-            return (u.numpy() * WORLD_SIZE).astype(np.float32)
-        return (self._low + u.numpy() * self._span).astype(np.float32)  # (B, Tp, A)
+            u = self.rng.uniform(size=(obs["agent_pos"].shape[0], *shape[1:]))
+        else:
+            u = torch.cat([torch.rand(shape, generator=g, dtype=torch.float64) for g in gens]).numpy()
+        return (self._low + u * self._span).astype(np.float32)  # (B, Tp, A)
 
 
 def block_centroid(image: np.ndarray) -> np.ndarray | None:
@@ -113,9 +117,10 @@ def block_centroid(image: np.ndarray) -> np.ndarray | None:
 
 class ScriptedPolicy(_Baseline):
     name = "scripted"
+    only_task = "pusht"  # it finds Push-T's T by colour and walks in its 512 px world
 
-    def __init__(self, config: BaselineConfig) -> None:
-        super().__init__(config)
+    def __init__(self, config: BaselineConfig, task: Task | None = None) -> None:
+        super().__init__(config, task)
         self.goal = goal_centroid()
 
     def _path(self, start: np.ndarray, waypoints: list[np.ndarray]) -> np.ndarray:

@@ -55,7 +55,8 @@ from typing import Any
 
 from bcbench.errors import BCBenchError
 from bcbench.modes import MODES, mode_name
-from bcbench.policies import make_config
+from bcbench.policies import REGISTRY, make_config
+from bcbench.policies.baselines import acts_in
 from bcbench.protocol import MIN_CHOICE_EPISODES, check_purpose, test_informed_entries
 from bcbench.study.spec_runs import RUN_KEYS as RUN_KEYS  # RUN_KEYS, Variant re-exported: [[run]] tables are read there
 from bcbench.study.spec_runs import RunSpec, _run_specs
@@ -161,10 +162,11 @@ def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
         spec.runs.extend(_run_specs(i, run))
     _check_doubling(spec)
     _check_strategies(spec)
-    pusht_only = [r.label for r in spec.runs if not r.learned and not r.outside and r.policy != "random"]
-    if spec.task != DEFAULT_TASK and pusht_only:  # refused now, not at their evaluation after hours of training
-        raise BCBenchError(f"{', '.join(sorted(set(pusht_only)))}: the scripted baseline acts in Push-T's world, not "
-                           f"{spec.task} (random acts on every task)")
+    for r in spec.runs:  # a baseline that cannot act in the task: refused now, not after hours of training
+        only = getattr(REGISTRY[r.policy][1], "only_task", None) if not r.outside else None
+        if only not in (None, spec.task):
+            raise BCBenchError(f"{r.label}: the {r.policy} baseline {acts_in(only)}, not {spec.task} "
+                               "(random acts on every task)")
     return spec
 
 
