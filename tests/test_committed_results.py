@@ -56,3 +56,18 @@ def test_every_relative_link_in_the_docs_points_to_a_committed_file():
             if not (doc.parent / target.split("#")[0]).exists():
                 broken.append(f"{doc.relative_to(RESULTS.parent)}: {target}")
     assert len(DOCS) > 10 and not broken, broken
+
+
+WALLCLOCK = sorted(p.parent for p in RESULTS.glob("**/comparison.json") if (p.parent / "wallclock.json").exists())
+
+
+@pytest.mark.parametrize("run", WALLCLOCK, ids=[f"{p.parent.name}/{p.name}" for p in WALLCLOCK])
+def test_committed_wallclock_comparison_regenerates(run):
+    """A committed wall-clock comparison is what its two records give: scores, paired interval and delays."""
+    from bcbench.analysis.wallclock import compare_files
+
+    committed = json.loads((run / "comparison.json").read_text())
+    (twin,) = run.glob("simulated-async-d*.json")  # the twin the run itself wrote, at the rule's d
+    assert f"-d{committed['d']}.json" in twin.name
+    regenerated = json.loads(json.dumps(compare_files(str(run / "wallclock.json"), str(twin))))
+    assert regenerated == committed  # the bootstrap's seed is fixed: the same file, number for number
