@@ -90,10 +90,12 @@ def test_a_wall_clock_run_records_the_known_delay_and_never_blocks_the_simulator
     assert {c["delay_steps"] for c in calls} <= {3, 4}
     assert all(c["compute_ms"] >= SLEEP_MS for c in calls)
     assert record["episodes"][0]["length"] == 30
-    # the world never waits: 100 ms periods while the policy computes (tolerance 15 ms median, 60 ms worst)
+    # the world never waits: 100 ms periods while the policy computes (tolerance 15 ms median). A client that waited
+    # for the policy would show a period of at least the call's 250 ms; a late start from the CPU shared with the
+    # rest of a parallel suite on 2 cores can stretch one period past 160 ms (seen once in `make test -n auto`)
     busy = record["episodes"][0]["busy_period_ms"]
     assert len(busy) >= 2 * len(calls)
-    assert abs(np.median(busy) - 100) < 15 and max(busy) < 160, busy
+    assert abs(np.median(busy) - 100) < 15 and max(busy) < SLEEP_MS, (max(busy), busy)
     printed = capsys.readouterr().out
     assert "median 3 steps" in printed and "histogram {'3'" in printed
     # its simulated twin, async at d = 3 on the same seed: this policy's target is fixed, so the scores are equal
