@@ -54,9 +54,13 @@ class BaselineConfig:
         return cls()
 
 
-def acts_in(task: str) -> str:
-    """'acts in Push-T's world': where a baseline with `only_task` can act, for its refusals."""
-    return f"acts in {'Push-T' if task == 'pusht' else task}'s world"
+def task_refusal(name: str, only_task: str | None, task: str) -> str | None:
+    """Why baseline `name` (acting in `only_task` alone, or anywhere if None) cannot act in `task`; None if it can.
+    One text for make_policy's refusal and a study's, which refuses before hours of training."""
+    if only_task in (None, task):
+        return None
+    where = "Push-T" if only_task == "pusht" else only_task
+    return f"the {name} baseline acts in {where}'s world; it has no version for {task} (random acts on every task)"
 
 
 class _Baseline:
@@ -66,9 +70,8 @@ class _Baseline:
 
     def __init__(self, config: BaselineConfig, task: Task | None = None) -> None:
         task = task or get_task()
-        if self.only_task not in (None, task.name):
-            raise BCBenchError(f"the {self.name} baseline {acts_in(self.only_task)}; it has no version for "
-                               f"{task.name} (random acts on every task)")
+        if why := task_refusal(self.name, self.only_task, task.name):
+            raise BCBenchError(why)
         self.task = task.name  # evaluation refuses episodes of any other task
         self.config = config
         self.obs_horizon = config.obs_horizon

@@ -56,7 +56,7 @@ from typing import Any
 from bcbench.errors import BCBenchError
 from bcbench.modes import MODES, mode_name
 from bcbench.policies import REGISTRY, make_config
-from bcbench.policies.baselines import acts_in
+from bcbench.policies.baselines import task_refusal
 from bcbench.protocol import MIN_CHOICE_EPISODES, check_purpose, test_informed_entries
 from bcbench.study.spec_runs import RUN_KEYS as RUN_KEYS  # RUN_KEYS, Variant re-exported: [[run]] tables are read there
 from bcbench.study.spec_runs import RunSpec, _run_specs
@@ -164,9 +164,8 @@ def parse_spec(data: dict[str, Any], source: str = "") -> StudySpec:
     _check_strategies(spec)
     for r in spec.runs:  # a baseline that cannot act in the task: refused now, not after hours of training
         only = getattr(REGISTRY[r.policy][1], "only_task", None) if not r.outside else None
-        if only not in (None, spec.task):
-            raise BCBenchError(f"{r.label}: the {r.policy} baseline {acts_in(only)}, not {spec.task} "
-                               "(random acts on every task)")
+        if why := task_refusal(r.policy, only, spec.task):
+            raise BCBenchError(f"{r.label}: {why}")
     return spec
 
 
