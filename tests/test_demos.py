@@ -61,8 +61,12 @@ def test_a_study_run_key_holds_the_count_only_when_given():
     # a run without demos hashes exactly what it did before the option existed (its run folders still match)
     import hashlib
 
-    blob = json.dumps({"policy": "cnn_mlp", "config": plain.config_dict(), "val_fraction": 0.1}, sort_keys=True)
+    config = plain.config_dict()
+    assert config["optim"].pop("val_every") is None  # a newer field at its neutral value is not hashed either
+    blob = json.dumps({"policy": "cnn_mlp", "config": config, "val_fraction": 0.1}, sort_keys=True)
     assert plain.key(0.1).endswith(hashlib.sha256(blob.encode()).hexdigest()[:8])
+    sparse = _run_specs(0, _run(set={"optim.val_every": 229}))[0]
+    assert sparse.key(0.1) != plain.key(0.1)  # set, it is its own run
     for bad in (0, -3, 2.5, True, "10"):
         with pytest.raises(BCBenchError, match=r"\[\[run\]\] #1 \(cnn_mlp\): demos must be a whole number"):
             _run_specs(0, _run(demos=bad))
@@ -120,3 +124,18 @@ def test_a_study_run_trains_on_its_demos(synthetic_zarr, tmp_path):
     from bcbench.study.spec import load_spec
 
     assert run.name == load_spec(spec).runs[0].key(0.1)  # the folder is the run key that holds the count
+
+
+@pytest.mark.parametrize("name", ["metaworld-explore-2", "metaworld-explore-3"])
+def test_committed_run_folders_match_the_keys_their_spec_gives_today(name):
+    """A field added since (at its neutral value) must not rename a finished run: a resumed or restored study would
+    train it again."""
+    from pathlib import Path
+
+    from bcbench.study.spec import load_spec
+
+    root = Path(__file__).resolve().parents[1]
+    spec = load_spec(root / "studies" / f"{name}.toml")
+    keys = {r.key(spec.val_fraction, spec.task) for r in spec.runs if r.learned}
+    folders = {p.name for p in (root / "results" / name / "runs").iterdir()}
+    assert folders and folders <= keys, folders - keys

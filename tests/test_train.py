@@ -323,3 +323,49 @@ def test_a_max_steps_the_epochs_never_reach_is_said(synthetic_zarr, tmp_path, ca
     prepare(new_run("cnn_mlp", "quick", tiny_overrides("cnn_mlp", epochs=1, max_steps=1), tmp_path / "s",
                     _opts(synthetic_zarr)), _opts(synthetic_zarr))
     assert "max_steps" not in capsys.readouterr().err  # a cap that binds is not noted
+
+
+@pytest.mark.parametrize("name", ["cnn_mlp", "diffusion"])  # BatchNorm (recalibrated) and GroupNorm
+def test_validating_every_n_steps_leaves_a_cosine_runs_weights_bit_identical(name, synthetic_zarr, tmp_path,
+                                                                              one_thread):
+    """`optim.val_every` moves only the epoch-end work (BN recalibration, validation): training does not read it
+    unless the schedule is plateau, so the final weights, buffers and EMA equal the per-epoch run's bit for bit."""
+    base = tiny_overrides(name, epochs=4, precision="fp32", schedule="cosine", ema=True)
+    runs = {}
+    for every in (None, 5):
+        extra = {} if every is None else {"optim.val_every": every}
+        runs[every] = new_run(name, "quick", {**base, **extra}, tmp_path / f"every-{every}", _opts(synthetic_zarr))
+        s = train(runs[every], _opts(synthetic_zarr))
+        assert s["stopped"] == "finished"
+    per_epoch, sparse = ([m["step"] for m in read_jsonl(runs[e] / "metrics.jsonl") if "val_loss" in m]
+                         for e in (None, 5))
+    total, epoch = s["total_steps"], s["total_steps"] // 4
+    assert per_epoch == list(range(epoch, total + 1, epoch)) and epoch != 5
+    assert sparse == [*range(5, total + 1, 5), *([total] if total % 5 else [])]  # the last step always validates
+    for file in ("model.safetensors", "ema.safetensors"):
+        from safetensors.torch import load_file
+
+        a, b = (load_file(str(latest_checkpoint(runs[e]) / file)) for e in (None, 5))
+        assert a.keys() == b.keys()
+        for k in a:
+            assert torch.equal(a[k], b[k]), (file, k)
+
+
+def test_val_every_steps_the_plateau_schedule_at_each_validation(synthetic_zarr, tmp_path, one_thread):
+    """With the plateau schedule the scheduler steps at each validation val_every places (not the last, off-cadence
+    one), so its patience counts validations."""
+    over = tiny_overrides("cnn_mlp", epochs=4, precision="fp32", schedule="plateau", val_every=3)
+    seen: list[tuple[int, int]] = []
+    opts = dataclasses.replace(_opts(synthetic_zarr), callbacks=(lambda r: seen.append((r.state.step,
+                                                                                       r.scheduler.last_epoch)),))
+    run = new_run("cnn_mlp", "quick", over, tmp_path / "plateau", opts)
+    s = train(run, opts)
+    stepped, calls = [], 0  # ReduceLROnPlateau counts its step() calls in last_epoch, from 0
+    for step, n in seen:
+        if n != calls:
+            stepped, calls = [*stepped, step], n
+    assert stepped == list(range(3, s["total_steps"] + 1, 3)) and len(stepped) >= 2
+    for bad in (0, -2, 2.5, True):
+        with pytest.raises(BCBenchError, match="val_every must be a whole number >= 1"):
+            new_run("cnn_mlp", "quick", {**over, "optim.val_every": bad}, tmp_path / f"bad{bad}",
+                    _opts(synthetic_zarr))

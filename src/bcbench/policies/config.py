@@ -7,6 +7,7 @@ through JSON (`config_to_dict` / `config_from_dict`) so that each run saves exac
 from __future__ import annotations
 
 import dataclasses
+import json
 import typing
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -55,6 +56,11 @@ class OptimConfig:
     """optimiser steps between checkpoints (one is always written at the end)"""
     log_every: int = 25
     """optimiser steps between metrics.jsonl lines"""
+    val_every: int | None = None
+    """optimiser steps between validation passes, each after its BatchNorm recalibration (None: at every epoch's
+    end); the last step always has one. Only the plateau schedule reads them (its patience then counts
+    validations); otherwise the weights are the same bit for bit (tested). For few demonstrations, where an
+    epoch is a handful of steps and the pass over every held-out window costs as much as training"""
 
     def __post_init__(self) -> None:
         self.betas = tuple(self.betas)  # type: ignore[assignment]  # JSON gives lists
@@ -72,6 +78,9 @@ class OptimConfig:
             raise BCBenchError(f"max_steps must be >= 1, got {self.max_steps}")
         if not 0 < self.ema_max_decay < 1:
             raise BCBenchError(f"ema_max_decay must be in (0, 1), got {self.ema_max_decay}")
+        if self.val_every is not None and (isinstance(self.val_every, bool) or not isinstance(self.val_every, int)
+                                           or self.val_every < 1):
+            raise BCBenchError(f"val_every must be a whole number >= 1 (or unset: every epoch), got {self.val_every!r}")
 
 
 @dataclass
@@ -110,6 +119,24 @@ def pick_preset(policy: str, name: str, presets: dict[str, Callable[[], Any]]) -
 
 def config_to_dict(cfg: Any) -> dict[str, Any]:
     return dataclasses.asdict(cfg)
+
+
+# Fields added after run keys existed, each with the value that does what runs did before it: a config at that
+# value leaves the field out of its run key (bcbench.study.spec_runs), so that every earlier run folder still matches.
+KEY_NEUTRAL: dict[tuple[str, ...], Any] = {("optim", "val_every"): None}
+
+
+def key_dict(config: dict[str, Any]) -> dict[str, Any]:
+    """A config dict as a run key hashes it: `KEY_NEUTRAL` fields at their neutral value left out."""
+    out = json.loads(json.dumps(config))  # a deep copy
+    for path, neutral in KEY_NEUTRAL.items():
+        *parents, name = path
+        node = out
+        for p in parents:
+            node = node.get(p, {}) if isinstance(node, dict) else {}
+        if isinstance(node, dict) and name in node and node[name] == neutral:
+            del node[name]
+    return out
 
 
 CPU_BATCH = 256  # the cpu profile's batch: 2-3x the samples/s of batch 64 on 2 cores with bf16 (benchmarked)

@@ -12,7 +12,7 @@ from typing import Any
 
 from bcbench.errors import BCBenchError
 from bcbench.policies import REGISTRY, is_learned, make_config, sampler_kinds
-from bcbench.policies.config import config_to_dict
+from bcbench.policies.config import config_to_dict, key_dict
 from bcbench.policies.outside import load_factory
 from bcbench.protocol import MIN_CHOICE_EPISODES
 from bcbench.tasks import DEFAULT_TASK
@@ -68,9 +68,9 @@ class RunSpec:
 
     def key(self, val_fraction: float, task: str = DEFAULT_TASK) -> str:
         """policy-config-sSEED-HASH: the hash covers the task, the full config, the split and the demonstration
-        count, so a change retrains (Push-T and all demonstrations are left out of the hash, so that every run key
-        from before either existed still holds)."""
-        blob = json.dumps({"policy": self.policy, "config": self.config_dict(), "val_fraction": val_fraction,
+        count, so a change retrains (Push-T, all demonstrations and a newer field at its neutral value, `KEY_NEUTRAL`,
+        are left out of the hash, so that every run key from before each existed still holds)."""
+        blob = json.dumps({"policy": self.policy, "config": key_dict(self.config_dict()), "val_fraction": val_fraction,
                            **({"task": task} if task != DEFAULT_TASK else {}),
                            **({"demos": self.demos} if self.demos is not None else {})}, sort_keys=True)
         return f"{self.policy}-{self.config}-s{self.seed}-{hashlib.sha256(blob.encode()).hexdigest()[:8]}"

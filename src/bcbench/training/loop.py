@@ -320,6 +320,7 @@ def train(run_dir: str | Path, opts: TrainOptions) -> dict[str, Any]:
     bar = tqdm(total=r.total_steps, initial=state.step, desc=f"train {r.model.name}", unit="step",
                disable=not opts.progress or not r.dist.main)
     reason, run_loss, run_n, samples_session, time_session, perm_epoch, perm = "finished", 0.0, 0, 0, 0.0, -1, None
+    val_every = o.val_every or r.steps_per_epoch  # BN recalibration + validation: every epoch unless set
     r.model.train()
     if r.dist.main:
         _log_segment(r)
@@ -359,7 +360,7 @@ def train(run_dir: str | Path, opts: TrainOptions) -> dict[str, Any]:
                 _log(r, {"train_loss": run_loss / run_n, "lr": lr, "samples_per_s": samples_session / time_session},
                      t_start)
                 run_loss, run_n = 0.0, 0
-            if state.step % r.steps_per_epoch == 0:
+            if state.step % val_every == 0:
                 _end_epoch(r, t_start)
             if opts.eval_every and state.step % opts.eval_every == 0 and state.step != r.total_steps and r.dist.main:
                 _log(r, rollout_score(r, opts.eval_episodes), t_start)
@@ -374,8 +375,8 @@ def train(run_dir: str | Path, opts: TrainOptions) -> dict[str, Any]:
                 reason = "interrupted" if stop.requested else STOPPED_BY_TIME
                 break
     bar.close()
-    if state.step % r.steps_per_epoch != 0:  # stopped mid-epoch: recalibrate BN and validate now
-        _end_epoch(r, t_start, epoch_end=False)
+    if state.step % val_every != 0:  # stopped between validations: recalibrate BN and validate now
+        _end_epoch(r, t_start, scheduled=False)
     if opts.eval_every and reason == "finished" and r.dist.main:
         _log(r, rollout_score(r, opts.eval_episodes), t_start)  # the learning curve's last point
     summary = {}
@@ -386,11 +387,13 @@ def train(run_dir: str | Path, opts: TrainOptions) -> dict[str, Any]:
     return summary
 
 
-def _end_epoch(r: Run, t_start: float, epoch_end: bool = True) -> None:
+def _end_epoch(r: Run, t_start: float, scheduled: bool = True) -> None:
+    """BN recalibration and the validation pass; a scheduled one (not training's last, off the cadence) also
+    steps the plateau schedule."""
     recalibrate(r)
     r.state.last_val = validate(r)
     r.state.best_val = min(r.state.best_val, r.state.last_val)
-    if epoch_end and r.o.schedule == "plateau":
+    if scheduled and r.o.schedule == "plateau":
         r.scheduler.step(r.state.last_val)
     if r.dist.main:
         _log(r, {"val_loss": r.state.last_val}, t_start)
