@@ -79,6 +79,9 @@ def test_a_study_run_key_holds_the_count_only_when_given():
     assert parse_spec({"study": {"name": "d"}, "run": [base, twice]}).runs[1].demos == 10
     with pytest.raises(BCBenchError, match=r"run 'DP 2x' must train on the same demos as 'DP' \(10\), got 50"):
         parse_spec({"study": {"name": "d"}, "run": [base, {**twice, "demos": 50}]})
+    with pytest.raises(BCBenchError, match=r"run 'DP 2x' must validate at the cadence of 'DP' \(optim.val_every "
+                                           r"None\), got 229"):
+        parse_spec({"study": {"name": "d"}, "run": [base, {**twice, "set": {"optim.val_every": 229}}]})
 
 
 def _sets() -> list[str]:
@@ -126,16 +129,18 @@ def test_a_study_run_trains_on_its_demos(synthetic_zarr, tmp_path):
     assert run.name == load_spec(spec).runs[0].key(0.1)  # the folder is the run key that holds the count
 
 
-@pytest.mark.parametrize("name", ["metaworld-explore-2", "metaworld-explore-3"])
+@pytest.mark.parametrize("name", ["metaworld-explore-1", "metaworld-explore-1-peg", "metaworld-explore-2",
+                                  "metaworld-explore-3"])
 def test_committed_run_folders_match_the_keys_their_spec_gives_today(name):
     """A field added since (at its neutral value) must not rename a finished run: a resumed or restored study would
     train it again."""
     from pathlib import Path
 
+    from bcbench.study.runner import StudyRunner
     from bcbench.study.spec import load_spec
 
     root = Path(__file__).resolve().parents[1]
-    spec = load_spec(root / "studies" / f"{name}.toml")
-    keys = {r.key(spec.val_fraction, spec.task) for r in spec.runs if r.learned}
+    runner = StudyRunner(load_spec(root / "studies" / f"{name}.toml"), root / "results" / name, progress=False)
+    keys = {runner.run_dir(r).name for r in runner.spec.runs}
     folders = {p.name for p in (root / "results" / name / "runs").iterdir()}
     assert folders and folders <= keys, folders - keys

@@ -325,12 +325,15 @@ def test_a_max_steps_the_epochs_never_reach_is_said(synthetic_zarr, tmp_path, ca
     assert "max_steps" not in capsys.readouterr().err  # a cap that binds is not noted
 
 
-@pytest.mark.parametrize("name", ["cnn_mlp", "diffusion"])  # BatchNorm (recalibrated) and GroupNorm
+# BatchNorm (recalibrated), GroupNorm with random crops, and dropout beside BatchNorm: every RNG stream training draws
+@pytest.mark.parametrize("name", ["cnn_mlp", "diffusion", "bct", "bet"])
 def test_validating_every_n_steps_leaves_a_cosine_runs_weights_bit_identical(name, synthetic_zarr, tmp_path,
                                                                               one_thread):
     """`optim.val_every` moves only the epoch-end work (BN recalibration, validation): training does not read it
     unless the schedule is plateau, so the final weights, buffers and EMA equal the per-epoch run's bit for bit."""
     base = tiny_overrides(name, epochs=4, precision="fp32", schedule="cosine", ema=True)
+    if name in ("bct", "bet"):
+        base["dropout"] = 0.1  # the presets' dropout (the tiny networks turn it off)
     runs = {}
     for every in (None, 5):
         extra = {} if every is None else {"optim.val_every": every}
@@ -352,19 +355,25 @@ def test_validating_every_n_steps_leaves_a_cosine_runs_weights_bit_identical(nam
 
 
 def test_val_every_steps_the_plateau_schedule_at_each_validation(synthetic_zarr, tmp_path, one_thread):
-    """With the plateau schedule the scheduler steps at each validation val_every places (not the last, off-cadence
-    one), so its patience counts validations."""
-    over = tiny_overrides("cnn_mlp", epochs=4, precision="fp32", schedule="plateau", val_every=3)
+    """With the plateau schedule the scheduler steps at each validation val_every places, a cadence unlike the
+    epoch's, and not at the last, off-cadence one: its patience counts validations."""
+    every = 5
+    over = tiny_overrides("cnn_mlp", epochs=4, precision="fp32", schedule="plateau", val_every=every)
     seen: list[tuple[int, int]] = []
     opts = dataclasses.replace(_opts(synthetic_zarr), callbacks=(lambda r: seen.append((r.state.step,
                                                                                        r.scheduler.last_epoch)),))
     run = new_run("cnn_mlp", "quick", over, tmp_path / "plateau", opts)
     s = train(run, opts)
+    total = s["total_steps"]
+    assert (total // 4) % every and total % every  # the epoch's cadence differs, and the last step is off it
     stepped, calls = [], 0  # ReduceLROnPlateau counts its step() calls in last_epoch, from 0
     for step, n in seen:
         if n != calls:
             stepped, calls = [*stepped, step], n
-    assert stepped == list(range(3, s["total_steps"] + 1, 3)) and len(stepped) >= 2
+    assert stepped == list(range(every, total + 1, every)) and len(stepped) >= 2
+    from bcbench.policies.checkpoint import load_state
+
+    assert load_state(latest_checkpoint(run))["scheduler"]["last_epoch"] == total // every  # not the last one
     for bad in (0, -2, 2.5, True):
         with pytest.raises(BCBenchError, match="val_every must be a whole number >= 1"):
             new_run("cnn_mlp", "quick", {**over, "optim.val_every": bad}, tmp_path / f"bad{bad}",

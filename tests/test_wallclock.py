@@ -87,8 +87,9 @@ def test_a_wall_clock_run_records_the_known_delay_and_never_blocks_the_simulator
     assert all(0.25 <= c["delay_s"] < 0.4 for c in calls), [c["delay_s"] for c in calls]
     assert s["delays"]["median_steps"] == 3 and s["simulated_delay"] == 3
     assert s["plan_delay"].get("3", 0) >= len(calls) - 1  # the threshold learnt from the calls (the first: warm-up)
-    # d = 3 or 4, unless a step near the call overran its period: the clock then catches up with steps back to back
-    # (seen beside a suite and a training on 2 cores: d = 2 for a 0.25-0.4 s call), which the record shows
+    # d = 3 or 4, unless a step near the call overran its period: the clock then slips (the next period starts when
+    # that step ends), so fewer steps pass while the call is out (seen beside a suite and a training on 2 cores: d = 2
+    # for a 0.25-0.4 s call); the record shows the overrun
     overran = {o["step"] for o in record["episodes"][0]["overruns"]}
     odd = [c for c in calls if c["delay_steps"] not in (3, 4)]
     assert all(overran & set(range(c["request_step"] - 1, c["request_step"] + c["delay_steps"] + 1)) for c in odd), (

@@ -201,7 +201,8 @@ def preset_change_lines(rows: list[Row]) -> list[str]:
     values, both as its run.json records them; said once however many variants and training seeds share it."""
     lines = []
     for r in rows:
-        changed = sorted(k for k in r.overrides if k not in _NOT_RECIPE)
+        changed = sorted(k for k in r.overrides if k not in _NOT_RECIPE
+                         and not (k == "optim.val_every" and "plateau" not in r.recipe))  # read by plateau only
         if changed and r.preset:
             lines.append(f"- {r.label} changes its {r.preset} preset: " + ", ".join(
                 f"{k} {r.overrides[k]} (preset {r.preset_values.get(k, 'not recorded')})" for k in changed))

@@ -172,7 +172,10 @@ def recipe_text(optim: dict[str, Any]) -> str:
     budget = f"{optim['max_steps']:,} steps" if optim.get("max_steps") else f"{optim.get('epochs')} epochs"
     parts = [f"{optim.get('optimizer')} lr {optim.get('lr'):g}", f"batch {optim.get('batch_size')}", budget,
              str(optim.get("schedule")), f"{optim.get('warmup_steps', 0)} warm-up steps", str(optim.get("precision")),
-             *(["EMA"] if optim.get("ema") else [])]
+             *(["EMA"] if optim.get("ema") else []),
+             # a plateau schedule reads each validation: their cadence is part of its recipe (elsewhere it is not)
+             *([f"validation every {optim['val_every']} steps"] if optim.get("val_every") and
+               optim.get("schedule") == "plateau" else [])]
     return ", ".join(parts)
 
 

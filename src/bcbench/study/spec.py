@@ -208,6 +208,10 @@ def _check_doubling(spec: StudySpec) -> None:
         if r.demos != base.demos:  # a check on other data would test the data, not the budget
             raise BCBenchError(f"run '{r.label}' must train on the same demos as '{r.doubles}' ({base.demos}), "
                                f"got {r.demos}")
+        every = [x.overrides.get("optim.val_every") for x in (base, r)]
+        if every[0] != every[1]:  # a plateau schedule reads the cadence: the check would mix it into the budget
+            raise BCBenchError(f"run '{r.label}' must validate at the cadence of '{r.doubles}' (optim.val_every "
+                               f"{every[0]}), got {every[1]}")
 
 
 def _backend_keys(study: dict[str, Any], spec: StudySpec) -> None:

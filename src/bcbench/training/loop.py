@@ -182,6 +182,9 @@ def prepare(run_dir: str | Path, opts: TrainOptions) -> Run:
     if o.max_steps and o.max_steps > total_steps:  # a budget that silently never binds is how a study arm gets lost
         print(f"note: {o.epochs} epochs of {steps_per_epoch} steps end training at step {total_steps}, before "
               f"max_steps {o.max_steps}; raise optim.epochs to reach it", file=sys.stderr)
+    if o.schedule == "plateau" and o.val_every and o.val_every >= total_steps:
+        print(f"note: val_every {o.val_every} >= the {total_steps} steps of training: the plateau schedule never "
+              "steps (its rate stays at lr)", file=sys.stderr)
     # channels_last: the 2-D convolutions of the image encoders run on oneDNN's NHWC kernels (and tensor cores)
     channels_last_convs(model.to(device))
     ema = EMA(model, o.ema_power, o.ema_max_decay) if o.ema else None
@@ -363,6 +366,8 @@ def train(run_dir: str | Path, opts: TrainOptions) -> dict[str, Any]:
             if state.step % val_every == 0:
                 _end_epoch(r, t_start)
             if opts.eval_every and state.step % opts.eval_every == 0 and state.step != r.total_steps and r.dist.main:
+                if o.val_every and state.step % val_every:
+                    recalibrate(r)  # a rollout reads BN statistics: exact ones, as it would right after a validation
                 _log(r, rollout_score(r, opts.eval_episodes), t_start)
             if state.step % o.checkpoint_every == 0 and state.step != r.total_steps and r.dist.main:
                 save(r)
