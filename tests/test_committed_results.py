@@ -71,3 +71,21 @@ def test_committed_wallclock_comparison_regenerates(run):
     assert f"-d{committed['d']}.json" in twin.name
     regenerated = json.loads(json.dumps(compare_files(str(run / "wallclock.json"), str(twin))))
     assert regenerated == committed  # the bootstrap's seed is fixed: the same file, number for number
+
+
+def test_the_delay_trained_sweep_readme_numbers_come_from_its_records():
+    """results/realtime-delay-sweeps/README.md states each prefix score and its paired interval against the plain
+    seed-0 model's sync; both are recomputed here from the committed records."""
+    from bcbench.analysis.realtime import replicate_scores
+    from bcbench.stats import paired_bootstrap
+
+    folder, plain = RESULTS / "realtime-delay-sweeps", RESULTS / "strategies-replicates/dp-ddim10/seed0"
+    readme = (folder / "README.md").read_text()
+    (sync,) = replicate_scores(str(plain / "naive-d4/realtime-sync.json"))
+    for d in (4, 8):
+        (prefix,) = replicate_scores(str(folder / f"dp-s0/prefix/realtime-async-d{d}.json"))
+        record = json.loads((folder / f"dp-s0/prefix/realtime-async-d{d}.json").read_text())
+        assert record["policy"]["config"]["delay_train"] == [0, 8] and record["eval_config"]["strategy"]["strategy"] \
+            == "prefix" and len(prefix) == 100
+        diff, lo, hi, _ = paired_bootstrap(prefix, [sync])
+        assert f"{sum(prefix.values()) / 100:.3f} ({diff:+.3f} [{lo:+.3f}, {hi:+.3f}])" in readme, d
