@@ -117,15 +117,18 @@ def test_the_wall_clock_loop_executes_what_the_simulated_controller_does(thread_
     """When every call takes the d it was planned for and no step overruns, the wall-clock episode and the
     simulated async episode at that d are the same episode (the same final state, exactly): the loop's
     timing rules (threshold, the d skipped actions, the execution horizon, the hold) are the controller's."""
-    policy = Chase(150)  # d = 2 when transport adds under 50 ms
-    client = PolicyClient(thread_server(policy))
     cfg = WallClockConfig(episodes=3, max_steps=30, plan_delay=2, warmup_calls=1, execution_horizon=4)
-    record = run_wallclock(client, cfg, progress=False)
-    client.close()
     sim = evaluate(Chase(150), EvalConfig(episodes=3, max_steps=30, execution="async", latency_ms=200,
                                           execution_horizon=4, workers=1), progress=False)
-    clean = [e for e in record["episodes"] if not e["overruns"] and all(c["delay_steps"] == 2 for c in e["calls"])]
-    assert clean, f"no episode had every call at d = 2 (too busy a machine to check this): {record['summary']}"
+    for _ in range(3):  # a busy machine (a suite beside a training on 2 cores) can spoil every episode of a try
+        client = PolicyClient(thread_server(Chase(150)))  # d = 2 when transport adds under 50 ms
+        record = run_wallclock(client, cfg, progress=False)
+        client.close()
+        clean = [e for e in record["episodes"]
+                 if not e["overruns"] and all(c["delay_steps"] == 2 for c in e["calls"])]
+        if clean:
+            break
+    assert clean, f"no episode had every call at d = 2 in 3 tries (too busy a machine): {record['summary']}"
     for e in clean:
         twin = sim["episodes"][e["episode"]]
         assert twin["seed"] == e["seed"] and twin["length"] == e["length"]
