@@ -130,7 +130,7 @@ def test_a_study_run_trains_on_its_demos(synthetic_zarr, tmp_path):
 
 
 @pytest.mark.parametrize("name", ["metaworld-explore-1", "metaworld-explore-1-peg", "metaworld-explore-2",
-                                  "metaworld-explore-3"])
+                                  "metaworld-explore-3", "metaworld-explore-4"])
 def test_committed_run_folders_match_the_keys_their_spec_gives_today(name):
     """A field added since (at its neutral value) must not rename a finished run: a resumed or restored study would
     train it again."""
