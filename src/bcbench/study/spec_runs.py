@@ -69,7 +69,8 @@ class RunSpec:
     def key(self, val_fraction: float, task: str = DEFAULT_TASK) -> str:
         """policy-config-sSEED-HASH: the hash covers the task, the full config, the split and the demonstration
         count, so a change retrains (Push-T, all demonstrations and a newer field at its neutral value, `KEY_NEUTRAL`,
-        are left out of the hash, so that every run key from before each existed still holds)."""
+        are left out of the hash, so that every run key from before each existed still holds; one field predates
+        that rule: `delay_train`, hashed since f967bd9, so a DP or flow run keyed before it has another key now)."""
         blob = json.dumps({"policy": self.policy, "config": key_dict(self.config_dict()), "val_fraction": val_fraction,
                            **({"task": task} if task != DEFAULT_TASK else {}),
                            **({"demos": self.demos} if self.demos is not None else {})}, sort_keys=True)
