@@ -6,8 +6,8 @@ through JSON (`config_to_dict` / `config_from_dict`) so that each run saves exac
 
 from __future__ import annotations
 
+import copy
 import dataclasses
-import json
 import typing
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -124,20 +124,26 @@ def config_to_dict(cfg: Any) -> dict[str, Any]:
 
 # Fields added after run keys existed, each with the value that does what runs did before it: a config at that
 # value leaves the field out of its run key (bcbench.study.spec_runs), so that every earlier run folder still matches.
-KEY_NEUTRAL: dict[tuple[str, ...], Any] = {("optim", "val_every"): None}
+KEY_NEUTRAL: dict[str, Any] = {"optim.val_every": None}
 
 
 def key_dict(config: dict[str, Any]) -> dict[str, Any]:
     """A config dict as a run key hashes it: `KEY_NEUTRAL` fields at their neutral value left out."""
-    out = json.loads(json.dumps(config))  # a deep copy
-    for path, neutral in KEY_NEUTRAL.items():
-        *parents, name = path
-        node = out
-        for p in parents:
-            node = node.get(p, {}) if isinstance(node, dict) else {}
-        if isinstance(node, dict) and name in node and node[name] == neutral:
-            del node[name]
+    out = copy.deepcopy(config)
+    for key, neutral in KEY_NEUTRAL.items():
+        found = _field(out, key)
+        if found is not None and found[0][found[1]] == neutral:
+            del found[0][found[1]]
     return out
+
+
+def _field(data: dict[str, Any], key: str) -> tuple[dict[str, Any], str] | None:
+    """The dict that holds dotted `key`'s last part, and that part; None where the config has no such field."""
+    *parents, name = key.split(".")
+    node: Any = data
+    for p in parents:
+        node = node.get(p) if isinstance(node, dict) else None
+    return (node, name) if isinstance(node, dict) and name in node else None
 
 
 CPU_BATCH = 256  # the cpu profile's batch: 2-3x the samples/s of batch 64 on 2 cores with bf16 (benchmarked)
@@ -195,13 +201,8 @@ def with_overrides(cfg: Any, overrides: dict[str, Any]) -> Any:
     """A copy of cfg with dotted-key overrides, e.g. {'optim.epochs': 2, 'hidden': 64}."""
     data = config_to_dict(cfg)
     for key, value in overrides.items():
-        node = data
-        parts = key.split(".")
-        for p in parts[:-1]:
-            if p not in node or not isinstance(node[p], dict):
-                raise BCBenchError(f"unknown config field '{key}'")
-            node = node[p]
-        if parts[-1] not in node:
+        if (found := _field(data, key)) is None:
             raise BCBenchError(f"unknown config field '{key}'")
-        node[parts[-1]] = value
+        node, name = found
+        node[name] = value
     return config_from_dict(type(cfg), data)
