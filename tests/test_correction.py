@@ -89,6 +89,19 @@ def test_the_head_trains_on_a_frozen_base_and_then_acts(base_run, synthetic_zarr
     assert read_json(run / "run.json")["config"]["base"] == str(base_run)
 
 
+def test_the_heads_windows_put_the_step_index_1_plus_a_plans_for_at_frame_1_plus_a(base_run, synthetic_zarr):
+    from bcbench.data.sequence import make_datasets
+
+    head = _untrained_head(base_run).model
+    train_ds, _, _ = make_datasets(head.task.demonstrations(str(synthetic_zarr)), 0.1, 0, state_dim=head.state_dim,
+                                   **head.data_window())
+    idx, ends = train_ds.indices, train_ds.buffer.episode_ends  # (W, 1 + A + ...) steps
+    last = ends[np.searchsorted(ends, idx[:, 1], side="right")] - 1  # each window's episode's last step
+    for a in range(head.config.max_age + 1):  # frame 1 + a is t0 + a, or the last step once the episode has ended
+        assert np.array_equal(idx[:, 1 + a], np.minimum(idx[:, 1] + a, last))
+    assert np.all(idx[:, 1] - idx[:, 0] <= 1)  # at most the base's one repeated first frame
+
+
 class Recording:
     """A correction head that records what the controller gives it and corrects nothing."""
 

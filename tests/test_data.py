@@ -126,6 +126,14 @@ def test_window_padding_at_both_episode_ends(synthetic_buffer):
     assert short.min() >= 0 and short.max() <= 4 and len(short) >= 1
 
 
+def test_a_window_with_more_frames_than_observed_pads_as_its_policy_does(synthetic_buffer):
+    ends = synthetic_buffer.episode_ends  # episode 1: steps 5..24
+    idx = window_indices(ends, np.array([1]), obs_horizon=16, pred_horizon=16, action_horizon=8, pad_before=1)
+    assert idx.shape == (13, 16)  # starts -1 .. 11, as the 2-frame windows: not from -15
+    assert list(idx[0, :3]) == [5, 5, 6]
+    assert window_indices(ends, np.array([1]), 16, 16, 8).shape == (27, 16)  # the default pads obs_horizon - 1
+
+
 def test_batches_are_normalised_and_shaped(synthetic_buffer):
     from dataclasses import replace
 

@@ -30,11 +30,16 @@ def split_episodes(n_episodes: int, val_fraction: float = 0.1, seed: int = 0) ->
 
 
 def window_indices(
-    episode_ends: np.ndarray, episodes: np.ndarray, obs_horizon: int, pred_horizon: int, action_horizon: int
+    episode_ends: np.ndarray, episodes: np.ndarray, obs_horizon: int, pred_horizon: int, action_horizon: int,
+    pad_before: int | None = None,
 ) -> np.ndarray:
-    """(W, pred_horizon) absolute step indices of every window of the given episodes, padding clamped."""
+    """(W, pred_horizon) absolute step indices of every window of the given episodes, padding clamped.
+    `pad_before` (default obs_horizon - 1) is how far before an episode's first step a window may start: a window
+    that holds more frames than its policy observes (the correction head's, obs_horizon + max_age) pads as its base
+    did, so that its frame k is the step its base's chunk index k plans for."""
     starts_all = np.concatenate([[0], episode_ends[:-1]])
-    pad_before, pad_after = obs_horizon - 1, action_horizon - 1
+    pad_before = obs_horizon - 1 if pad_before is None else pad_before
+    pad_after = action_horizon - 1
     rows = []
     offsets = np.arange(pred_horizon)
     for e in episodes:
@@ -66,6 +71,7 @@ class SequenceDataset:
     pred_horizon: int = 16
     action_horizon: int = 8
     state_dim: int = 2
+    pad_before: int | None = None
 
     def __post_init__(self) -> None:
         if self.buffer.images is None:
@@ -73,7 +79,8 @@ class SequenceDataset:
         if not 1 <= self.obs_horizon <= self.pred_horizon:
             raise BCBenchError(f"need 1 <= obs_horizon <= pred_horizon, got {self.obs_horizon}, {self.pred_horizon}")
         self.indices = window_indices(
-            self.buffer.episode_ends, self.episodes, self.obs_horizon, self.pred_horizon, self.action_horizon
+            self.buffer.episode_ends, self.episodes, self.obs_horizon, self.pred_horizon, self.action_horizon,
+            self.pad_before,
         )
 
     def __len__(self) -> int:
@@ -105,6 +112,7 @@ def fit_normalizer(buffer: ReplayBuffer, train_episodes: np.ndarray, state_dim: 
 def make_datasets(
     buffer: ReplayBuffer, val_fraction: float = 0.1, seed: int = 0, obs_horizon: int = 2,
     pred_horizon: int = 16, action_horizon: int = 8, state_dim: int = 2, demos: int | None = None,
+    pad_before: int | None = None,
 ) -> tuple[SequenceDataset, SequenceDataset, MinMaxNormalizer]:
     """Split by episode, fit the normalizer on the training split, build both datasets. `demos` keeps only the
     training split's first N episodes (lowest indices, so smaller counts nest in larger ones) and leaves the
@@ -117,5 +125,5 @@ def make_datasets(
         train_eps = train_eps[:demos]
     norm = fit_normalizer(buffer, train_eps, state_dim)
     kw = {"obs_horizon": obs_horizon, "pred_horizon": pred_horizon, "action_horizon": action_horizon,
-          "state_dim": state_dim}
+          "state_dim": state_dim, "pad_before": pad_before}
     return SequenceDataset(buffer, train_eps, norm, **kw), SequenceDataset(buffer, val_eps, norm, **kw), norm

@@ -17,7 +17,8 @@ observation at t0 (the base's own prediction, with its sampler at `base_sampler`
 training step's generator), the head's input the observation at t0 + a and the base's planned action for t0 + a, the
 target the demonstration's action at t0 + a, loss the squared error of a_exec. The demonstration's own chunk at t0
 cannot stand in for the base's plan: its action for t0 + a *is* the target, so the residual would be zero.
-The windows hold obs_horizon + A frames (`data_window`), so the observation at t0 + a is in the sample.
+The windows hold obs_horizon + A frames (`data_window`), so the observation at t0 + a is in the sample, and start at
+most obs_horizon - 1 steps before an episode, as the base's do, so that frame 1 + a is the step index 1 + a plans for.
 """
 
 from __future__ import annotations
@@ -141,8 +142,13 @@ class CorrectionPolicy(BCPolicy):
         raw = bytes(self.base_digest.cpu().tolist())
         return raw.hex() if any(raw) else None
 
-    def data_window(self) -> tuple[int, int, int]:
-        return self.config.obs_horizon + self.config.max_age, self.config.pred_horizon, self.config.action_horizon
+    def data_window(self) -> dict[str, int | None]:
+        """obs_horizon + A frames a window, padded before an episode as the base's windows are (obs_horizon - 1): a
+        window starting earlier would repeat the first step in more frames than the base's, and its frame 1 + a
+        would no longer be the step its base's chunk index 1 + a plans for."""
+        c = self.config
+        return {"obs_horizon": c.obs_horizon + c.max_age, "pred_horizon": c.pred_horizon,
+                "action_horizon": c.action_horizon, "pad_before": c.obs_horizon - 1}
 
     def fit_data(self, train_ds: SequenceDataset) -> None:
         """The head reads the base's normalised units: refuse data normalised otherwise (another split or dataset)."""

@@ -123,10 +123,12 @@ class BCPolicy(nn.Module):
         g = batch["rng"]
         return draw((batch["global_batch"], *shape), generator=g, device=g.device)[batch["rows"]].to(ref.device)
 
-    def data_window(self) -> tuple[int, int, int]:
-        """The training windows' (observation frames, actions, action horizon): the config's horizons by default."""
+    def data_window(self) -> dict[str, int | None]:
+        """The training windows' shape, as `make_datasets` keywords (observation frames, actions, action horizon,
+        start padding): the config's horizons by default."""
         c = self.config
-        return c.obs_horizon, c.pred_horizon, c.action_horizon
+        return {"obs_horizon": c.obs_horizon, "pred_horizon": c.pred_horizon, "action_horizon": c.action_horizon,
+                "pad_before": None}
 
     def fit_data(self, train_ds: SequenceDataset) -> None:
         """Data-dependent set-up, once before a fresh run's first step (BeT fits its k-means bins); none by default."""

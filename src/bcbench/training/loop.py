@@ -173,8 +173,8 @@ def prepare(run_dir: str | Path, opts: TrainOptions) -> Run:
         raise BCBenchError(f"--eval-every rolls out a policy; a {model.name} head runs beside its base: score it with "
                            "bcbench realtime --strategy correction")
     train_ds, val_ds, norm = make_datasets(buf, split.get("val_fraction", opts.val_fraction),
-                                           split.get("split_seed", opts.split_seed), *model.data_window(),
-                                           model.state_dim, split.get("demos"))
+                                           split.get("split_seed", opts.split_seed), state_dim=model.state_dim,
+                                           demos=split.get("demos"), **model.data_window())
     if len(train_ds) < o.batch_size:
         raise BCBenchError(f"only {len(train_ds)} training windows for a batch of {o.batch_size}")
     steps_per_epoch = len(train_ds) // o.batch_size  # drop_last: every batch is full
