@@ -102,6 +102,54 @@ def test_the_heads_windows_put_the_step_index_1_plus_a_plans_for_at_frame_1_plus
     assert np.all(idx[:, 1] - idx[:, 0] <= 1)  # at most the base's one repeated first frame
 
 
+def test_the_heads_cached_chunks_and_features_are_the_bases_own_computed_once(base_run, synthetic_zarr):
+    from bcbench.data.sequence import frames, make_datasets
+
+    head = _untrained_head(base_run).model
+    head.base.model.set_sampler("ddim", 2)
+    train_ds, _, _ = make_datasets(head.task.demonstrations(str(synthetic_zarr)), 0.1, 0, state_dim=head.state_dim,
+                                   **head.data_window())
+    head.attach_data(train_ds)
+    batch = {k: torch.from_numpy(v) for k, v in train_ds.get_batch(np.arange(6)).items()}
+    assert "image" not in batch  # the head reads frames by step, once each
+    window, pos, k = batch["steps"][:, :2], batch["agent_pos"][:, :2], torch.tensor([0, 1, 0, 1, 0, 1])
+    image = torch.from_numpy(frames(train_ds.buffer, window.numpy()))  # (6, 2, 3, H, W)
+    feats = head.cached_features(window)
+    assert torch.allclose(torch.cat([feats, pos], -1).flatten(1), head.features(image, pos), atol=1e-5)
+    plans = head.cached_plans(window[:, 1], k)  # the base's own chunk from the batch's observation, with its seed
+    for i in range(6):
+        seed = np.random.SeedSequence([0, int(window[i, 1]), int(k[i])]).generate_state(1, np.uint64)[0] >> 2
+        own = head.base.model.predict_action_chunk({"image": image[i:i + 1], "agent_pos": pos[i:i + 1],
+                                                    "generators": [torch.Generator().manual_seed(int(seed))]})
+        assert torch.allclose(plans[i], own[0], atol=1e-4)
+    assert not torch.allclose(plans, head.cached_plans(window[:, 1], 1 - k))  # the other draw: another chunk
+    done = head._plans_ok.clone()
+    head.base.model.predict_action_chunk = None  # a further call would fail: both are served from the caches
+    assert torch.equal(head.cached_plans(window[:, 1], k), plans) and torch.equal(head._plans_ok, done)
+    assert torch.equal(head.cached_features(window), feats)
+
+
+def test_a_resumed_head_trains_to_the_same_weights(base_run, synthetic_zarr, tmp_path):
+    opts = TrainOptions(data=str(synthetic_zarr), threads=1, progress=False, device="cpu")
+    straight = new_run("correction", "quick", _head_overrides(base_run, **{"optim.max_steps": 4}), tmp_path / "a", opts)
+    train(straight, opts)
+    cut = new_run("correction", "quick", _head_overrides(base_run, **{"optim.max_steps": 4}), tmp_path / "b", opts)
+
+    class Cut(Exception):
+        pass
+
+    def stop(r):
+        if r.state.step == 3:
+            raise Cut
+
+    with pytest.raises(Cut):
+        train(cut, TrainOptions(data=str(synthetic_zarr), threads=1, progress=False, device="cpu", callbacks=(stop,)))
+    assert read_json(cut / "checkpoints" / "latest.json")["step"] == 2
+    train(cut, opts)  # resumed from its step-2 checkpoint: the caches are rebuilt, to the same values
+    a, b = load_correction(straight).model.state_dict(), load_correction(cut).model.state_dict()
+    assert all(torch.equal(a[n], b[n]) for n in a)
+
+
 class Recording:
     """A correction head that records what the controller gives it and corrects nothing."""
 

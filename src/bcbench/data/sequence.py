@@ -72,6 +72,8 @@ class SequenceDataset:
     action_horizon: int = 8
     state_dim: int = 2
     pad_before: int | None = None
+    with_steps: bool = False  # batches also carry "steps": each window's absolute buffer steps (B, Tp), int64
+    with_images: bool = True  # False: batches carry no "image" (a policy that reads frames itself, by "steps")
 
     def __post_init__(self) -> None:
         if self.buffer.images is None:
@@ -90,16 +92,26 @@ class SequenceDataset:
         """Gather, normalise and convert a batch of windows (numpy; the trainer moves it to torch)."""
         idx = self.indices[window_ids]  # (B, Tp)
         obs_idx = idx[:, : self.obs_horizon]  # (B, To)
-        assert self.buffer.images is not None
-        img = self.buffer.images[obs_idx]  # (B, To, H, W, C) uint8
-        img = np.ascontiguousarray(img.transpose(0, 1, 4, 2, 3), dtype=np.float32)  # (B, To, C, H, W)
-        img *= 1.0 / 255.0
         agent_pos = self.normalizer.normalize("agent_pos", self.buffer.state[obs_idx, : self.state_dim])  # (B, To, S)
         action = self.normalizer.normalize("action", self.buffer.action[idx])  # (B, Tp, A)
-        return {"image": img, "agent_pos": agent_pos.astype(np.float32), "action": action.astype(np.float32)}
+        out = {"agent_pos": agent_pos.astype(np.float32), "action": action.astype(np.float32)}
+        if self.with_images:
+            out = {"image": frames(self.buffer, obs_idx), **out}
+        if self.with_steps:
+            out["steps"] = idx
+        return out
 
     def __getitem__(self, i: int) -> dict[str, np.ndarray]:
         return {k: v[0] for k, v in self.get_batch(np.array([i])).items()}
+
+
+def frames(buffer: ReplayBuffer, steps: np.ndarray) -> np.ndarray:
+    """The buffer's frames at `steps` (any shape S) as float32 in [0, 1], channels first: (*S, C, H, W)."""
+    assert buffer.images is not None
+    img = buffer.images[steps]  # (*S, H, W, C) uint8
+    img = np.ascontiguousarray(np.moveaxis(img, -1, -3), dtype=np.float32)  # (*S, C, H, W)
+    img *= 1.0 / 255.0
+    return img
 
 
 def fit_normalizer(buffer: ReplayBuffer, train_episodes: np.ndarray, state_dim: int = 2) -> MinMaxNormalizer:
@@ -112,7 +124,7 @@ def fit_normalizer(buffer: ReplayBuffer, train_episodes: np.ndarray, state_dim: 
 def make_datasets(
     buffer: ReplayBuffer, val_fraction: float = 0.1, seed: int = 0, obs_horizon: int = 2,
     pred_horizon: int = 16, action_horizon: int = 8, state_dim: int = 2, demos: int | None = None,
-    pad_before: int | None = None,
+    pad_before: int | None = None, with_steps: bool = False, with_images: bool = True,
 ) -> tuple[SequenceDataset, SequenceDataset, MinMaxNormalizer]:
     """Split by episode, fit the normalizer on the training split, build both datasets. `demos` keeps only the
     training split's first N episodes (lowest indices, so smaller counts nest in larger ones) and leaves the
@@ -125,5 +137,6 @@ def make_datasets(
         train_eps = train_eps[:demos]
     norm = fit_normalizer(buffer, train_eps, state_dim)
     kw = {"obs_horizon": obs_horizon, "pred_horizon": pred_horizon, "action_horizon": action_horizon,
-          "state_dim": state_dim, "pad_before": pad_before}
+          "state_dim": state_dim, "pad_before": pad_before,
+          "with_steps": with_steps, "with_images": with_images}
     return SequenceDataset(buffer, train_eps, norm, **kw), SequenceDataset(buffer, val_eps, norm, **kw), norm

@@ -133,6 +133,10 @@ class BCPolicy(nn.Module):
     def fit_data(self, train_ds: SequenceDataset) -> None:
         """Data-dependent set-up, once before a fresh run's first step (BeT fits its k-means bins); none by default."""
 
+    def attach_data(self, train_ds: SequenceDataset) -> None:
+        """Called at every start of training, fresh or resumed, before the first step (the correction head keeps the
+        demonstrations' frames to read by step); nothing by default."""
+
     def optim_groups(self, weight_decay: float) -> list[dict[str, Any]]:
         """Parameter groups for the optimiser (one group, decay on everything, unless a policy says otherwise)."""
         return [{"params": list(self.parameters()), "weight_decay": weight_decay}]

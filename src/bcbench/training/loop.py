@@ -226,6 +226,7 @@ def _log_segment(r: Run) -> None:
 
 def _resume(r: Run) -> None:
     ckpt = latest_checkpoint(r.run_dir)
+    r.model.attach_data(r.train_ds)
     if ckpt is None:
         r.model.fit_data(r.train_ds)  # data-dependent set-up (BeT's k-means), fresh runs only
         if r.ema is not None:  # the EMA copy was made before it
