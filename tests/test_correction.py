@@ -150,6 +150,88 @@ def test_a_resumed_head_trains_to_the_same_weights(base_run, synthetic_zarr, tmp
     assert all(torch.equal(a[n], b[n]) for n in a)
 
 
+def _record(base_run: Path, path: Path, episodes: int = 2, max_steps: int = 12) -> dict:
+    from bcbench.evaluation.evaluate import evaluate
+
+    base = load_runner(base_run)
+    base.model.set_sampler("ddim", 2)
+    cfg = EvalConfig(episodes=episodes, max_steps=max_steps, workers=1, execution="async", latency_ms=250)
+    return evaluate(base, cfg, None, progress=False, record=path)
+
+
+def test_a_recorded_rollout_replays_to_its_own_frames(base_run, tmp_path):
+    from bcbench.data.rollouts import load_rollouts, rollout_attrs
+    from bcbench.tasks import get_task
+
+    result = _record(base_run, tmp_path / "r.npz")
+    plain = _record(base_run, tmp_path / "unused.npz")
+    assert [e["final_state"] for e in result["episodes"]] == [e["final_state"] for e in plain["episodes"]]
+    buf, attrs = load_rollouts(tmp_path / "r.npz"), rollout_attrs(tmp_path / "r.npz")
+    assert list(np.diff(np.concatenate([[0], buf.episode_ends]))) == [e["length"] for e in result["episodes"]]
+    assert attrs["task"] == "pusht" and attrs["policy"]["weights_sha256"] == load_runner(base_run).info.weights_sha256
+    task = get_task("pusht")
+    for i, e in enumerate(result["episodes"]):  # the recorded actions, replayed from the seed, give the frames back
+        steps = range(buf.episode_starts[i], buf.episode_ends[i])
+        env = task.make_episode(e["seed"], None)
+        obs, _, _ = env.reset()
+        for t in steps:
+            assert np.array_equal(obs["pixels"], buf.images[t]) and np.allclose(obs["agent_pos"], buf.state[t])
+            obs = env.step(buf.action[t])[0]
+        env.close()
+
+
+def test_a_head_on_its_bases_rollouts_learns_the_bases_fresh_action(base_run, tmp_path):
+    from bcbench.data.sequence import make_datasets
+
+    _record(base_run, tmp_path / "r.npz", episodes=3, max_steps=30)
+    opts = TrainOptions(threads=1, progress=False, device="cpu", callbacks=(lambda r: seen.update(run=r),))
+    seen: dict = {}
+    run = new_run("correction", "quick", _head_overrides(base_run, rollouts=str(tmp_path / "r.npz"), target="fresh",
+                                                         **{"optim.batch_size": 2}), tmp_path / "head", opts)
+    train(run, opts)
+    head = seen["run"].model
+    assert read_json(run / "normalizer.json") == load_runner(base_run).normalizer.to_dict()  # the base's units
+    train_ds, _, _ = make_datasets(head.training_data(None), 0.1, 0, state_dim=head.state_dim, **head.data_window())
+    batch = {k: torch.from_numpy(v) for k, v in train_ds.get_batch(np.arange(2)).items()}
+    torch.manual_seed(3)
+    loss = head.compute_loss(batch)
+    torch.manual_seed(3)  # the same draws of k and the age, by hand
+    k = (torch.rand(2) * head.config.plan_draws).long()
+    age = (torch.rand(2) * (head.config.max_age + 1)).long()
+    steps, index, rows = batch["steps"], 1 + age, torch.arange(2)
+    planned = head.cached_plans(steps[:, 1], k)[rows, index]
+    cols = torch.stack([index - 1, index], 1)  # (2, To): the frames ending at t0 + a
+    feats = torch.cat([head.cached_features(steps[rows[:, None], cols]), batch["agent_pos"][rows[:, None], cols]], -1)
+    fresh = head.cached_plans(steps[rows, index], k)[:, 1]  # what the base plans there with no delay
+    want = torch.nn.functional.mse_loss(planned + head.residual(feats.flatten(1), planned, age, index), fresh)
+    assert torch.allclose(loss, want)
+
+
+@pytest.mark.parametrize(("overrides", "message"), [
+    ({"rollouts": "x.npz"}, "target=fresh"),
+    ({"target": "expert"}, "target must be demo or fresh"),
+])
+def test_head_settings_that_cannot_train_say_why(base_run, tmp_path, overrides, message):
+    opts = TrainOptions(threads=1, progress=False, device="cpu")
+    with pytest.raises(BCBenchError, match=message):
+        new_run("correction", "quick", _head_overrides(base_run, **overrides), tmp_path / "h", opts)
+
+
+def test_the_memorization_script_measures_both_splits(base_run, synthetic_zarr, tmp_path):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("head_memorization", Path(__file__).parents[1] / "scripts" /
+                                                  "head_memorization.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    mod.main([str(base_run), str(tmp_path / "m.json"), "--steps", "2", "--windows", "4", "--threads", "1",
+              "--data", str(synthetic_zarr)])
+    out = read_json(tmp_path / "m.json")
+    assert out["base_weights_sha256"] == load_runner(base_run).info.weights_sha256
+    for split in ("training", "held_out"):
+        assert len(out[split]["mse_by_age"]) == 15 and out[split]["mse"] > 0
+
+
 class Recording:
     """A correction head that records what the controller gives it and corrects nothing."""
 

@@ -42,7 +42,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
                      workers=args.workers, video=args.video, execution=args.execution, latency=args.latency,
                      latency_ms=args.latency_ms, execution_horizon=args.execution_horizon, strategy=strategy)
     out = Path(args.out) if args.out else default_out
-    result = evaluate(policy, cfg, out, progress=not args.quiet, weak=load_weak(args, policy), head=load_head(args))
+    result = evaluate(policy, cfg, out, progress=not args.quiet, weak=load_weak(args, policy), head=load_head(args),
+                      record=args.record)
     s = result["summary"]
     print(f"{policy.name}: {s['n']} episodes from seed {cfg.seed_start}{ran_text(policy)}")
     n = s["n"]  # shares with Wilson intervals (a bootstrap gives [0, 0] at 0%)
@@ -50,7 +51,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
           f"   > 0.9 {fmt_share(s['share_above_0.9'], n)}   success {fmt_share(s['success_rate'], n)}")
     print(f"  wall {s['wall_time_s']:.1f} s, {s['env_steps']} env steps ({s['env_steps_per_s']:.0f}/s on "
           f"{s['workers']} workers), {s['policy_calls']} batched policy calls ({s['policy_time_s']:.2f} s)")
-    print(f"  results: {out / 'eval.json'}")
+    print(f"  results: {out / 'eval.json'}" + (f"; rollouts: {args.record}" if args.record else ""))
     videos = [e["video"] for e in result["episodes"] if e["video"]]
     if videos:
         print(f"  videos: {', '.join(videos)}")

@@ -349,5 +349,7 @@ def _add_eval_command(sub: Any) -> None:
     _field(p, "--execution-horizon", EvalConfig, type=_positive_int, metavar="S")
     _add_strategy_args(p)
     p.add_argument("--out", metavar="DIR", help="output folder (default runs/eval-POLICY-TIME)")
+    p.add_argument("--record", metavar="FILE.npz", help="also write every step's observation and executed action "
+                   "to this rollout store (what a correction head trains on: --set rollouts=FILE.npz)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func="cmd_eval")

@@ -125,17 +125,19 @@ def make_datasets(
     buffer: ReplayBuffer, val_fraction: float = 0.1, seed: int = 0, obs_horizon: int = 2,
     pred_horizon: int = 16, action_horizon: int = 8, state_dim: int = 2, demos: int | None = None,
     pad_before: int | None = None, with_steps: bool = False, with_images: bool = True,
+    normalizer: MinMaxNormalizer | None = None,
 ) -> tuple[SequenceDataset, SequenceDataset, MinMaxNormalizer]:
     """Split by episode, fit the normalizer on the training split, build both datasets. `demos` keeps only the
     training split's first N episodes (lowest indices, so smaller counts nest in larger ones) and leaves the
-    validation split as it is, so validation losses compare across counts."""
+    validation split as it is, so validation losses compare across counts. `normalizer`: use this one instead of
+    fitting (data in another model's units: a correction head on its base's rollouts)."""
     train_eps, val_eps = split_episodes(buffer.n_episodes, val_fraction, seed)
     if demos is not None:
         if not 1 <= demos <= len(train_eps):
             raise BCBenchError(f"demos {demos}: the training split has {len(train_eps)} episodes "
                                f"({buffer.n_episodes} in the buffer, {len(val_eps)} held out)")
         train_eps = train_eps[:demos]
-    norm = fit_normalizer(buffer, train_eps, state_dim)
+    norm = normalizer or fit_normalizer(buffer, train_eps, state_dim)
     kw = {"obs_horizon": obs_horizon, "pred_horizon": pred_horizon, "action_horizon": action_horizon,
           "state_dim": state_dim, "pad_before": pad_before,
           "with_steps": with_steps, "with_images": with_images}

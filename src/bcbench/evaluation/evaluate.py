@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from bcbench.data.rollouts import Recorder
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.config import EvalConfig
 from bcbench.evaluation.controller import ChunkedController
@@ -76,11 +77,13 @@ def _split(items: dict[int, Any] | list[Any], n: int, key=lambda x: x) -> list[A
 
 def run_episodes(policy: ChunkPolicy, cfg: EvalConfig, out_dir: Path | None = None, progress: bool = True,
                  weak: ChunkPolicy | None = None, source: LatencySource | None = None,
-                 head: CorrectionHead | None = None) -> tuple[list[EpisodeResult], dict[str, Any]]:
+                 head: CorrectionHead | None = None, recorder: Recorder | None = None
+                 ) -> tuple[list[EpisodeResult], dict[str, Any]]:
     """Run cfg.episodes closed-loop episodes; returns per-episode results and timing counters. `weak`: BID's
     weaker policy (cfg.strategy.bid_weak, loaded by the caller); `source`: cfg's latency source, already resolved
     (a sweep that looked at its delays first: measured calls are then not timed twice); `head`: the correction
-    head of --strategy correction (cfg.strategy.correction, loaded by the caller)."""
+    head of --strategy correction (cfg.strategy.correction, loaded by the caller); `recorder`: collects every
+    step's observation and executed action (`bcbench eval --record`)."""
     task = episode_task(policy, cfg.task)
     n_workers = max(1, min(cfg.workers or os.cpu_count() or 1, cfg.episodes))
     results = {i: EpisodeResult(episode=i, seed=cfg.seed_start + i) for i in range(cfg.episodes)}
@@ -99,6 +102,8 @@ def run_episodes(policy: ChunkPolicy, cfg: EvalConfig, out_dir: Path | None = No
                   for i, r in results.items()]
         for ep, (obs, coverage, state) in pool.call("reset", _split(resets, n_workers, key=lambda x: x[0])).items():
             controller.reset(ep, obs, seed=results[ep].seed)
+            if recorder is not None:
+                recorder.reset(ep, results[ep].seed, obs)
             results[ep].initial_state = state
             results[ep].final_coverage = results[ep].max_coverage = coverage
         active = sorted(results)
@@ -110,6 +115,8 @@ def run_episodes(policy: ChunkPolicy, cfg: EvalConfig, out_dir: Path | None = No
             tp = time.perf_counter()
             actions = controller.act(active)
             policy_time += time.perf_counter() - tp
+            for ep in active if recorder is not None else ():
+                recorder.acted(ep, actions[ep])
             payload = {ep: (actions[ep], results[ep].score) for ep in active}
             stepped = pool.call("step", _split(payload, n_workers))
             finished = []
@@ -125,6 +132,8 @@ def run_episodes(policy: ChunkPolicy, cfg: EvalConfig, out_dir: Path | None = No
                     finished.append(ep)
                 else:
                     controller.observe(ep, obs)
+                    if recorder is not None:
+                        recorder.observed(ep, obs)
             for ep in finished:
                 controller.drop(ep)
             active = [ep for ep in active if ep not in finished]
@@ -150,11 +159,17 @@ def run_episodes(policy: ChunkPolicy, cfg: EvalConfig, out_dir: Path | None = No
 
 def evaluate(policy: ChunkPolicy, cfg: EvalConfig, out_dir: str | Path | None = None, progress: bool = True,
              extra: dict[str, Any] | None = None, weak: ChunkPolicy | None = None,
-             source: LatencySource | None = None, head: CorrectionHead | None = None) -> dict[str, Any]:
+             source: LatencySource | None = None, head: CorrectionHead | None = None,
+             record: str | Path | None = None) -> dict[str, Any]:
     """Evaluate and (if out_dir) write `eval.json` there atomically; returns the result dict (`weak`, `source`,
-    `head`: as for run_episodes)."""
+    `head`: as for run_episodes). `record`: also write the episodes' observations and executed actions to this
+    rollout store (bcbench.data.rollouts), stamped with the policy, its weights and the evaluation's settings."""
     out = Path(out_dir) if out_dir is not None else None
-    episodes, timing = run_episodes(policy, cfg, out, progress, weak, source, head)
+    recorder = Recorder() if record is not None else None
+    episodes, timing = run_episodes(policy, cfg, out, progress, weak, source, head, recorder)
+    if recorder is not None:
+        recorder.write(record, {"task": cfg.task, "policy": policy.describe(), "eval_config": asdict(cfg),
+                                **provenance(str(getattr(policy, "device", "cpu")))})
     summary = score_summary(
         np.array([e.score for e in episodes]), np.array([e.success for e in episodes]),
         np.array([e.final_coverage for e in episodes]),

@@ -11,15 +11,19 @@ since its observation) and the action's index in the chunk, and returns a residu
 so an untrained head executes the base's actions exactly (tested). The base is never trained: its weights are not
 the head's parameters, not in its checkpoint, and its encoder's output is taken without gradient.
 
-Training (`bcbench train --policy correction --set base=RUN_DIR`, the flat loop): each sample is a demonstration
-window; a chunk start t0 (the window's current step), an age a ~ uniform{0..A}, the base's chunk sampled from the
-observation at t0 (the base's own prediction, with its sampler at `base_sampler` / `base_steps`; one of K chunks
-per start, `plan_draws`, each from its own seed, computed once and kept, as is each frame's encoder output: the base
-is frozen, so they are fixed functions of the data), the head's input the observation at t0 + a and the base's planned action for t0 + a, the
-target the demonstration's action at t0 + a, loss the squared error of a_exec. The demonstration's own chunk at t0
-cannot stand in for the base's plan: its action for t0 + a *is* the target, so the residual would be zero.
-The windows hold obs_horizon + A frames (`data_window`), so the observation at t0 + a is in the sample, and start at
-most obs_horizon - 1 steps before an episode, as the base's do, so that frame 1 + a is the step index 1 + a plans for.
+Training (`bcbench train --policy correction --set base=RUN_DIR`, the flat loop): each sample is a window of
+obs_horizon + A frames; a chunk start t0 (the window's current step), an age a ~ uniform{0..A}, one of K chunks
+the base samples from the observation at t0 (`plan_draws`; with its sampler at `base_sampler` / `base_steps`),
+the head's input the observation at t0 + a and that chunk's action for t0 + a, loss the squared error of a_exec
+against the target: A2C2's, the demonstration's action at t0 + a (`target = demo`), or the base's own action from
+the observation at t0 + a (`fresh`: the chunk it would plan there with no delay, same draw). The demonstration's own
+chunk at t0 cannot stand in for the base's plan: its action for t0 + a *is* the target, so the residual would be
+zero. The windows come from the demonstrations or, with `rollouts`, from the base's own recorded episodes
+(`bcbench eval --record`), which show the chunk errors it makes off its training data. The base is frozen and its
+encoder runs in eval mode, so every chunk and every frame's features are fixed functions of the data: each is
+computed once (in fixed blocks of steps, so a resumed run rebuilds them bit for bit) and kept. Windows start at
+most obs_horizon - 1 steps before an episode, as the base's do, so that frame 1 + a is the step index 1 + a plans
+for.
 """
 
 from __future__ import annotations
@@ -34,6 +38,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from bcbench.data.normalizer import MinMaxNormalizer
+from bcbench.data.replay_buffer import ReplayBuffer
+from bcbench.data.rollouts import load_rollouts, rollout_attrs
 from bcbench.data.sequence import SequenceDataset, frames
 from bcbench.errors import BCBenchError
 from bcbench.interface import ChunkPolicy, Observation
@@ -71,6 +77,15 @@ class CorrectionConfig(PolicyConfig):
     eval mode, so a chunk and a frame's features are fixed functions of the data: each is computed once, the first
     time a batch needs it, and kept (the cost of training is then the K chunks a start and one encoder pass a frame,
     not a base sampling every step)"""
+    target: str = "demo"
+    """what a_exec is trained towards: `demo`, the demonstration's action at t0 + a (A2C2's), or `fresh`, the base's
+    own action for t0 + a from the observation at t0 + a (its chunk index obs_horizon - 1, the same noise draw k):
+    what the base would do with no delay, so the head learns to undo the age of its chunk"""
+    rollouts: str = ""
+    """a rollout store of the base's own episodes (`bcbench eval --checkpoint BASE --record FILE.npz`) to train on
+    instead of the demonstrations, in the base's units (target `fresh`: its executed actions are not an expert's).
+    The base's chunks on its training demonstrations are close to the demonstration itself (it fits them), so
+    there its chunk's error, which the head learns to correct, is smaller than on episodes it has not seen"""
     optim: OptimConfig = field(default_factory=_head_optim)
 
     def __post_init__(self) -> None:
@@ -81,6 +96,10 @@ class CorrectionConfig(PolicyConfig):
             raise BCBenchError(f"max_age must be in 0..pred_horizon - obs_horizon ({top}), got {self.max_age}")
         if not self.hidden or min(self.hidden) < 1:
             raise BCBenchError(f"hidden must list layer widths >= 1, got {self.hidden}")
+        if self.target not in ("demo", "fresh"):
+            raise BCBenchError(f"target must be demo or fresh, got {self.target!r}")
+        if self.rollouts and self.target != "fresh":
+            raise BCBenchError("rollouts hold the base's actions, not an expert's: train on them with target=fresh")
         if self.plan_draws < 1:
             raise BCBenchError(f"plan_draws must be >= 1, got {self.plan_draws}")
         if self.base_steps is not None and self.base_steps < 1:
@@ -162,7 +181,16 @@ class CorrectionPolicy(BCPolicy):
         c = self.config
         return {"obs_horizon": c.obs_horizon + c.max_age, "pred_horizon": c.pred_horizon,
                 "action_horizon": c.action_horizon, "pad_before": c.obs_horizon - 1, "with_steps": True,
-                "with_images": False}
+                "with_images": False, "normalizer": self.base.normalizer if c.rollouts else None}
+
+    def training_data(self, path: str | None) -> ReplayBuffer:
+        """The demonstrations, or with `rollouts` the base's recorded episodes (checked to be its task's)."""
+        if not self.config.rollouts:
+            return super().training_data(path)
+        task = rollout_attrs(self.config.rollouts).get("task")
+        if task != self.task.name:
+            raise BCBenchError(f"{self.config.rollouts} holds {task} episodes; the base runs {self.task.name}")
+        return load_rollouts(self.config.rollouts)
 
     def attach_data(self, train_ds: SequenceDataset) -> None:
         """Keep the demonstrations (frames read by buffer step) and empty caches sized to them."""
@@ -248,7 +276,9 @@ class CorrectionPolicy(BCPolicy):
         feats = torch.cat([self.cached_features(steps[rows[:, None], window]), pos[rows[:, None], window]], dim=-1)
         index = cs + age
         planned = plan[rows, index]  # (B, A): the base's action for step t0 + a
-        return F.mse_loss(planned + self.residual(feats.flatten(1), planned, age, index), action[rows, index])
+        # fresh: the base's own action for t0 + a, from the observation there, with the same draw
+        target = self.cached_plans(steps[rows, index], k)[:, cs] if c.target == "fresh" else action[rows, index]
+        return F.mse_loss(planned + self.residual(feats.flatten(1), planned, age, index), target)
 
     def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
         raise BCBenchError("a correction head is not a policy: run its base with --strategy correction "

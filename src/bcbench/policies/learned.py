@@ -29,6 +29,7 @@ import torch
 from torch import nn
 
 from bcbench.data.normalizer import MinMaxNormalizer
+from bcbench.data.replay_buffer import ReplayBuffer
 from bcbench.data.sequence import SequenceDataset
 from bcbench.errors import BCBenchError
 from bcbench.interface import Observation, RunInfo
@@ -132,6 +133,10 @@ class BCPolicy(nn.Module):
 
     def fit_data(self, train_ds: SequenceDataset) -> None:
         """Data-dependent set-up, once before a fresh run's first step (BeT fits its k-means bins); none by default."""
+
+    def training_data(self, path: str | None) -> ReplayBuffer:
+        """The buffer training reads: the task's demonstrations (from `path`, else the default place)."""
+        return self.task.demonstrations(path)
 
     def attach_data(self, train_ds: SequenceDataset) -> None:
         """Called at every start of training, fresh or resumed, before the first step (the correction head keeps the

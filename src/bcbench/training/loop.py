@@ -167,7 +167,7 @@ def prepare(run_dir: str | Path, opts: TrainOptions) -> Run:
     split = meta.get("data_split", {})
     torch.manual_seed(meta["config"]["seed"])  # initialisation is part of the seeded run
     model = build_model(meta)
-    buf = model.task.demonstrations(opts.data)
+    buf = model.training_data(opts.data)
     o = model.config.optim
     if opts.eval_every and not model.standalone:
         raise BCBenchError(f"--eval-every rolls out a policy; a {model.name} head runs beside its base: score it with "
