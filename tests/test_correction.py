@@ -79,6 +79,10 @@ def test_the_head_trains_on_a_frozen_base_and_then_acts(base_run, synthetic_zarr
     head = load_correction(run)
     base = load_runner(base_run)
     assert head.model.trained_on() == base.info.weights_sha256
+    from bcbench.utils.io import sha256_file
+
+    ckpt = max((run / "checkpoints").glob("step_*"), key=lambda p: int(p.name.split("_")[-1]))
+    assert head.describe()["weights_sha256"] == sha256_file(next(ckpt.glob("*.safetensors")))  # records name it
     assert head.model.mlp[-1].weight.abs().sum() > 0  # trained: the residual is no longer zero
     base.model.set_sampler("ddim", 2)
     naive = _drive(base, "naive", "async", 2, seed=5)

@@ -134,9 +134,10 @@ def load_correction(run_dir: str | Path, device: str = "cpu") -> CorrectionRunne
     if ckpt is None:
         raise BCBenchError(f"{run_dir} has no checkpoint yet")
     model = build_model(run)
-    load_weights(ckpt, model, ema=(ckpt / "ema.safetensors").exists())  # the EMA where it kept one, as load_runner
+    weights = "ema" if (ckpt / "ema.safetensors").exists() else "raw"  # the EMA where it kept one, as load_runner
+    load_weights(ckpt, model, ema=weights == "ema")
     norm = MinMaxNormalizer.from_dict(read_json(run_dir / "normalizer.json"))
-    return CorrectionRunner(model, norm, str(run_dir), device)
+    return CorrectionRunner(model, norm, str(run_dir), device, sha256_file(weights_file(ckpt, weights)))
 
 
 def load_runner(run_dir: str | Path, use_ema: bool = True, device: str = "cpu") -> PolicyRunner:

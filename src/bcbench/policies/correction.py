@@ -289,9 +289,10 @@ class CorrectionRunner:
     """The head on raw observations and pixel actions, for the controller's per-step hook (a CorrectionHead)."""
 
     def __init__(self, model: CorrectionPolicy, normalizer: MinMaxNormalizer, run_dir: str,
-                 device: str | torch.device = "cpu") -> None:
+                 device: str | torch.device = "cpu", weights_sha256: str | None = None) -> None:
         self.model = model.to(device).eval()
         self.normalizer, self.run_dir, self.device = normalizer, run_dir, torch.device(device)
+        self.weights_sha256 = weights_sha256  # the head's own weights file (None: untrained, built in memory)
 
     def base_mismatch(self, policy: ChunkPolicy) -> str | None:
         trained = self.model.trained_on()
@@ -316,5 +317,6 @@ class CorrectionRunner:
 
     def describe(self) -> dict[str, Any]:
         c = self.model.config
-        return {"run_dir": self.run_dir, "base": c.base, "base_weights_sha256": self.model.trained_on(),
+        return {"run_dir": self.run_dir, "weights_sha256": self.weights_sha256, "base": c.base,
+                "base_weights_sha256": self.model.trained_on(), "target": c.target, "rollouts": c.rollouts,
                 "parameters": self.model.num_parameters(), "max_age": c.max_age, "hidden": list(c.hidden)}
