@@ -37,8 +37,10 @@ def main(argv: list[str] | None = None) -> None:
     cfg.base, cfg.base_sampler, cfg.base_steps = a.base, a.sampler, a.steps
     head = build_model({"policy": "correction", "config": config_to_dict(cfg)})
     split = run_data_split(a.base)  # the episodes the base trained on, and those it held out
+    window = {**head.data_window(), "normalizer": head.base.normalizer}  # in the base's units, on its own split
     train, held, _ = make_datasets(head.task.demonstrations(a.data), split.get("val_fraction", 0.1),
-                                   split.get("split_seed", 0), state_dim=head.state_dim, **head.data_window())
+                                   split.get("split_seed", 0), state_dim=head.state_dim, demos=split.get("demos"),
+                                   **window)
     head.attach_data(train)
     rng = np.random.default_rng(0)
     out = {"base": a.base, "base_weights_sha256": head.base.info.weights_sha256,
@@ -46,8 +48,9 @@ def main(argv: list[str] | None = None) -> None:
     for name, ds in (("training", train), ("held_out", held)):
         ids = rng.choice(len(ds), min(a.windows, len(ds)), replace=False)
         batch = {k: torch.from_numpy(v) for k, v in ds.get_batch(ids).items()}
-        plan = head.cached_plans(batch["steps"][:, 1], torch.zeros(len(ids), dtype=torch.long))  # (n, Tp, A)
-        err = ((plan[:, 1:] - batch["action"][:, 1:]) ** 2).mean(-1)  # (n, Tp - 1): ages 0 .. Tp - 2
+        cs = head.config.obs_horizon - 1  # the chunk's index of its current step
+        plan = head.cached_plans(batch["steps"][:, cs], torch.zeros(len(ids), dtype=torch.long))  # (n, Tp, A)
+        err = ((plan[:, cs:] - batch["action"][:, cs:]) ** 2).mean(-1)  # (n, Tp - cs): ages 0 .. Tp - 1 - cs
         out[name] = {"mse": float(err.mean()), "mse_by_age": [round(float(x), 6) for x in err.mean(0)]}
         print(f"{name}: mse {out[name]['mse']:.4f}; by age {out[name]['mse_by_age']}")
     write_json(a.out, {**out, **provenance("cpu")})

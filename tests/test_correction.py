@@ -121,8 +121,9 @@ def test_the_heads_cached_chunks_and_features_are_the_bases_own_computed_once(ba
     feats = head.cached_features(window)
     assert torch.allclose(torch.cat([feats, pos], -1).flatten(1), head.features(image, pos), atol=1e-5)
     plans = head.cached_plans(window[:, 1], k)  # the base's own chunk from the batch's observation, with its seed
-    for i in range(6):
-        seed = np.random.SeedSequence([0, int(window[i, 1]), int(k[i])]).generate_state(1, np.uint64)[0] >> 2
+    episodes = np.searchsorted(train_ds.buffer.episode_ends, window[:, 1].numpy(), side="right")
+    for i in range(6):  # one noise per (episode, draw)
+        seed = np.random.SeedSequence([0, int(episodes[i]), int(k[i])]).generate_state(1, np.uint64)[0] >> 2
         own = head.base.model.predict_action_chunk({"image": image[i:i + 1], "agent_pos": pos[i:i + 1],
                                                     "generators": [torch.Generator().manual_seed(int(seed))]})
         assert torch.allclose(plans[i], own[0], atol=1e-4)
@@ -133,7 +134,8 @@ def test_the_heads_cached_chunks_and_features_are_the_bases_own_computed_once(ba
     assert torch.equal(head.cached_features(window), feats)
 
 
-def test_a_resumed_head_trains_to_the_same_weights(base_run, synthetic_zarr, tmp_path):
+def test_a_resumed_head_trains_to_the_same_weights(base_run, synthetic_zarr, tmp_path, monkeypatch):
+    monkeypatch.setattr("bcbench.policies.correction.CACHE_BLOCK", 8)  # several blocks, filled in another order
     opts = TrainOptions(data=str(synthetic_zarr), threads=1, progress=False, device="cpu")
     straight = new_run("correction", "quick", _head_overrides(base_run, **{"optim.max_steps": 4}), tmp_path / "a", opts)
     train(straight, opts)
@@ -154,7 +156,7 @@ def test_a_resumed_head_trains_to_the_same_weights(base_run, synthetic_zarr, tmp
     assert all(torch.equal(a[n], b[n]) for n in a)
 
 
-def _record(base_run: Path, path: Path, episodes: int = 2, max_steps: int = 12) -> dict:
+def _record(base_run: Path, path: Path | None, episodes: int = 2, max_steps: int = 12) -> dict:
     from bcbench.evaluation.evaluate import evaluate
 
     base = load_runner(base_run)
@@ -168,7 +170,7 @@ def test_a_recorded_rollout_replays_to_its_own_frames(base_run, tmp_path):
     from bcbench.tasks import get_task
 
     result = _record(base_run, tmp_path / "r.npz")
-    plain = _record(base_run, tmp_path / "unused.npz")
+    plain = _record(base_run, None)  # recording changes nothing of the episodes
     assert [e["final_state"] for e in result["episodes"]] == [e["final_state"] for e in plain["episodes"]]
     buf, attrs = load_rollouts(tmp_path / "r.npz"), rollout_attrs(tmp_path / "r.npz")
     assert list(np.diff(np.concatenate([[0], buf.episode_ends]))) == [e["length"] for e in result["episodes"]]
@@ -191,24 +193,44 @@ def test_a_head_on_its_bases_rollouts_learns_the_bases_fresh_action(base_run, tm
     opts = TrainOptions(threads=1, progress=False, device="cpu", callbacks=(lambda r: seen.update(run=r),))
     seen: dict = {}
     run = new_run("correction", "quick", _head_overrides(base_run, rollouts=str(tmp_path / "r.npz"), target="fresh",
-                                                         **{"optim.batch_size": 2}), tmp_path / "head", opts)
+                                                         max_age=14, **{"optim.batch_size": 2}), tmp_path / "head",
+                  opts)
     train(run, opts)
     head = seen["run"].model
     assert read_json(run / "normalizer.json") == load_runner(base_run).normalizer.to_dict()  # the base's units
     train_ds, _, _ = make_datasets(head.training_data(None), 0.1, 0, state_dim=head.state_dim, **head.data_window())
     batch = {k: torch.from_numpy(v) for k, v in train_ds.get_batch(np.arange(2)).items()}
+    last = len(train_ds) - 1  # the last window of the last episode: every age past a few runs off its end
+    batch = {k: torch.from_numpy(v) for k, v in train_ds.get_batch(np.array([0, 1, last, last])).items()}
     torch.manual_seed(3)
     loss = head.compute_loss(batch)
     torch.manual_seed(3)  # the same draws of k and the age, by hand
-    k = (torch.rand(2) * head.config.plan_draws).long()
-    age = (torch.rand(2) * (head.config.max_age + 1)).long()
-    steps, index, rows = batch["steps"], 1 + age, torch.arange(2)
+    k = (torch.rand(4) * head.config.plan_draws).long()
+    age = (torch.rand(4) * (head.config.max_age + 1)).long()
+    steps, index, rows = batch["steps"], 1 + age, torch.arange(4)
     planned = head.cached_plans(steps[:, 1], k)[rows, index]
-    cols = torch.stack([index - 1, index], 1)  # (2, To): the frames ending at t0 + a
+    cols = torch.stack([index - 1, index], 1)  # (4, To): the frames ending at t0 + a
     feats = torch.cat([head.cached_features(steps[rows[:, None], cols]), batch["agent_pos"][rows[:, None], cols]], -1)
     fresh = head.cached_plans(steps[rows, index], k)[:, 1]  # what the base plans there with no delay
-    want = torch.nn.functional.mse_loss(planned + head.residual(feats.flatten(1), planned, age, index), fresh)
-    assert torch.allclose(loss, want)
+    err = ((planned + head.residual(feats.flatten(1), planned, age, index) - fresh) ** 2).mean(-1)
+    real = steps[rows, index] == steps[:, 1] + age  # not past the episode's end
+    assert 0 < int(real.sum()) < 4, age  # the draws put one of the last windows' ages past the end
+    assert torch.allclose(loss, err[real].mean())
+
+
+def test_a_head_refuses_rollouts_of_other_weights(base_run, tmp_path):
+    from bcbench.data.rollouts import Recorder
+
+    rec = Recorder()
+    obs = {"pixels": np.zeros((96, 96, 3), np.uint8), "agent_pos": np.zeros(2, np.float32)}
+    rec.reset(0, 5, obs)
+    rec.acted(0, np.zeros(2))
+    rec.write(tmp_path / "other.npz", {"task": "pusht", "policy": {"weights_sha256": "ab" * 32}})
+    cfg = CorrectionConfig.preset("quick")
+    cfg.base, cfg.target, cfg.rollouts = str(base_run), "fresh", str(tmp_path / "other.npz")
+    head = build_model({"policy": "correction", "config": config_to_dict(cfg)})
+    with pytest.raises(BCBenchError, match="other weights"):
+        head.training_data(None)
 
 
 @pytest.mark.parametrize(("overrides", "message"), [

@@ -72,8 +72,8 @@ class CorrectionConfig(PolicyConfig):
     hidden: tuple[int, ...] = (256, 256)
     """widths of the MLP's hidden layers (Mish)"""
     plan_draws: int = 4
-    """K: the base's chunks kept per chunk start, each from its own noise seed (drawn from the head's seed, the
-    start's buffer step and k); a sample takes one of the K at random. The base is frozen and its encoder runs in
+    """K: the base's chunks kept per chunk start, draw k from the noise seeded by (the head's seed, the
+    episode, k), so within an episode draw k starts every chunk from one noise; a sample takes one of the K at random. The base is frozen and its encoder runs in
     eval mode, so a chunk and a frame's features are fixed functions of the data: each is computed once, the first
     time a batch needs it, and kept (the cost of training is then the K chunks a start and one encoder pass a frame,
     not a base sampling every step)"""
@@ -187,10 +187,14 @@ class CorrectionPolicy(BCPolicy):
         """The demonstrations, or with `rollouts` the base's recorded episodes (checked to be its task's)."""
         if not self.config.rollouts:
             return super().training_data(path)
-        task = rollout_attrs(self.config.rollouts).get("task")
-        if task != self.task.name:
-            raise BCBenchError(f"{self.config.rollouts} holds {task} episodes; the base runs {self.task.name}")
-        return load_rollouts(self.config.rollouts)
+        attrs, path = rollout_attrs(self.config.rollouts), self.config.rollouts
+        if attrs.get("task") != self.task.name:
+            raise BCBenchError(f"{path} holds {attrs.get('task')} episodes; the base runs {self.task.name}")
+        theirs, ours = attrs.get("policy", {}).get("weights_sha256"), self.base.info.weights_sha256
+        if theirs != ours:
+            raise BCBenchError(f"{path} holds episodes of other weights ({(theirs or 'unknown')[:12]}) than the "
+                               f"base's ({(ours or 'unknown')[:12]}): record the base's own (bcbench eval --record)")
+        return load_rollouts(path)
 
     def attach_data(self, train_ds: SequenceDataset) -> None:
         """Keep the demonstrations (frames read by buffer step) and empty caches sized to them."""
@@ -215,6 +219,7 @@ class CorrectionPolicy(BCPolicy):
         """The base encoder's features of the frames at buffer `steps` (B, To) -> (B, To, F), each computed once."""
         if self._data is None:
             raise BCBenchError("the correction head reads its training frames by step: attach_data(train_ds) first")
+        steps = steps.cpu()  # the caches live on the CPU
         for b in torch.unique(steps[~self._feats_ok[steps]] // CACHE_BLOCK).tolist():
             part = self._block(b)  # (M,)
             with torch.no_grad():
@@ -224,24 +229,28 @@ class CorrectionPolicy(BCPolicy):
 
     def cached_plans(self, t0: torch.Tensor, k: torch.Tensor) -> torch.Tensor:
         """The base's chunk from the observation window ending at buffer step t0 (B,), noise draw k (B,): (B, Tp, A)
-        normalised, each (step, k) sampled once, from its own seed (the head's seed, the step, k)."""
+        normalised, each (step, k) sampled once, from the seed of (the head's seed, t0's episode, k): within an
+        episode draw k starts every chunk from the same noise, so a chunk planned later (the fresh target) is the
+        one the base would have drawn there with the stale chunk's noise."""
         if self._data is None:
             raise BCBenchError("the correction head reads its training frames by step: attach_data(train_ds) first")
         buf, norm = self._data
+        t0, k = t0.cpu(), k.cpu()  # the caches live on the CPU
         miss = ~self._plans_ok[t0, k]
         for b, j in torch.unique(torch.stack([t0[miss] // CACHE_BLOCK, k[miss]], 1), dim=0).tolist():
             part = self._block(b).numpy()  # (M,)
-            first = buf.episode_starts[np.searchsorted(buf.episode_ends, part, side="right")]
+            episode = np.searchsorted(buf.episode_ends, part, side="right")
+            first = buf.episode_starts[episode]
             window = np.maximum(part[:, None] + np.arange(1 - self.config.obs_horizon, 1), first[:, None])  # (M, To)
             pos = norm.normalize("agent_pos", buf.state[window, : self.state_dim]).astype(np.float32)  # (M, To, S)
             gens = [torch.Generator(device=self.device).manual_seed(
-                int(np.random.SeedSequence([self.config.seed, int(s), j]).generate_state(1, np.uint64)[0] >> 2))
-                for s in part]
+                int(np.random.SeedSequence([self.config.seed, int(e), j]).generate_state(1, np.uint64)[0] >> 2))
+                for e in episode]  # one noise per (episode, draw): a fresh chunk shares its stale chunk's noise
             with torch.no_grad():
                 plan = self.base.model.predict_action_chunk({"image": self._frames(window), "generators": gens,
                                                              "agent_pos": torch.from_numpy(pos).to(self.device)})
             self._plans[part, j], self._plans_ok[part, j] = plan.float().cpu(), True
-        return self._plans[t0.cpu(), k.cpu()].to(self.device)
+        return self._plans[t0, k].to(self.device)
 
     def fit_data(self, train_ds: SequenceDataset) -> None:
         """The head reads the base's normalised units: refuse data normalised otherwise (another split or dataset)."""
@@ -276,9 +285,14 @@ class CorrectionPolicy(BCPolicy):
         feats = torch.cat([self.cached_features(steps[rows[:, None], window]), pos[rows[:, None], window]], dim=-1)
         index = cs + age
         planned = plan[rows, index]  # (B, A): the base's action for step t0 + a
-        # fresh: the base's own action for t0 + a, from the observation there, with the same draw
-        target = self.cached_plans(steps[rows, index], k)[:, cs] if c.target == "fresh" else action[rows, index]
-        return F.mse_loss(planned + self.residual(feats.flatten(1), planned, age, index), target)
+        executed = planned + self.residual(feats.flatten(1), planned, age, index)
+        if c.target == "demo":
+            return F.mse_loss(executed, action[rows, index])
+        # fresh: the base's own action for t0 + a, from the observation there, with the same draw; a step past the
+        # episode's end (a padded window repeats its last frame) has no observation of its own: left out
+        fresh = self.cached_plans(steps[rows, index], k)[:, cs]
+        real = (steps[rows, index] - steps[:, cs] == age).float()  # (B,)
+        return (((executed - fresh) ** 2).mean(-1) * real).sum() / real.sum().clamp(min=1.0)
 
     def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
         raise BCBenchError("a correction head is not a policy: run its base with --strategy correction "
