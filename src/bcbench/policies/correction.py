@@ -72,11 +72,11 @@ class CorrectionConfig(PolicyConfig):
     hidden: tuple[int, ...] = (256, 256)
     """widths of the MLP's hidden layers (Mish)"""
     plan_draws: int = 4
-    """K: the base's chunks kept per chunk start, draw k from the noise seeded by (the head's seed, the
-    episode, k), so within an episode draw k starts every chunk from one noise; a sample takes one of the K at random. The base is frozen and its encoder runs in
-    eval mode, so a chunk and a frame's features are fixed functions of the data: each is computed once, the first
-    time a batch needs it, and kept (the cost of training is then the K chunks a start and one encoder pass a frame,
-    not a base sampling every step)"""
+    """K: the base's chunks kept per chunk start, draw k from the noise seeded by (the head's seed, the episode, k),
+    so within an episode draw k starts every chunk from one noise; a sample takes one of the K at random. The base
+    is frozen and its encoder runs in eval mode, so a chunk and a frame's features are fixed functions of the data:
+    each is computed once, the first time a batch needs it, and kept (the cost of training is then the K chunks a
+    start and one encoder pass a frame, not a base sampling every step)"""
     target: str = "demo"
     """what a_exec is trained towards: `demo`, the demonstration's action at t0 + a (A2C2's), or `fresh`, the base's
     own action for t0 + a from the observation at t0 + a (its chunk index obs_horizon - 1, the same noise draw k):
