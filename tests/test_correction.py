@@ -186,13 +186,14 @@ def test_a_recorded_rollout_replays_to_its_own_frames(base_run, tmp_path):
         env.close()
 
 
-def test_a_head_on_its_bases_rollouts_learns_the_bases_fresh_action(base_run, tmp_path):
+@pytest.mark.parametrize("target", ["fresh", "sync"])
+def test_a_head_on_its_bases_rollouts_learns_the_bases_own_action(base_run, tmp_path, target):
     from bcbench.data.sequence import make_datasets
 
     _record(base_run, tmp_path / "r.npz", episodes=3, max_steps=30)
     opts = TrainOptions(threads=1, progress=False, device="cpu", callbacks=(lambda r: seen.update(run=r),))
     seen: dict = {}
-    run = new_run("correction", "quick", _head_overrides(base_run, rollouts=str(tmp_path / "r.npz"), target="fresh",
+    run = new_run("correction", "quick", _head_overrides(base_run, rollouts=str(tmp_path / "r.npz"), target=target,
                                                          max_age=14, **{"optim.batch_size": 2}), tmp_path / "head",
                   opts)
     train(run, opts)
@@ -211,8 +212,13 @@ def test_a_head_on_its_bases_rollouts_learns_the_bases_fresh_action(base_run, tm
     planned = head.cached_plans(steps[:, 1], k)[rows, index]
     cols = torch.stack([index - 1, index], 1)  # (4, To): the frames ending at t0 + a
     feats = torch.cat([head.cached_features(steps[rows[:, None], cols]), batch["agent_pos"][rows[:, None], cols]], -1)
-    fresh = head.cached_plans(steps[rows, index], k)[:, 1]  # what the base plans there with no delay
-    err = ((planned + head.residual(feats.flatten(1), planned, age, index) - fresh) ** 2).mean(-1)
+    # fresh: what the base plans at t0 + a; sync: what sync execution runs there, from the chunk j steps before
+    j = age % head.config.action_horizon if target == "sync" else torch.zeros_like(age)
+    own = head.cached_plans(steps[rows, index - j], k)[rows, 1 + j]
+    if target == "sync":
+        assert torch.equal(own[age < 8], planned[age < 8])  # an age within one action horizon is its own target
+        assert bool((age >= 8).any() & (age < 8).any()), age  # both kinds drawn
+    err = ((planned + head.residual(feats.flatten(1), planned, age, index) - own) ** 2).mean(-1)
     real = steps[rows, index] == steps[:, 1] + age  # not past the episode's end
     assert 0 < int(real.sum()) < 4, age  # the draws put one of the last windows' ages past the end
     assert torch.allclose(loss, err[real].mean())
@@ -235,7 +241,7 @@ def test_a_head_refuses_rollouts_of_other_weights(base_run, tmp_path):
 
 @pytest.mark.parametrize(("overrides", "message"), [
     ({"rollouts": "x.npz"}, "target=fresh"),
-    ({"target": "expert"}, "target must be demo or fresh"),
+    ({"target": "expert"}, "target must be demo, fresh or sync"),
 ])
 def test_head_settings_that_cannot_train_say_why(base_run, tmp_path, overrides, message):
     opts = TrainOptions(threads=1, progress=False, device="cpu")

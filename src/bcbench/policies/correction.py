@@ -80,7 +80,10 @@ class CorrectionConfig(PolicyConfig):
     target: str = "demo"
     """what a_exec is trained towards: `demo`, the demonstration's action at t0 + a (A2C2's), or `fresh`, the base's
     own action for t0 + a from the observation at t0 + a (its chunk index obs_horizon - 1, the same noise draw k):
-    what the base would do with no delay, so the head learns to undo the age of its chunk"""
+    what the base would do with no delay, so the head learns to undo the age of its chunk; or `sync`, the action
+    sync execution would run at t0 + a: the chunk planned j = a mod action_horizon steps before, at its index
+    obs_horizon - 1 + j (so an age within one action horizon is its own target, and an older chunk's target keeps
+    the consistency of a chunk, which `fresh`'s one-step replanning gives up)"""
     rollouts: str = ""
     """a rollout store of the base's own episodes (`bcbench eval --checkpoint BASE --record FILE.npz`) to train on
     instead of the demonstrations, in the base's units (target `fresh`: its executed actions are not an expert's).
@@ -96,10 +99,11 @@ class CorrectionConfig(PolicyConfig):
             raise BCBenchError(f"max_age must be in 0..pred_horizon - obs_horizon ({top}), got {self.max_age}")
         if not self.hidden or min(self.hidden) < 1:
             raise BCBenchError(f"hidden must list layer widths >= 1, got {self.hidden}")
-        if self.target not in ("demo", "fresh"):
-            raise BCBenchError(f"target must be demo or fresh, got {self.target!r}")
-        if self.rollouts and self.target != "fresh":
-            raise BCBenchError("rollouts hold the base's actions, not an expert's: train on them with target=fresh")
+        if self.target not in ("demo", "fresh", "sync"):
+            raise BCBenchError(f"target must be demo, fresh or sync, got {self.target!r}")
+        if self.rollouts and self.target == "demo":
+            raise BCBenchError("rollouts hold the base's actions, not an expert's: train on them with target=fresh "
+                               "or target=sync")
         if self.plan_draws < 1:
             raise BCBenchError(f"plan_draws must be >= 1, got {self.plan_draws}")
         if self.base_steps is not None and self.base_steps < 1:
@@ -288,11 +292,13 @@ class CorrectionPolicy(BCPolicy):
         executed = planned + self.residual(feats.flatten(1), planned, age, index)
         if c.target == "demo":
             return F.mse_loss(executed, action[rows, index])
-        # fresh: the base's own action for t0 + a, from the observation there, with the same draw; a step past the
-        # episode's end (a padded window repeats its last frame) has no observation of its own: left out
-        fresh = self.cached_plans(steps[rows, index], k)[:, cs]
+        # the base's own action for t0 + a with the same draw, from the observation there (fresh) or from j = a mod
+        # action_horizon steps before it (sync); a step past the episode's end (a padded window repeats its last
+        # frame) has no observation of its own: left out
+        j = age % c.action_horizon if c.target == "sync" else torch.zeros_like(age)
+        target = self.cached_plans(steps[rows, index - j], k)[rows, cs + j]
         real = (steps[rows, index] - steps[:, cs] == age).float()  # (B,)
-        return (((executed - fresh) ** 2).mean(-1) * real).sum() / real.sum().clamp(min=1.0)
+        return (((executed - target) ** 2).mean(-1) * real).sum() / real.sum().clamp(min=1.0)
 
     def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
         raise BCBenchError("a correction head is not a policy: run its base with --strategy correction "
