@@ -222,6 +222,11 @@ def test_a_head_on_its_bases_rollouts_learns_the_bases_own_action(base_run, tmp_
     real = steps[rows, index] == steps[:, 1] + age  # not past the episode's end
     assert 0 < int(real.sum()) < 4, age  # the draws put one of the last windows' ages past the end
     assert torch.allclose(loss, err[real].mean())
+    _script("head_open_loop").main([str(run), str(tmp_path / "open.json"), "--windows", "3", "--threads", "1"])
+    rows = read_json(tmp_path / "open.json")["by_age"]
+    assert len(rows) == 15 and all(r["runner_minus_training_px"] < 1e-2 for r in rows)  # runner = training path
+    if target == "sync":
+        assert rows[0]["mse_stale"] == 0.0  # age 0: the stale chunk is its own target
 
 
 def test_a_head_refuses_rollouts_of_other_weights(base_run, tmp_path):
@@ -249,15 +254,18 @@ def test_head_settings_that_cannot_train_say_why(base_run, tmp_path, overrides, 
         new_run("correction", "quick", _head_overrides(base_run, **overrides), tmp_path / "h", opts)
 
 
-def test_the_memorization_script_measures_both_splits(base_run, synthetic_zarr, tmp_path):
+def _script(name: str):
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("head_memorization", Path(__file__).parents[1] / "scripts" /
-                                                  "head_memorization.py")
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).parents[1] / "scripts" / f"{name}.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    mod.main([str(base_run), str(tmp_path / "m.json"), "--steps", "2", "--windows", "4", "--threads", "1",
-              "--data", str(synthetic_zarr)])
+    return mod
+
+
+def test_the_memorization_script_measures_both_splits(base_run, synthetic_zarr, tmp_path):
+    _script("head_memorization").main([str(base_run), str(tmp_path / "m.json"), "--steps", "2", "--windows", "4",
+                                       "--threads", "1", "--data", str(synthetic_zarr)])
     out = read_json(tmp_path / "m.json")
     assert out["base_weights_sha256"] == load_runner(base_run).info.weights_sha256
     for split in ("training", "held_out"):
