@@ -44,7 +44,8 @@ def main(argv: list[str] | None = None) -> None:
         ages = torch.full((n,), age)
         idx = cs + ages
         cols = idx[:, None] + torch.arange(1 - c.obs_horizon, 1)  # (n, To): the frames ending at t0 + a
-        feats = torch.cat([m.cached_features(steps[rows[:, None], cols]), pos[rows[:, None], cols]], -1).flatten(1)
+        seen = cols[:, c.obs_horizon - m.frames:]  # the newest the head reads
+        feats = torch.cat([m.cached_features(steps[rows[:, None], seen]), pos[rows[:, None], seen]], -1).flatten(1)
         planned = plan[rows, idx]
         with torch.no_grad():
             res = m.residual(feats, planned, ages, idx)

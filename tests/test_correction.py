@@ -186,16 +186,16 @@ def test_a_recorded_rollout_replays_to_its_own_frames(base_run, tmp_path):
         env.close()
 
 
-@pytest.mark.parametrize("target", ["fresh", "sync"])
-def test_a_head_on_its_bases_rollouts_learns_the_bases_own_action(base_run, tmp_path, target):
+@pytest.mark.parametrize(("target", "frames"), [("fresh", None), ("sync", None), ("sync", 1)])
+def test_a_head_on_its_bases_rollouts_learns_the_bases_own_action(base_run, tmp_path, target, frames):
     from bcbench.data.sequence import make_datasets
 
     _record(base_run, tmp_path / "r.npz", episodes=3, max_steps=30)
     opts = TrainOptions(threads=1, progress=False, device="cpu", callbacks=(lambda r: seen.update(run=r),))
     seen: dict = {}
-    run = new_run("correction", "quick", _head_overrides(base_run, rollouts=str(tmp_path / "r.npz"), target=target,
-                                                         max_age=14, **{"optim.batch_size": 2}), tmp_path / "head",
-                  opts)
+    overrides = _head_overrides(base_run, rollouts=str(tmp_path / "r.npz"), target=target, max_age=14,
+                                head_frames=frames, **{"optim.batch_size": 2})
+    run = new_run("correction", "quick", overrides, tmp_path / "head", opts)
     train(run, opts)
     head = seen["run"].model
     assert read_json(run / "normalizer.json") == load_runner(base_run).normalizer.to_dict()  # the base's units
@@ -210,7 +210,7 @@ def test_a_head_on_its_bases_rollouts_learns_the_bases_own_action(base_run, tmp_
     age = (torch.rand(4) * (head.config.max_age + 1)).long()
     steps, index, rows = batch["steps"], 1 + age, torch.arange(4)
     planned = head.cached_plans(steps[:, 1], k)[rows, index]
-    cols = torch.stack([index - 1, index], 1)  # (4, To): the frames ending at t0 + a
+    cols = torch.stack([index - 1, index], 1)[:, 2 - (frames or 2):]  # (4, frames): the newest, ending at t0 + a
     feats = torch.cat([head.cached_features(steps[rows[:, None], cols]), batch["agent_pos"][rows[:, None], cols]], -1)
     # fresh: what the base plans at t0 + a; sync: what sync execution runs there, from the chunk j steps before
     j = age % head.config.action_horizon if target == "sync" else torch.zeros_like(age)

@@ -71,6 +71,11 @@ class CorrectionConfig(PolicyConfig):
     chunk)"""
     hidden: tuple[int, ...] = (256, 256)
     """widths of the MLP's hidden layers (Mish)"""
+    head_frames: int | None = None
+    """how many of the newest observation frames the head reads (None: obs_horizon, the base's). 1 shows it no
+    motion: from two frames and two positions it can predict the next action by continuing the current motion, an
+    accurate open-loop guess that feeds on itself closed loop (the copycat problem of behaviour cloning from
+    observation histories, Wen et al. 2020)"""
     plan_draws: int = 4
     """K: the base's chunks kept per chunk start, draw k from the noise seeded by (the head's seed, the episode, k),
     so within an episode draw k starts every chunk from one noise; a sample takes one of the K at random. The base
@@ -104,6 +109,8 @@ class CorrectionConfig(PolicyConfig):
         if self.rollouts and self.target == "demo":
             raise BCBenchError("rollouts hold the base's actions, not an expert's: train on them with target=fresh "
                                "or target=sync")
+        if self.head_frames is not None and not 1 <= self.head_frames <= self.obs_horizon:
+            raise BCBenchError(f"head_frames must be in 1..obs_horizon ({self.obs_horizon}), got {self.head_frames}")
         if self.plan_draws < 1:
             raise BCBenchError(f"plan_draws must be >= 1, got {self.plan_draws}")
         if self.base_steps is not None and self.base_steps < 1:
@@ -153,7 +160,7 @@ class CorrectionPolicy(BCPolicy):
         m.eval().requires_grad_(False)
         self.use_task(m.task)  # the base's task: its shapes
         self._base = (base,)  # a tuple: nn.Module registers no submodule, so nothing of the base trains or is saved
-        feat = c.obs_horizon * (m.encoder.out_dim + self.state_dim)
+        feat = self.frames * (m.encoder.out_dim + self.state_dim)
         dims = [feat + self.action_dim + 2, *c.hidden]  # features, planned action (A), age, index
         layers: list[nn.Module] = []
         for a, b in itertools.pairwise(dims):
@@ -266,10 +273,17 @@ class CorrectionPolicy(BCPolicy):
     def device(self) -> torch.device:
         return self.mlp[0].weight.device
 
+    @property
+    def frames(self) -> int:
+        """The newest observation frames the head reads (head_frames, else obs_horizon)."""
+        return self.config.head_frames or self.config.obs_horizon
+
     def features(self, image: torch.Tensor, agent_pos: torch.Tensor) -> torch.Tensor:
-        """The base encoder's features of an observation window: (B, To, 3, H, W), (B, To, S) -> (B, To (F + S))."""
+        """The base encoder's features of an observation window's newest `frames`: (B, To, 3, H, W), (B, To, S) ->
+        (B, frames (F + S))."""
+        n = self.frames
         with torch.no_grad():
-            return torch.cat([self.base.model.encoder(image), agent_pos], dim=-1).flatten(1).detach()
+            return torch.cat([self.base.model.encoder(image[:, -n:]), agent_pos[:, -n:]], dim=-1).flatten(1).detach()
 
     def residual(self, feats: torch.Tensor, action: torch.Tensor, age: torch.Tensor, index: torch.Tensor
                  ) -> torch.Tensor:
@@ -285,7 +299,7 @@ class CorrectionPolicy(BCPolicy):
         plan = self.cached_plans(steps[:, cs], k)  # (B, Tp, A), from t0's observation
         age = (self.train_draw(batch, torch.rand) * (c.max_age + 1)).long().clamp_(max=c.max_age)  # (B,)
         rows = torch.arange(len(age), device=age.device)
-        window = age[:, None] + torch.arange(to, device=age.device)  # (B, To): the frames ending at t0 + a
+        window = age[:, None] + torch.arange(to - self.frames, to, device=age.device)  # (B, n): frames ending at t0 + a
         feats = torch.cat([self.cached_features(steps[rows[:, None], window]), pos[rows[:, None], window]], dim=-1)
         index = cs + age
         planned = plan[rows, index]  # (B, A): the base's action for step t0 + a
