@@ -16,7 +16,8 @@ obs_horizon + A frames; a chunk start t0 (the window's current step), an age a ~
 the base samples from the observation at t0 (`plan_draws`; with its sampler at `base_sampler` / `base_steps`),
 the head's input the observation at t0 + a and that chunk's action for t0 + a, loss the squared error of a_exec
 against the target: A2C2's, the demonstration's action at t0 + a (`target = demo`), or the base's own action from
-the observation at t0 + a (`fresh`: the chunk it would plan there with no delay, same draw). The demonstration's own
+the observation at t0 + a (`fresh`: the chunk it would plan there with no delay, same draw) or the action sync
+execution would run there (`sync`: the chunk planned a mod action_horizon steps before). The demonstration's own
 chunk at t0 cannot stand in for the base's plan: its action for t0 + a *is* the target, so the residual would be
 zero. The windows come from the demonstrations or, with `rollouts`, from the base's own recorded episodes
 (`bcbench eval --record`), which show the chunk errors it makes off its training data. The base is frozen and its
@@ -91,7 +92,7 @@ class CorrectionConfig(PolicyConfig):
     the consistency of a chunk, which `fresh`'s one-step replanning gives up)"""
     rollouts: str = ""
     """a rollout store of the base's own episodes (`bcbench eval --checkpoint BASE --record FILE.npz`) to train on
-    instead of the demonstrations, in the base's units (target `fresh`: its executed actions are not an expert's).
+    instead of the demonstrations, in the base's units (target `fresh` or `sync`: its actions are not an expert's).
     The base's chunks on its training demonstrations are close to the demonstration itself (it fits them), so
     there its chunk's error, which the head learns to correct, is smaller than on episodes it has not seen"""
     optim: OptimConfig = field(default_factory=_head_optim)
