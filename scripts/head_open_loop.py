@@ -36,28 +36,20 @@ def main(argv: list[str] | None = None) -> None:
     m.attach_data(train)
     ids = np.linspace(0, len(val) - 1, min(a.windows, len(val))).astype(int)
     b = {k: torch.from_numpy(v) for k, v in val.get_batch(ids).items()}
-    steps, pos, n, cs = b["steps"], b["agent_pos"], len(ids), c.obs_horizon - 1
-    rows, k = torch.arange(n), torch.zeros(n, dtype=torch.long)
-    plan = m.cached_plans(steps[:, cs], k)  # (n, Tp, A)
+    steps, n = b["steps"], len(ids)
+    k = torch.zeros(n, dtype=torch.long)
     out = {"head": a.head, "head_weights_sha256": head.weights_sha256, "target": c.target, "by_age": []}
     for age in range(c.max_age + 1):
         ages = torch.full((n,), age)
-        idx = cs + ages
-        cols = idx[:, None] + torch.arange(1 - c.obs_horizon, 1)  # (n, To): the frames ending at t0 + a
-        seen = cols[:, c.obs_horizon - m.frames:]  # the newest the head reads
-        feats = torch.cat([m.cached_features(steps[rows[:, None], seen]), pos[rows[:, None], seen]], -1).flatten(1)
-        planned = plan[rows, idx]
+        t = m.terms(b, ages, k)  # the head's inputs and target, as training draws them
+        planned, target = t["planned"], t["target"]
         with torch.no_grad():
-            res = m.residual(feats, planned, ages, idx)
-        if c.target == "demo":
-            target = b["action"][rows, idx]
-        else:
-            j = ages % c.action_horizon if c.target == "sync" else torch.zeros_like(ages)
-            target = m.cached_plans(steps[rows, idx - j], k)[rows, cs + j]
-        frames = steps[rows[:, None], cols].numpy()
+            res = m.residual(t["feats"], planned, ages, t["index"])
+        cols = t["index"][:, None] + torch.arange(1 - c.obs_horizon, 1)  # (n, To): the frames ending at t0 + a
+        frames = steps[torch.arange(n)[:, None], cols].numpy()
         planned_px = head.normalizer.unnormalize("action", planned).numpy()
         ran = head.correct({"image": buf.images[frames], "agent_pos": buf.state[frames][..., : m.state_dim]},
-                           planned_px, ages.numpy(), idx.numpy()) - planned_px
+                           planned_px, ages.numpy(), t["index"].numpy()) - planned_px
         trained = (head.normalizer.unnormalize("action", planned + res)
                    - head.normalizer.unnormalize("action", planned)).numpy()
         row = {"age": age, "mse_stale": float(((target - planned) ** 2).mean()),

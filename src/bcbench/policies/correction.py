@@ -293,27 +293,37 @@ class CorrectionPolicy(BCPolicy):
         scalars = torch.stack([age.float() / max(1, c.max_age), index.float() / c.pred_horizon], dim=-1)  # (B, A)
         return self.mlp(torch.cat([feats, action, scalars.to(feats.dtype)], dim=-1))
 
-    def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-        c, steps, pos, action = self.config, batch["steps"], batch["agent_pos"], batch["action"]  # (B, To + A, ...)
+    def terms(self, batch: dict[str, torch.Tensor], age: torch.Tensor, k: torch.Tensor) -> dict[str, torch.Tensor]:
+        """One sample's parts at chunk age `age` and noise draw `k` (B,): the head's inputs (feats, planned, index),
+        its target, and `real` (0 where t0 + a is past the episode's end and the target is the base's own)."""
+        c, steps, pos = self.config, batch["steps"], batch["agent_pos"]  # (B, To + A, ...)
         to, cs = c.obs_horizon, c.obs_horizon - 1
-        k = (self.train_draw(batch, torch.rand) * c.plan_draws).long().clamp_(max=c.plan_draws - 1)  # (B,)
-        plan = self.cached_plans(steps[:, cs], k)  # (B, Tp, A), from t0's observation
-        age = (self.train_draw(batch, torch.rand) * (c.max_age + 1)).long().clamp_(max=c.max_age)  # (B,)
         rows = torch.arange(len(age), device=age.device)
         window = age[:, None] + torch.arange(to - self.frames, to, device=age.device)  # (B, n): frames ending at t0 + a
         feats = torch.cat([self.cached_features(steps[rows[:, None], window]), pos[rows[:, None], window]], dim=-1)
         index = cs + age
-        planned = plan[rows, index]  # (B, A): the base's action for step t0 + a
-        executed = planned + self.residual(feats.flatten(1), planned, age, index)
+        planned = self.cached_plans(steps[:, cs], k)[rows, index]  # (B, A): t0's chunk's action for step t0 + a
         if c.target == "demo":
-            return F.mse_loss(executed, action[rows, index])
+            return {"feats": feats.flatten(1), "planned": planned, "index": index,
+                    "target": batch["action"][rows, index], "real": torch.ones_like(age, dtype=torch.float)}
         # the base's own action for t0 + a with the same draw, from the observation there (fresh) or from j = a mod
         # action_horizon steps before it (sync); a step past the episode's end (a padded window repeats its last
         # frame) has no observation of its own: left out
         j = age % c.action_horizon if c.target == "sync" else torch.zeros_like(age)
-        target = self.cached_plans(steps[rows, index - j], k)[rows, cs + j]
-        real = (steps[rows, index] - steps[:, cs] == age).float()  # (B,)
-        return (((executed - target) ** 2).mean(-1) * real).sum() / real.sum().clamp(min=1.0)
+        return {"feats": feats.flatten(1), "planned": planned, "index": index,
+                "target": self.cached_plans(steps[rows, index - j], k)[rows, cs + j],
+                "real": (steps[rows, index] - steps[:, cs] == age).float()}
+
+    def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        c = self.config
+        k = (self.train_draw(batch, torch.rand) * c.plan_draws).long().clamp_(max=c.plan_draws - 1)  # (B,)
+        age = (self.train_draw(batch, torch.rand) * (c.max_age + 1)).long().clamp_(max=c.max_age)  # (B,)
+        t = self.terms(batch, age, k)
+        executed = t["planned"] + self.residual(t["feats"], t["planned"], age, t["index"])
+        if c.target == "demo":
+            return F.mse_loss(executed, t["target"])
+        real = t["real"]
+        return (((executed - t["target"]) ** 2).mean(-1) * real).sum() / real.sum().clamp(min=1.0)
 
     def predict_action_chunk(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
         raise BCBenchError("a correction head is not a policy: run its base with --strategy correction "
