@@ -98,11 +98,18 @@ def test_a_wall_clock_run_records_the_known_delay_and_never_blocks_the_simulator
     assert all(c["compute_ms"] >= SLEEP_MS for c in calls)
     assert record["episodes"][0]["length"] == 30
     # the world never waits: 100 ms periods while the policy computes (tolerance 15 ms median). A client that waited
-    # for the policy would show a period of at least the call's 250 ms; a late start from the CPU shared with the
-    # rest of a parallel suite on 2 cores can stretch one period past 160 ms (seen once in `make test -n auto`)
-    busy = record["episodes"][0]["busy_period_ms"]
+    # for the policy would show, on every call, a step of at least the call's 250 ms and a period after it as long.
+    # The CPU shared with the rest of a parallel suite on 2 cores can stretch one period on its own: in CI one
+    # simulator step took 143 ms and the next started 134 ms late (a 277 ms period). So a period of 250 ms or more
+    # is allowed once, only right after a step recorded as overrun whose own work was shorter than a call
+    ep = record["episodes"][0]
+    busy = ep["busy_period_ms"]
     assert len(busy) >= 2 * len(calls)
-    assert abs(np.median(busy) - 100) < 15 and max(busy) < SLEEP_MS, (max(busy), busy)
+    assert abs(np.median(busy) - 100) < 15, busy
+    step_ms_of_overrun = {o["step"]: o["step_ms"] for o in ep["overruns"]}
+    long_after = [i for i, m in enumerate(ep["period_ms"]) if m >= SLEEP_MS]  # period i ends at step i + 1's start
+    assert len(long_after) <= 1, [ep["period_ms"][i] for i in long_after]
+    assert all(step_ms_of_overrun.get(i, SLEEP_MS) < SLEEP_MS for i in long_after), (long_after, ep["overruns"])
     printed = capsys.readouterr().out
     assert "median 3 steps" in printed and "histogram {'3'" in printed
     # its simulated twin, async at d = 3 on the same seed: this policy's target is fixed, so the scores are equal
