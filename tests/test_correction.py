@@ -244,6 +244,33 @@ def test_a_head_refuses_rollouts_of_other_weights(base_run, tmp_path):
         head.training_data(None)
 
 
+def _store(path: Path, seeds: list[int], lengths: list[int], weights: str) -> Path:
+    from bcbench.data.rollouts import Recorder
+
+    rec = Recorder()
+    for ep, (seed, n) in enumerate(zip(seeds, lengths, strict=True)):
+        rec.reset(ep, seed, {"pixels": np.full((96, 96, 3), seed % 250, np.uint8), "agent_pos": np.zeros(2)})
+        for t in range(n):
+            rec.acted(ep, np.array([seed, t], np.float32))
+            rec.observed(ep, {"pixels": np.zeros((96, 96, 3), np.uint8), "agent_pos": np.full(2, t + 1.0)})
+    return rec.write(path, {"task": "pusht", "policy": {"weights_sha256": weights}})
+
+
+def test_joined_rollouts_keep_every_episode_in_order_and_refuse_another_base(tmp_path, capsys):
+    from bcbench.data.rollouts import load_rollouts
+
+    join = _script("join_rollouts").join
+    a, b = _store(tmp_path / "a.npz", [0, 1], [3, 2], "ab" * 32), _store(tmp_path / "b.npz", [7], [4], "ab" * 32)
+    join(str(tmp_path / "u.npz"), [str(a), str(b)])
+    u = load_rollouts(tmp_path / "u.npz")
+    assert list(u.episode_ends) == [3, 5, 9] and u.action[5].tolist() == [7, 0] and u.action[4].tolist() == [1, 1]
+    assert list(np.load(tmp_path / "u.npz")["seeds"]) == [0, 1, 7]
+    other = _store(tmp_path / "c.npz", [9], [2], "cd" * 32)
+    with pytest.raises(BCBenchError, match="differ in weights"):
+        join(str(tmp_path / "v.npz"), [str(a), str(other)])
+    assert not (tmp_path / "v.npz").exists()
+
+
 @pytest.mark.parametrize(("overrides", "message"), [
     ({"rollouts": "x.npz"}, "target=fresh"),
     ({"target": "expert"}, "target must be demo, fresh or sync"),
