@@ -256,7 +256,7 @@ def _store(path: Path, seeds: list[int], lengths: list[int], weights: str) -> Pa
     return rec.write(path, {"task": "pusht", "policy": {"weights_sha256": weights}})
 
 
-def test_joined_rollouts_keep_every_episode_in_order_and_refuse_another_base(tmp_path, capsys):
+def test_joined_rollouts_keep_every_episode_in_order_and_refuse_another_base(tmp_path):
     from bcbench.data.rollouts import load_rollouts
 
     join = _script("join_rollouts").join
