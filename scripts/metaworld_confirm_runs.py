@@ -1,0 +1,52 @@
+"""Print the [[run]] blocks of a MetaWorld confirm study (issue 75), in the order the studies run them.
+
+    python scripts/metaworld_confirm_runs.py EPOCH [HORIZONS]   e.g. 291 4/3 (peg-insert-side), 229 4/3 (drawer-open)
+
+EPOCH: the task's steps in an epoch of 200 demonstrations (its explore stages' `optim.val_every`); the budgets are the
+explore stages': DP and flow 8,000 x 64, BCT and BeT 30 epochs, ResNet-50 CNN and CNN-MLP 20; 10 demonstrations.
+Order, most informative first: seed 0 of every learned policy, random, seeds 1 and 2 of DP, flow and BCT, then DP's
+and flow's twice-the-steps checks. studies/metaworld-confirm-{peg,drawer}.toml hold its output under their header."""
+
+from __future__ import annotations
+
+import sys
+
+LABELS = {"diffusion": "Diffusion Policy (cosine)", "flow": "Flow matching (DP's network)", "bct": "BCT", "bet": "BeT",
+          "resnet50": "ResNet-50 CNN", "cnn_mlp": "CNN-MLP"}
+EVALS = {"diffusion": '[{ sampler = "ddim", steps = [10] }, { sampler = "ddpm", steps = [10, 100] }]',
+         "flow": '[{ sampler = "euler", steps = [2, 10] }]'}
+
+
+def blocks(epoch: int, horizons: str = "4/3") -> str:
+    pred, act = map(int, horizons.split("/"))
+    extra = f", pred_horizon = {pred}, action_horizon = {act}" if (pred, act) != (16, 8) else ""
+    tail = f"10 demos, horizons {pred} / {act}"
+    steps = {"diffusion": 8000, "flow": 8000, "bct": 30 * epoch, "bet": 30 * epoch, "resnet50": 20 * epoch,
+             "cnn_mlp": 20 * epoch}
+
+    def run(policy: str, seed: int, doubled: bool = False) -> str:
+        n = steps[policy] * (2 if doubled else 1)
+        lines = ["", "[[run]]", f'policy = "{policy}"', 'preset = "cpu"',
+                 f'label = "{LABELS[policy]}, {tail}' + (', twice the steps"' if doubled else '"'), "demos = 10",
+                 f"seeds = [{seed}]", f"steps = {n}"]
+        if policy in EVALS:
+            lines.append(f"eval_every = {n // 2}")
+        lines.append(f'set = {{ "optim.precision" = "fp32", "optim.val_every" = {epoch}{extra} }}')
+        if policy in EVALS:
+            lines.append(f"eval = {EVALS[policy]}")
+        if doubled:
+            lines.append(f'doubles = "{LABELS[policy]}, {tail}"')
+        return "\n".join(lines)
+
+    out = [run(p, 0) for p in ("diffusion", "flow", "bct", "resnet50", "bet", "cnn_mlp")]
+    out.append('\n[[run]]\npolicy = "random"\nlabel = "random"')
+    out += [run(p, s) for s in (1, 2) for p in ("diffusion", "flow", "bct")]
+    out += [run(p, 0, doubled=True) for p in ("diffusion", "flow")]
+    return "\n".join(out)
+
+
+if __name__ == "__main__":
+    if len(sys.argv) not in (2, 3) or not sys.argv[1].isdigit():
+        print("usage: python scripts/metaworld_confirm_runs.py EPOCH [PRED/ACT]", file=sys.stderr)
+        sys.exit(2)
+    print(blocks(int(sys.argv[1]), *sys.argv[2:]))
