@@ -53,10 +53,7 @@ class Recorder:
             "episode_ends": np.cumsum(lengths).astype(np.int64),  # (E,) exclusive
             "seeds": np.array([e["seed"][0] for e in eps], dtype=np.int64),  # (E,)
         }
-        path = Path(path)
-        with atomic_path(path) as tmp, open(tmp, "wb") as f:
-            np.savez_compressed(f, attrs=np.array(json.dumps({"format": FORMAT, **attrs})), **arrays)
-        return path
+        return _write(path, arrays, attrs)
 
 
 def rollout_attrs(path: str | Path) -> dict[str, Any]:
@@ -67,15 +64,47 @@ def rollout_attrs(path: str | Path) -> dict[str, Any]:
 
 def load_rollouts(path: str | Path) -> ReplayBuffer:
     """A rollout store as a ReplayBuffer: state = the proprioception observed, action = the action executed."""
-    with _open(path) as z:
-        img, state, action, ends = (np.asarray(z[k]) for k in ("img", "state", "action", "episode_ends"))
-    n = len(action)
-    if not (len(img) == len(state) == n and len(ends) and ends[-1] == n and np.all(np.diff(ends) > 0)):
-        raise DatasetError(f"{path}: arrays of {len(img)}, {len(state)}, {n} steps and episode ends {ends[-3:]} "
-                           "do not agree (a damaged rollout store?)")
-    return ReplayBuffer(state=state.astype(np.float32), action=action.astype(np.float32), episode_ends=ends,
-                        images=img.astype(np.uint8), source=str(path))
+    a = _arrays(path)
+    return ReplayBuffer(state=a["state"].astype(np.float32), action=a["action"].astype(np.float32),
+                        episode_ends=a["episode_ends"], images=a["img"].astype(np.uint8), source=str(path))
 
+
+def join_rollouts(out: str | Path, paths: list[str | Path]) -> dict[str, np.ndarray]:
+    """One store of several of one base (a DAgger round's union): the arrays concatenated in the order given, as
+    recorded (dtypes kept), episode ends shifted; the first store's attributes with `joined_from` listing every
+    input's. Stores of other base weights or another task are refused in one line."""
+    attrs = [rollout_attrs(p) for p in paths]
+    for what, of in (("task", lambda a: a.get("task")),
+                     ("weights", lambda a: a.get("policy", {}).get("weights_sha256"))):
+        seen = {json.dumps(of(a)) for a in attrs}
+        if len(seen) != 1:
+            raise DatasetError(f"the stores differ in {what} ({', '.join(sorted(seen))}): join one base's rollouts")
+    stores = [_arrays(p) for p in paths]
+    offsets = np.cumsum([0] + [len(z["action"]) for z in stores[:-1]])
+    arrays = {k: np.concatenate([z[k] for z in stores]) for k in ("img", "state", "action", "seeds")}
+    arrays["episode_ends"] = np.concatenate([z["episode_ends"] + o for z, o in zip(stores, offsets, strict=True)])
+    meta = {k: v for k, v in attrs[0].items() if k != "format"}
+    meta["joined_from"] = [{"path": str(p), "attrs": a} for p, a in zip(paths, attrs, strict=True)]
+    _write(out, arrays, meta)
+    return arrays
+
+
+def _write(path: str | Path, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> Path:
+    path = Path(path)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez_compressed(f, attrs=np.array(json.dumps({"format": FORMAT, **attrs})), **arrays)
+    return path
+
+
+def _arrays(path: str | Path) -> dict[str, np.ndarray]:
+    """A store's arrays as recorded, checked to agree (a damaged store is refused in one line)."""
+    with _open(path) as z:
+        a = {k: np.asarray(z[k]) for k in ("img", "state", "action", "episode_ends", "seeds")}
+    n, ends = len(a["action"]), a["episode_ends"]
+    if not (len(a["img"]) == len(a["state"]) == n and len(ends) and ends[-1] == n and np.all(np.diff(ends) > 0)):
+        raise DatasetError(f"{path}: arrays of {len(a['img'])}, {len(a['state'])}, {n} steps and episode ends "
+                           f"{ends[-3:]} do not agree (a damaged rollout store?)")
+    return a
 
 def _open(path: str | Path) -> Any:
     path = Path(path)

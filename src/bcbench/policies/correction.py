@@ -35,7 +35,6 @@ from typing import Any
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from bcbench.data.normalizer import MinMaxNormalizer
@@ -304,24 +303,24 @@ class CorrectionPolicy(BCPolicy):
         index = cs + age
         planned = self.cached_plans(steps[:, cs], k)[rows, index]  # (B, A): t0's chunk's action for step t0 + a
         if c.target == "demo":
-            return {"feats": feats.flatten(1), "planned": planned, "index": index,
-                    "target": batch["action"][rows, index], "real": torch.ones_like(age, dtype=torch.float)}
-        # the base's own action for t0 + a with the same draw, from the observation there (fresh) or from j = a mod
-        # action_horizon steps before it (sync); a step past the episode's end (a padded window repeats its last
-        # frame) has no observation of its own: left out
-        j = age % c.action_horizon if c.target == "sync" else torch.zeros_like(age)
-        return {"feats": feats.flatten(1), "planned": planned, "index": index,
-                "target": self.cached_plans(steps[rows, index - j], k)[rows, cs + j],
-                "real": (steps[rows, index] - steps[:, cs] == age).float()}
+            target, real = batch["action"][rows, index], torch.ones_like(age, dtype=torch.float)
+        else:
+            # the base's own action for t0 + a with the same draw, from the observation there (fresh) or from
+            # j = a mod action_horizon steps before it (sync); a step past the episode's end (a padded window repeats
+            # its last frame) has no observation of its own: left out
+            j = age % c.action_horizon if c.target == "sync" else torch.zeros_like(age)
+            target = self.cached_plans(steps[rows, index - j], k)[rows, cs + j]
+            real = (steps[rows, index] - steps[:, cs] == age).float()
+        return {"feats": feats.flatten(1), "planned": planned, "index": index, "target": target, "real": real}
 
     def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        """The squared error of the corrected action against the target, over the samples with a real target (every
+        one for `demo`)."""
         c = self.config
         k = (self.train_draw(batch, torch.rand) * c.plan_draws).long().clamp_(max=c.plan_draws - 1)  # (B,)
         age = (self.train_draw(batch, torch.rand) * (c.max_age + 1)).long().clamp_(max=c.max_age)  # (B,)
         t = self.terms(batch, age, k)
         executed = t["planned"] + self.residual(t["feats"], t["planned"], age, t["index"])
-        if c.target == "demo":
-            return F.mse_loss(executed, t["target"])
         real = t["real"]
         return (((executed - t["target"]) ** 2).mean(-1) * real).sum() / real.sum().clamp(min=1.0)
 
