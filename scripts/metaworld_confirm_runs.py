@@ -2,10 +2,12 @@
 
     python scripts/metaworld_confirm_runs.py EPOCH [HORIZONS]   e.g. 291 4/3 (peg-insert-side), 229 4/3 (drawer-open)
 
-EPOCH: the task's steps in an epoch of 200 demonstrations (its explore stages' `optim.val_every`); the budgets are the
-explore stages': DP and flow 8,000 x 64, BCT and BeT 30 epochs, ResNet-50 CNN and CNN-MLP 20; 10 demonstrations.
-Order, most informative first: seed 0 of every learned policy, random, seeds 1 and 2 of DP, flow and BCT, then DP's
-and flow's twice-the-steps checks. studies/metaworld-confirm-{peg,drawer}.toml hold its output under their header."""
+EPOCH: the task's steps in an epoch of 200 demonstrations (its explore stages' `optim.val_every`): the windows of the
+store's 180 training episodes at horizons 16 / 8, over batch 64, rounded down (door-open 211, pick-place 129, assembly
+233). The budgets are the explore stages': DP and flow 8,000 x 64, BCT and BeT 30 epochs, ResNet-50 CNN and CNN-MLP
+20; 10 demonstrations. Order, most informative first: seed 0 of every learned policy, random, seeds 1 and 2 of DP,
+flow and BCT, then DP's and flow's twice-the-steps checks. studies/metaworld-confirm-{peg,drawer,door,pick,assembly}
+.toml hold its output under their header."""
 
 from __future__ import annotations
 
