@@ -186,15 +186,27 @@ def test_a_recorded_rollout_replays_to_its_own_frames(base_run, tmp_path):
         env.close()
 
 
-@pytest.mark.parametrize(("target", "frames"), [("fresh", None), ("sync", None), ("sync", 1)])
-def test_a_head_on_its_bases_rollouts_learns_the_bases_own_action(base_run, tmp_path, target, frames):
+def _nearest_by_hand(head, stale, start, shift):
+    """The draw among the K chunks at `start` closest to the stale chunk on the steps both plan, sample by sample."""
+    out = []
+    for b in range(len(start)):
+        s, n = int(shift[b]), head.config.pred_horizon - 1 - int(shift[b])  # steps both plan: stale 1 + s.., later 1..
+        gaps = [float(((head.cached_plans(start[b:b + 1], torch.tensor([j]))[0, 1:1 + n] - stale[b, 1 + s:1 + s + n])
+                       ** 2).mean()) for j in range(head.config.plan_draws)]
+        out.append(int(np.argmin(gaps)))
+    return torch.tensor(out)
+
+
+@pytest.mark.parametrize(("target", "frames", "draw"), [("fresh", None, "same"), ("sync", None, "same"),
+                                                        ("sync", 1, "same"), ("sync", None, "nearest")])
+def test_a_head_on_its_bases_rollouts_learns_the_bases_own_action(base_run, tmp_path, target, frames, draw):
     from bcbench.data.sequence import make_datasets
 
     _record(base_run, tmp_path / "r.npz", episodes=3, max_steps=30)
     opts = TrainOptions(threads=1, progress=False, device="cpu", callbacks=(lambda r: seen.update(run=r),))
     seen: dict = {}
     overrides = _head_overrides(base_run, rollouts=str(tmp_path / "r.npz"), target=target, max_age=14,
-                                head_frames=frames, **{"optim.batch_size": 2})
+                                head_frames=frames, target_draw=draw, **{"optim.batch_size": 2})
     run = new_run("correction", "quick", overrides, tmp_path / "head", opts)
     train(run, opts)
     head = seen["run"].model
@@ -214,7 +226,12 @@ def test_a_head_on_its_bases_rollouts_learns_the_bases_own_action(base_run, tmp_
     feats = torch.cat([head.cached_features(steps[rows[:, None], cols]), batch["agent_pos"][rows[:, None], cols]], -1)
     # fresh: what the base plans at t0 + a; sync: what sync execution runs there, from the chunk j steps before
     j = age % head.config.action_horizon if target == "sync" else torch.zeros_like(age)
-    own = head.cached_plans(steps[rows, index - j], k)[rows, 1 + j]
+    drawn = k
+    if draw == "nearest":  # the later chunk's draw in the stale chunk's mode; within one action horizon its own
+        drawn = _nearest_by_hand(head, head.cached_plans(steps[:, 1], k), steps[rows, index - j], age - j)
+        assert torch.equal(drawn[age < 8], k[age < 8])
+        assert not torch.equal(drawn, k)  # these draws (seed 3) pick another draw for an older chunk
+    own = head.cached_plans(steps[rows, index - j], drawn)[rows, 1 + j]
     if target == "sync":
         assert torch.equal(own[age < 8], planned[age < 8])  # an age within one action horizon is its own target
         assert bool((age >= 8).any() & (age < 8).any()), age  # both kinds drawn
@@ -274,6 +291,8 @@ def test_joined_rollouts_keep_every_episode_in_order_and_refuse_another_base(tmp
 @pytest.mark.parametrize(("overrides", "message"), [
     ({"rollouts": "x.npz"}, "target=fresh"),
     ({"target": "expert"}, "target must be demo, fresh or sync"),
+    ({"target_draw": "mean"}, "target_draw must be same or nearest"),
+    ({"target_draw": "nearest"}, "it needs target=fresh or sync"),
 ])
 def test_head_settings_that_cannot_train_say_why(base_run, tmp_path, overrides, message):
     opts = TrainOptions(threads=1, progress=False, device="cpu")

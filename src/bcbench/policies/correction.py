@@ -89,6 +89,13 @@ class CorrectionConfig(PolicyConfig):
     sync execution would run at t0 + a: the chunk planned j = a mod action_horizon steps before, at its index
     obs_horizon - 1 + j (so an age within one action horizon is its own target, and an older chunk's target keeps
     the consistency of a chunk, which `fresh`'s one-step replanning gives up)"""
+    target_draw: str = "same"
+    """which of the K chunks planned where the target's chunk starts (`fresh`, `sync`) gives the target: `same`, the
+    stale chunk's own draw k (the same noise: often, not always, the same mode); `nearest`, the draw whose actions
+    over the steps both chunks plan are closest to the stale chunk's. A multimodal base (Push-T: around the T on
+    either side) plans a later chunk in either mode, and a squared-error head trained towards both learns their mean,
+    which is neither; the nearest draw keeps the executing chunk's mode, as inference-time RTC's inpainting does
+    (Black, Galliker, Levine 2025, arXiv 2506.07339)"""
     rollouts: str = ""
     """a rollout store of the base's own episodes (`bcbench eval --checkpoint BASE --record FILE.npz`) to train on
     instead of the demonstrations, in the base's units (target `fresh` or `sync`: its actions are not an expert's).
@@ -106,6 +113,10 @@ class CorrectionConfig(PolicyConfig):
             raise BCBenchError(f"hidden must list layer widths >= 1, got {self.hidden}")
         if self.target not in ("demo", "fresh", "sync"):
             raise BCBenchError(f"target must be demo, fresh or sync, got {self.target!r}")
+        if self.target_draw not in ("same", "nearest"):
+            raise BCBenchError(f"target_draw must be same or nearest, got {self.target_draw!r}")
+        if self.target_draw == "nearest" and self.target == "demo":
+            raise BCBenchError("target_draw=nearest picks among the base's chunks: it needs target=fresh or sync")
         if self.rollouts and self.target == "demo":
             raise BCBenchError("rollouts hold the base's actions, not an expert's: train on them with target=fresh "
                                "or target=sync")
@@ -309,9 +320,27 @@ class CorrectionPolicy(BCPolicy):
             # j = a mod action_horizon steps before it (sync); a step past the episode's end (a padded window repeats
             # its last frame) has no observation of its own: left out
             j = age % c.action_horizon if c.target == "sync" else torch.zeros_like(age)
-            target = self.cached_plans(steps[rows, index - j], k)[rows, cs + j]
+            start = steps[rows, index - j]  # (B,): where the target's chunk is planned, age - j steps after t0
+            if c.target_draw == "nearest":
+                k = self.nearest_draw(self.cached_plans(steps[:, cs], k), start, age - j)
+            target = self.cached_plans(start, k)[rows, cs + j]
             real = (steps[rows, index] - steps[:, cs] == age).float()
         return {"feats": feats.flatten(1), "planned": planned, "index": index, "target": target, "real": real}
+
+    def nearest_draw(self, stale: torch.Tensor, start: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
+        """The draw (B,) among the K chunks planned at buffer step `start` (B,) whose actions are closest (mean
+        squared, normalised) to the stale chunk's (B, Tp, A) on the steps both plan: the later chunk's index
+        obs_horizon - 1 + m is the stale chunk's obs_horizon - 1 + shift + m, for m < pred_horizon - obs_horizon + 1 -
+        shift. A shift of 0 (the same start) finds the stale chunk's own draw, at distance 0."""
+        cs, tp = self.config.obs_horizon - 1, self.config.pred_horizon
+        draws = range(self.config.plan_draws)
+        later = torch.stack([self.cached_plans(start, torch.full_like(start, j)) for j in draws], 1)  # (B, K, Tp, A)
+        m = torch.arange(tp - cs, device=stale.device)  # (M,)
+        keep = (m[None] < (tp - cs - shift)[:, None]).float()  # (B, M): steps both chunks plan
+        where = (cs + shift[:, None] + m[None]).clamp(max=tp - 1)  # (B, M): the same steps in the stale chunk
+        theirs = stale[torch.arange(len(shift))[:, None], where]  # (B, M, A)
+        gap = ((later[:, :, cs:] - theirs[:, None]) ** 2).mean(-1)  # (B, K, M)
+        return ((gap * keep[:, None]).sum(-1) / keep.sum(-1, keepdim=True).clamp(min=1.0)).argmin(-1).cpu()
 
     def compute_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         """The squared error of the corrected action against the target, over the samples with a real target (every
@@ -362,5 +391,6 @@ class CorrectionRunner:
     def describe(self) -> dict[str, Any]:
         c = self.model.config
         return {"run_dir": self.run_dir, "weights_sha256": self.weights_sha256, "base": c.base,
-                "base_weights_sha256": self.model.trained_on(), "target": c.target, "rollouts": c.rollouts,
+                "base_weights_sha256": self.model.trained_on(), "target": c.target, "target_draw": c.target_draw,
+                "rollouts": c.rollouts,
                 "parameters": self.model.num_parameters(), "max_age": c.max_age, "hidden": list(c.hidden)}
