@@ -175,8 +175,8 @@ def test_fast_rendering_shows_what_the_default_rendering_shows(name):
 
 def test_closing_one_episode_leaves_another_drawing():
     """A renderer freed in another live renderer's GL context deletes that one's buffers (it then draws noise:
-    under OSMesa; EGL happens to release the context first)."""
-    a, b = MetaWorldEpisode("drawer-open", 0), MetaWorldEpisode("drawer-open", 0)
+    under OSMesa; EGL happens to release the context first). Two tasks: episodes of one task share a renderer."""
+    a, b = MetaWorldEpisode("drawer-open", 0), MetaWorldEpisode("door-open", 0)
     try:
         first, _, _ = a.reset()
         b.reset()
@@ -185,6 +185,38 @@ def test_closing_one_episode_leaves_another_drawing():
         assert np.array_equal(a.frame(96), first["pixels"])
     finally:
         a.close()
+
+
+def test_episodes_of_a_task_share_one_renderer_and_draw_what_their_own_would():
+    """An evaluation keeps every episode alive at once: one renderer a task and size per process, not one an episode
+    (about 100-150 MB each), each frame drawn from the episode's own model and data (peg's box moves in the model)."""
+    from bcbench.tasks.metaworld import env as mw
+
+    def frames(ep):
+        out = [ep.reset()[0]["pixels"]]
+        for a in ([0.5, -0.3, 0.2, 1.0], [-0.2, 0.4, -0.1, -1.0]):
+            out.append(ep.step(np.array(a))[0]["pixels"])
+        return out
+
+    alone = []
+    for seed in (0, 1, 2):  # one at a time: each makes and frees its own renderer
+        ep = MetaWorldEpisode("peg-insert-side", seed)
+        alone.append(frames(ep))
+        ep.close()
+        assert not mw._SHARED
+    eps = [MetaWorldEpisode("peg-insert-side", seed) for seed in (0, 1, 2)]
+    try:
+        assert len(mw._SHARED) == 1 and next(iter(mw._SHARED.values()))[1] == 3  # one renderer, three users
+        together = [frames(ep) for ep in eps]
+        for own, shared in zip(alone, together, strict=True):
+            assert all(np.array_equal(f, g) for f, g in zip(own, shared, strict=True))
+        assert not np.array_equal(together[0][0], together[1][0])  # the seeds' scenes differ
+        eps[0].close()
+        assert next(iter(mw._SHARED.values()))[1] == 2 and np.array_equal(eps[1].frame(96), together[1][-1])
+    finally:
+        for ep in eps:
+            ep.close()
+    assert not mw._SHARED  # the last user freed it
 
 
 def test_a_machine_that_cannot_render_gets_one_line():

@@ -10,7 +10,11 @@ MetaWorld 3.1.1 needs three things done by hand to be a benchmark environment (f
   multisampling, shadows and reflections off before the renderer is made, it costs about a tenth; the objects
   are where they were (tests/test_metaworld.py compares the two).
 We render with our own `mujoco.Renderer`s (one at the policy's size, one at the video size) instead of
-gymnasium's, so that the two sizes share one camera and one set of settings.
+gymnasium's, so that the two sizes share one camera and one set of settings. The episodes of one task in one process
+share them: a renderer's GL context and MjrContext (the model's meshes and textures on the GPU, or llvmpipe's memory)
+cost about 100-150 MB, and an evaluation keeps every episode of a worker alive at once (100 MetaWorld episodes on 2
+workers held 15 GB with a renderer each). Each frame's scene is built from the episode's own model and data (MetaWorld
+moves bodies in the model at reset), so a shared renderer draws the same pixels as an episode's own (tested).
 """
 
 from __future__ import annotations
@@ -60,6 +64,27 @@ def make_fast(model: Any) -> None:
     model.mat_reflectance[:] = 0
 
 
+_SHARED: dict[tuple[str, int, bool], list[Any]] = {}  # (task, size, fast) -> [renderer, episodes using it]
+
+
+def _acquire(mujoco: Any, key: tuple[str, int, bool], model: Any) -> Any:
+    """The process's renderer for (task, size, fast), made from `model` if none is live; one more user."""
+    entry = _SHARED.get(key)
+    if entry is None:
+        entry = _SHARED[key] = [_renderer(mujoco, model, key[1], key[2]), 0]
+    entry[1] += 1
+    return entry[0]
+
+
+def _release(key: tuple[str, int, bool]) -> None:
+    """One user less; the last one frees the renderer (a process that makes episodes one at a time keeps none)."""
+    entry = _SHARED[key]
+    entry[1] -= 1
+    if entry[1] == 0:
+        del _SHARED[key]
+        free_renderer(entry[0])
+
+
 def _renderer(mujoco: Any, model: Any, size: int, fast: bool) -> Any:
     try:
         r = mujoco.Renderer(model, height=size, width=size)
@@ -103,7 +128,10 @@ class MetaWorldEpisode:
             make_fast(env.model)
         self._fast = fast
         self._cam_id = env.model.camera(self.camera).id
-        self._renderers: dict[int, Any] = {}
+        self._view = self.mujoco.MjvCamera()  # the task's fixed camera, as Renderer.update_scene(camera=id) sets it
+        self._view.type, self._view.fixedcamid = self.mujoco.mjtCamera.mjCAMERA_FIXED, self._cam_id
+        self._option = self.mujoco.MjvOption()  # the default visual options, as a Renderer's own
+        self._renderers: dict[int, Any] = {}  # size -> the shared renderer this episode holds (_acquire)
         self._full_obs = np.zeros(39)
         self._succeeded = False
         self.frame(self.image_size)  # make the policy's renderer now: a machine that cannot render fails here
@@ -113,8 +141,11 @@ class MetaWorldEpisode:
         """A uint8 (size, size, 3) frame from the task's camera, upright."""
         r = self._renderers.get(size)
         if r is None:
-            r = self._renderers[size] = _renderer(self.mujoco, self.env.model, size, self._fast)
-        r.update_scene(self.env.data, camera=self._cam_id)
+            r = self._renderers[size] = _acquire(self.mujoco, (self.name, size, self._fast), self.env.model)
+        # the scene from this episode's own model and data (Renderer.update_scene would read the model it was made
+        # from, another episode's when shared)
+        self.mujoco.mjv_updateScene(self.env.model, self.env.data, self._option, None, self._view,
+                                    self.mujoco.mjtCatBit.mjCAT_ALL.value, r.scene)
         img = r.render()  # (size, size, 3) uint8
         if self.camera in FLIPPED_CAMERAS:
             img = img[::-1, ::-1]
@@ -165,9 +196,10 @@ class MetaWorldEpisode:
                 self.world_state())
 
     def close(self) -> None:
-        """Free the GL contexts and the env (left to the garbage collector, EGL complains at exit)."""
-        for r in self._renderers.values():
-            free_renderer(r)
+        """Release its renderers (the last episode using one frees it) and free the env (left to the garbage
+        collector, EGL complains at exit)."""
+        for size in self._renderers:
+            _release((self.name, size, self._fast))
         self._renderers.clear()
         self.env.close()
 
