@@ -102,14 +102,11 @@ case "${1:-start}" in
     # each training's step, rate and time left (Ray workers show no progress bar), read from the study's files
     # read with the pinned code when its clone is here: a run's key can change between commits (a config field added
     # since), and the work tree's code would count the pinned runs as not started
+    SRC="$BCBENCH_HOME/src-$(cut -c1-12 "$PIN" 2>/dev/null)"
+    [ -f "$PIN" ] && [ -d "$SRC/.git" ] || SRC="$PWD"
     if [ -f "$OUT/spec.json" ]; then
-      SRC="$BCBENCH_HOME/src-$(cut -c1-12 "$PIN" 2>/dev/null)"
-      if [ -f "$PIN" ] && [ -d "$SRC/.git" ]; then
-        (cd "$SRC" && PYTHONPATH="$SRC/src" "$OLDPWD/.venv/bin/python" -m bcbench.cli study "$SPEC" --out "$OUT" \
-          --status) || true
-      else
-        .venv/bin/python -m bcbench.cli study "$SPEC" --out "$OUT" --status || true
-      fi
+      (cd "$SRC" && PYTHONPATH="$SRC/src" "$OLDPWD/.venv/bin/python" -m bcbench.cli study "$SPEC" --out "$OUT" \
+        --status) || true
     fi ;;
   *) echo "usage: $0 [start|stop|status|pause|resume] [SPEC]" >&2; exit 2 ;;
 esac

@@ -13,11 +13,10 @@ cd "$(dirname "$0")/.."
 H="${BCBENCH_HOME:-$HOME/.cache/bcbench}"
 OUT="${1:-$H/grids}"
 PY=.venv/bin/python
-run_of() {  # $1 study, $2 policy, $3 seed: its run folder, or nothing
+finished() { [ -f "$1/train_summary.json" ] && grep -q '"stopped": "finished"' "$1/train_summary.json"; }
+run_of() {  # $1 study, $2 policy, $3 seed: its finished run folder, or nothing
   local d
-  for d in "$H/$1/runs/$2-cpu-s$3-"*; do
-    [ -f "$d/train_summary.json" ] && grep -q '"stopped": "finished"' "$d/train_summary.json" && { echo "$d"; return; }
-  done
+  for d in "$H/$1/runs/$2-cpu-s$3-"*; do finished "$d" && { echo "$d"; return; }; done
 }
 for spec in "diffusion ddim dp" "flow euler flow"; do
   set -- $spec
@@ -28,7 +27,7 @@ for spec in "diffusion ddim dp" "flow euler flow"; do
     dt="$(run_of realtime-delay-train "$policy" "$seed")"
     [ -n "$dt" ] || echo "$short-s$seed: no delay-trained model yet (its prefix settings wait)"
     head="$OUT/heads/$short-s$seed"
-    if [ ! -f "$head/train_summary.json" ] || ! grep -q '"stopped": "finished"' "$head/train_summary.json"; then
+    if ! finished "$head"; then
       if [ -f "$head/run.json" ]; then res=(--resume "$head"); else res=(--out "$head"); fi
       echo "$(date -u +%FT%T) head for $short-s$seed on $plain"
       nice -n 10 $PY -m bcbench.cli train --policy correction --preset cpu --set "base=$plain" \

@@ -106,6 +106,7 @@ def _arrays(path: str | Path) -> dict[str, np.ndarray]:
                            f"{ends[-3:]} do not agree (a damaged rollout store?)")
     return a
 
+
 def _open(path: str | Path) -> Any:
     path = Path(path)
     try:

@@ -312,7 +312,8 @@ class CorrectionPolicy(BCPolicy):
         window = age[:, None] + torch.arange(to - self.frames, to, device=age.device)  # (B, n): frames ending at t0 + a
         feats = torch.cat([self.cached_features(steps[rows[:, None], window]), pos[rows[:, None], window]], dim=-1)
         index = cs + age
-        planned = self.cached_plans(steps[:, cs], k)[rows, index]  # (B, A): t0's chunk's action for step t0 + a
+        stale = self.cached_plans(steps[:, cs], k)  # (B, Tp, A): the chunk planned at t0, executing at t0 + a
+        planned = stale[rows, index]  # (B, A): its action for step t0 + a
         if c.target == "demo":
             target, real = batch["action"][rows, index], torch.ones_like(age, dtype=torch.float)
         else:
@@ -322,7 +323,7 @@ class CorrectionPolicy(BCPolicy):
             j = age % c.action_horizon if c.target == "sync" else torch.zeros_like(age)
             start = steps[rows, index - j]  # (B,): where the target's chunk is planned, age - j steps after t0
             if c.target_draw == "nearest":
-                k = self.nearest_draw(self.cached_plans(steps[:, cs], k), start, age - j)
+                k = self.nearest_draw(stale, start, age - j)
             target = self.cached_plans(start, k)[rows, cs + j]
             real = (steps[rows, index] - steps[:, cs] == age).float()
         return {"feats": feats.flatten(1), "planned": planned, "index": index, "target": target, "real": real}
