@@ -300,10 +300,10 @@ def test_head_settings_that_cannot_train_say_why(base_run, tmp_path, overrides, 
         new_run("correction", "quick", _head_overrides(base_run, **overrides), tmp_path / "h", opts)
 
 
-def _script(name: str):
+def _script(name: str, folder: str = "scripts"):
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location(name, Path(__file__).parents[1] / "scripts" / f"{name}.py")
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).parents[1] / folder / f"{name}.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
@@ -316,6 +316,22 @@ def test_the_memorization_script_measures_both_splits(base_run, synthetic_zarr, 
     assert out["base_weights_sha256"] == load_runner(base_run).info.weights_sha256
     for split in ("training", "held_out"):
         assert len(out[split]["mse_by_age"]) == 15 and out[split]["mse"] > 0
+
+
+def test_the_strategy_cost_benchmark_times_the_heads_per_step_hook_alone(base_run, tmp_path):
+    """benchmarks/strategy_cost.py with a head: the hook's own calls at batch 1 (rounds x calls, interleaved with
+    the requests) beside the requests, the head it ran named; without a head the correction strategy is refused."""
+    bench = _script("strategy_cost", "benchmarks")
+    bench.main([str(base_run), "--sampler", "ddim", "--steps", "2", "--strategies", "naive", "correction",
+                "--correction", "untrained", "--rounds", "3", "--calls", "2", "--warmup", "1", "--threads", "1",
+                "--out", str(tmp_path)])
+    out = read_json(tmp_path / "strategy-cost.json")
+    hook = out["strategies"]["correction"]["per_step_hook"]
+    assert hook["calls"] == 6 and 0 < hook["median_ms"] <= hook["p99_ms"]
+    assert hook["head"]["base_weights_sha256"] == load_runner(base_run).info.weights_sha256
+    assert "per_step_hook" not in out["strategies"]["naive"] and out["strategies"]["naive"]["calls"] == 6
+    with pytest.raises(BCBenchError, match="--correction"):
+        bench.main([str(base_run), "--strategies", "naive", "correction", "--out", str(tmp_path)])
 
 
 class Recording:

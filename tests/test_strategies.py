@@ -287,6 +287,9 @@ def test_strategies_are_timed_in_interleaved_rounds_and_a_sweep_takes_those_time
     assert [len(rounds[k]) for k in ("naive", "rtc")] == [3, 3] and all(len(r) == 2 for r in rounds["rtc"])
     assert np.median(rounds["naive"]) == pytest.approx(30.0, abs=1.0)
     assert np.median(rounds["rtc"]) == pytest.approx(90.0, abs=1.0)
+    ticks: list[int] = []  # other work timed in the same rounds (a per-step hook) runs once after each round
+    interleaved_request_ms(policy, both, rounds=3, calls=1, warmup=0, each_round=lambda: ticks.append(1))
+    assert len(ticks) == 3
     runner = _runner("cnn_mlp")
     given = LatencySource("measured", samples_ms=[250.0] * 100)
     out = sweep(runner, [], ["async"], 1, [], True, progress=False, max_steps=10, measured_source=given)

@@ -77,11 +77,13 @@ def timed_request_inputs(runner: ChunkPolicy, uses_target: bool
 
 
 def interleaved_request_ms(runner: ChunkPolicy, strategies: dict[str, Strategy], rounds: int = 20, calls: int = 5,
-                           warmup: int = 10) -> tuple[dict[str, list[list[float]]], dict[str, float] | None]:
+                           warmup: int = 10, each_round: Callable[[], None] | None = None
+                           ) -> tuple[dict[str, list[list[float]]], dict[str, float] | None]:
     """Each strategy's request times (ms), `rounds` x `calls`, in interleaved rounds after `warmup` untimed calls
     each: strategy -> per-round lists; and what else used the CPUs meanwhile (`CpuContention`, warned about on
     stderr). Timing one strategy after another's hundred episodes made the second 6-9 ms slower for the same
-    request (results/strategies-dp-a); interleaving shares whatever the machine drifts."""
+    request (results/strategies-dp-a); interleaving shares whatever the machine drifts. `each_round`, if given,
+    runs after every round's requests (other work timed in the same rounds: a per-step hook alone)."""
     obs, target, weights = timed_request_inputs(runner, True)  # strategies that read no target ignore it
     weak_generators = [episode_generator(WEAK_STREAM, 0)]
 
@@ -96,6 +98,8 @@ def interleaved_request_ms(runner: ChunkPolicy, strategies: dict[str, Strategy],
         for _ in range(rounds):
             for k, s in strategies.items():
                 out[k].append([request(s) for _ in range(calls)])
+            if each_round is not None:
+                each_round()
     contention.warn(f"the strategies {', '.join(strategies)}")
     return out, contention.result
 
