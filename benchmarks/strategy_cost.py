@@ -33,8 +33,9 @@ from bcbench.evaluation.config import StrategyConfig
 from bcbench.evaluation.latency_sources import interleaved_request_ms, timed_request_inputs
 from bcbench.evaluation.strategies import Strategy
 from bcbench.modes import mode_name
-from bcbench.policies.checkpoint import configure_runner, load_correction, load_runner
-from bcbench.policies.correction import CorrectionConfig, CorrectionPolicy, CorrectionRunner
+from bcbench.policies.checkpoint import build_model, configure_runner, load_correction, load_runner
+from bcbench.policies.config import config_to_dict
+from bcbench.policies.correction import CorrectionConfig, CorrectionRunner
 from bcbench.utils.io import write_json
 from bcbench.utils.system import provenance
 
@@ -111,14 +112,15 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def head(runner, args) -> CorrectionRunner:
-    """The head the correction strategy runs: a trained one, or the cpu preset's built in memory on `runner`."""
+    """The head the correction strategy runs: a trained one, or the cpu preset's built in memory on the same base run
+    (its own copy of the base, as a trained head loads it: the timed runner is left as it is)."""
     if args.correction != "untrained":
         return load_correction(args.correction)
-    cfg = CorrectionConfig.preset("cpu")
     m = runner.model.config
-    cfg.base, cfg.obs_horizon, cfg.pred_horizon = str(args.run_dir), m.obs_horizon, m.pred_horizon
-    model = CorrectionPolicy(cfg, runner)
-    return CorrectionRunner(model, runner.normalizer, "untrained (cpu preset, built in memory)")
+    cfg = {**config_to_dict(CorrectionConfig.preset("cpu")), "base": str(args.run_dir), "obs_horizon": m.obs_horizon,
+           "pred_horizon": m.pred_horizon}
+    model = build_model({"policy": "correction", "config": cfg})  # validated as a run's config is
+    return CorrectionRunner(model, model.base.normalizer, "untrained (cpu preset, built in memory)")
 
 
 def hook_calls(s: Strategy, obs: dict, chunk: np.ndarray, n: int) -> None:
