@@ -14,9 +14,18 @@ H="${BCBENCH_HOME:-$HOME/.cache/bcbench}"
 OUT="${1:-$H/grids}"
 PY=.venv/bin/python
 finished() { [ -f "$1/train_summary.json" ] && grep -q '"stopped": "finished"' "$1/train_summary.json"; }
-run_of() {  # $1 study, $2 policy, $3 seed: its finished run folder, or nothing
+run_of() {  # $1 study, $2 policy, $3 seed: its finished run folder with its weights here, or nothing
   local d
-  for d in "$H/$1/runs/$2-cpu-s$3-"*; do finished "$d" && { echo "$d"; return; }; done
+  for d in "$H/$1/runs/$2-cpu-s$3-"*; do
+    finished "$d" || continue
+    # a run restored from a committed export (a new machine: bcbench.study.restore) has its records, not its weights
+    if [ -z "$(ls -A "$d/checkpoints" 2>/dev/null)" ]; then
+      echo "$1 $2 seed $3: $d was trained on another machine and its weights are not here; its sweep needs the" \
+           "model its evaluations read: move the folder aside and resume the study to train it again" >&2
+      continue
+    fi
+    echo "$d"; return
+  done
 }
 for spec in "diffusion ddim dp" "flow euler flow"; do
   set -- $spec
