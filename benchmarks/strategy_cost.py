@@ -75,17 +75,18 @@ def main(argv: list[str] | None = None) -> None:
                               runner, weak if k == "bid" else None,
                               head(runner, args) if k == "correction" else None) for k in args.strategies}
     hooked = [s for s in strategies.values() if s.head is not None]
-    obs, chunk, _ = timed_request_inputs(runner, True)  # (1, Tp, A): the step's planned action is chunk[:, cs]
+    between_rounds = None
+    if hooked:  # the hook alone at batch 1, interleaved with the requests
+        obs, chunk, _ = timed_request_inputs(runner, True)  # (1, Tp, A): the step's planned action is chunk[:, cs]
 
-    def between_rounds() -> None:  # the hook alone at batch 1, interleaved with the requests
+        def between_rounds() -> None:
+            for s in hooked:
+                hook_calls(s, obs, chunk, args.calls)
+
         for s in hooked:
-            hook_calls(s, obs, chunk, args.calls)
-
-    for s in hooked:
-        hook_calls(s, obs, chunk, args.warmup)
-        s.step_compute_s.clear()
-    ms, contention = interleaved_request_ms(runner, strategies, args.rounds, args.calls, args.warmup,
-                                            between_rounds if hooked else None)
+            hook_calls(s, obs, chunk, args.warmup)
+            s.step_compute_s.clear()
+    ms, contention = interleaved_request_ms(runner, strategies, args.rounds, args.calls, args.warmup, between_rounds)
     base = next(iter(strategies))
     out = {"type": "strategy-cost", "run_dir": str(args.run_dir), "sampler": args.sampler, "steps": args.steps,
            "mode": runner.info.mode, "batch": 1, "rounds": args.rounds, "calls_per_round": args.calls,
