@@ -67,3 +67,13 @@ def test_figure_5_gives_up_height_to_a_longer_table_or_introduction():
     assert _lead_height("x" * 700, [row] * 5) == "max-height:max(18vh, calc(46vh - 44px))"  # 5 lines of 170 characters
     assert _lead_height("x" * 300, [row] * 4 + [["y" * 200]]) == "max-height:max(18vh, calc(46vh - 18px))"  # 2 lines
     assert _lead_height("x" * 300, [row] * 5, "z" * 100) == "max-height:max(18vh, calc(46vh - 22px))"  # a sentence
+
+
+@pytest.mark.parametrize("report", REPORTS, ids=[p.parent.parent.name for p in REPORTS])
+def test_every_committed_report_embeds_its_figures(report):
+    """A figure linked by a relative path vanishes when the page is read from a copy (the layout check reads one, so
+    does a mail or a reviewer's download): every <img> carries its PNG as a data URI. Runs without Chromium."""
+    import re
+
+    sources = re.findall(r"<img [^>]*src='([^']*)'", report.read_text())
+    assert all(s.startswith("data:image/png;base64,") for s in sources), [s[:60] for s in sources]

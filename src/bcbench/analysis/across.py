@@ -30,7 +30,7 @@ from bcbench.analysis.findings import DEFAULT_MARGIN, Finding, judge, points_fro
 from bcbench.analysis.results import Row, file_commits, load_rows
 from bcbench.analysis.seeds import merge_training_seeds
 from bcbench.analysis.studies import ACROSS_FILE, study_spec
-from bcbench.analysis.tables import html_table, md_table
+from bcbench.analysis.tables import html_image, html_table, md_table
 from bcbench.errors import BCBenchError
 from bcbench.protocol import held_out_episodes
 from bcbench.reference import IMAGE_DP_3DDP
@@ -287,7 +287,7 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
             + "<h2>Each task's report and figures</h2><ul>"
             + "".join(f"<li><a href='{_rel(c.folder / 'report' / 'report.html', out)}'>{html.escape(c.task)}</a></li>"
                       for c in columns) + "</ul>"
-            + "".join(f"<h2>{html.escape(t)}</h2><img src='{p.name}' style='max-width:100%'>" for t, p in figs.items())
+            + "".join(html_image(t, p, style="max-width:100%") for t, p in figs.items())
             + "<h2>Provenance</h2><ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
     with atomic_path(html_path) as tmp:
         tmp.write_text(f"<!doctype html><html><head><meta charset='utf-8'><title>bcbench report across tasks</title>"

@@ -9,7 +9,6 @@ Beside each of our numbers stand the study's own (measured on an A100 by the stu
 
 from __future__ import annotations
 
-import base64
 import html
 from pathlib import Path
 from typing import Any
@@ -51,7 +50,7 @@ from bcbench.analysis.studies import (
     study_spec,
     test_informed_lines,
 )
-from bcbench.analysis.tables import html_table, md_table
+from bcbench.analysis.tables import html_image, html_table, md_table
 from bcbench.reference import CPU_DEVIATIONS, STUDY_REFERENCE
 from bcbench.stats import fmt_estimate, fmt_share
 from bcbench.utils.io import atomic_path
@@ -322,7 +321,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     with atomic_path(html_path) as tmp:
         choose = control_loop_rows(settings, realtime, margin, paired)
         under = _informed_sentence(informed) if informed else ""
-        top = ((_img(FIG5, fig5, "lead", _lead_height(lead, choose, under)) if fig5 else "")
+        top = ((html_image(FIG5, fig5, "lead", _lead_height(lead, choose, under)) if fig5 else "")
                + "<h2>Which policy for my control loop</h2>" + html_table(CHOOSE_HEADER, choose)
                + (f"<p>{html.escape(under)}</p>" if under else "")
                + ("<h2>Machines</h2>" + html_table(MACHINES_HEADER, machines) if machines else ""))
@@ -338,12 +337,6 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
 def _informed_sentence(informed: list[str]) -> str:
     return (f"Against the protocol, {len(informed)} decision(s) behind these presets or stages were informed by a "
             "test-seed result; each is listed under Provenance, with the file it read.")
-
-
-def _img(title: str, path: Path, cls: str = "", style: str = "") -> str:
-    t = html.escape(title)
-    return (f"<h2>{t}</h2><img alt='{t}'{f' class={cls!r}' if cls else ''}{f' style={style!r}' if style else ''} "
-            f"src='data:image/png;base64,{base64.b64encode(path.read_bytes()).decode()}'>")
 
 
 def _lead_height(intro: str, rows: list[list[str]], under: str = "") -> str:
@@ -375,7 +368,7 @@ def _html(intro: str, findings: str, table: tuple[list[str], list[list[str]]], f
            ".undertrained{color:#666}"
            "img{max-width:100%;border:1px solid #eee}")
     train_items = "".join(f"<li>{html.escape(t[2:].replace('**', ''))}</li>" for t in training)
-    images = "".join(_img(title, path) for title, path in figs.items() if path)
+    images = "".join(html_image(title, path) for title, path in figs.items() if path)
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>bcbench report</title><style>{css}</style>"
             f"</head><body><h1>bcbench report</h1><p>{html.escape(intro)}</p>{lead}{findings}<h2>Results</h2>"
             f"{html_table(*table)}<h2>Training: converged?</h2><ul>{train_items}</ul>{images}{tail}"
