@@ -100,6 +100,25 @@ def test_finding_5_bet_against_random(shift, noise, expected):
     assert verdict([pt("random", "random", rnd), pt("bet", "bet", rnd + shift + noise)], 5) == expected
 
 
+@pytest.mark.parametrize("value, bound", [(1.0, "ceiling"), (0.0, "floor"), (0.5, "")])
+def test_a_comparison_where_every_episode_scores_the_same_bound_says_the_task_cannot_separate(value, bound):
+    """Drawer-open from 10 demonstrations: every policy 100/100, so finding 4 reads +0.000 [+0.000, +0.000] and its
+    rule says "contradicted" (not better by the margin). The verdict keeps its rule; the evidence says the task has
+    nothing to separate, and only where every episode of every setting compared sits at 1.0 (or 0.0)."""
+    same = np.full(N, value)
+    pts = [pt("cnn", "cnn_mlp", same), pt("bct", "bct", same), pt("r50", "resnet50", same)]
+    f4 = judge(pts)[3]
+    assert f4.verdict == CONTRADICTED and f4.bound == bound
+    assert ("this task cannot separate them" in f4.evidence) == bool(bound)
+    if bound:  # a single episode off the bound is evidence of a difference the task can show: no note
+        one_off = same.copy()
+        one_off[7] = 1.0 - value
+        pts[0] = pt("cnn", "cnn_mlp", one_off)
+        assert judge(pts)[3].bound == ""
+    bet_vs_random = [pt("random", "random", np.zeros(N)), pt("bet", "bet", np.ones(N))]
+    assert judge(bet_vs_random)[4].bound == ""  # 1.0 against 0.0 is a difference, not a bound
+
+
 def test_missing_evidence_is_inconclusive_and_undertrained_is_not_judged():
     assert [f.verdict for f in judge([])] == [INCONCLUSIVE] * 5
     pts = [pt("random", "random", BASE * 0.2), pt("bet", "bet", BASE * 0.2, converged=False)]

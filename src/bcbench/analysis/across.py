@@ -156,6 +156,7 @@ def findings_table(columns: list[TaskColumn]) -> tuple[list[str], list[list[str]
     header = ["finding", *(c.task for c in columns)]
     claims = {f.number: f.claim for c in columns for f in c.findings}
     verdicts = {(c.task, f.number): f.verdict + ("" if f.evaluated else " (not evaluated)")
+                + (f" (at the {f.bound}: nothing to separate)" if f.bound else "")
                 for c in columns for f in c.findings}
     return header, [[f"{n}. {claims[n]}", *(verdicts.get((c.task, n), "-") for c in columns)] for n in sorted(claims)]
 

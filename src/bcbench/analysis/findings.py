@@ -72,6 +72,7 @@ class Finding:
     evidence: str
     rule: str = ""
     evaluated: bool = True  # False: inconclusive for want of the settings it compares, not for a wide interval
+    bound: str = ""  # "ceiling" / "floor": every episode of every setting compared scored 1.0 / 0.0 (`_bound`)
 
 
 def _by_training_seed(p: Point, ids: list[int]) -> list[dict[int, float]]:
@@ -150,12 +151,31 @@ def _undertrained(points: list[Point]) -> list[str]:
     return sorted({p.run or p.name for p in points if p.converged is False})
 
 
-def _finish(number: int, claim: str, rule: str, verdict: str, evidence: str, used: list[Point]) -> Finding:
+def _bound(points: list[Point]) -> str:
+    """'ceiling' (or 'floor') when every episode of every setting compared, every training seed, scored 1.0 (0.0).
+
+    A task every policy solves (MetaWorld's drawer-open from 10 demonstrations) gives +0.000 [+0.000, +0.000] for any
+    pair: a rule reads that as "no better by the margin" or "as good", but the task has nothing left to separate. The
+    verdict keeps its rule; the evidence and the cross-task table say so beside it."""
+    scores = [v for p in points for run in (p.seeds or [p.scores]) for v in run.values()]
+    if len(points) < 2 or not scores or len(set(scores)) != 1 or scores[0] not in (0.0, 1.0):
+        return ""
+    return "ceiling" if scores[0] == 1.0 else "floor"
+
+
+def _finish(number: int, claim: str, rule: str, verdict: str, evidence: str, used: list[Point],
+            compared: list[Point] | None = None) -> Finding:
+    """The verdict, or 'undertrained' where a setting it rests on (`used`) is not shown converged; `compared` (default
+    `used`): every setting the comparison read, for the ceiling note."""
+    bound = _bound(used if compared is None else compared)
+    if bound:
+        evidence += (f"; every episode of every setting compared scored {1.0 if bound == 'ceiling' else 0.0:.1f}: at "
+                     f"the score's {bound}, this task cannot separate them")
     late = _undertrained(used)
     if late:
         return Finding(number, claim, UNDERTRAINED, f"{evidence} (not judged: {', '.join(late)} not shown converged; "
-                       "see 'Training: converged?')", rule)
-    return Finding(number, claim, verdict, evidence, rule)
+                       "see 'Training: converged?')", rule, bound=bound)
+    return Finding(number, claim, verdict, evidence, rule, bound=bound)
 
 
 def _at_most(lo: float, hi: float, bound: float) -> str:
@@ -206,7 +226,8 @@ def finding_1(points: list[Point], m: float) -> Finding:
     evidence += _border_note(slow, timed, fast, verdict, m) + _without_fixed_note(slow, fast, d, verdict, m)
     # more training can only raise the faster settings' scores, which keeps "supported" supported: then only
     # the slow setting's convergence matters (an undertrained slow one could still rise above them)
-    return _finish(1, claim, rule, verdict, evidence, [slow] if verdict == SUPPORTED else [slow, *fast])
+    return _finish(1, claim, rule, verdict, evidence, [slow] if verdict == SUPPORTED else [slow, *fast],
+                   [slow, *fast])
 
 
 def _border_note(slow: Point, timed: list[Point], fast: list[Point], verdict: str, m: float) -> str:
