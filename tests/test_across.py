@@ -162,4 +162,6 @@ def test_each_tasks_figure_5_and_3_are_drawn_where_its_study_timed_and_stepped(t
         assert (out / "report" / fig).stat().st_size > 1000 and f"]({fig})" in md
     assert "(no Figure 5: its study timed nothing; no Figure 3: fewer than two step counts" in md  # drawer's
     assert "92.0% [81.2, 96.8], 1 training seed; 10.0 ms (fast)" in md  # the fastest exact mode's median
-    assert "src='fig5_metaworld-peg-insert-side.png'" in (out / "report" / "report.html").read_text()
+    page = (out / "report" / "report.html").read_text()  # the figures embedded (a copied page keeps them)
+    assert "<img alt='Figure 5, metaworld/peg-insert-side' style='max-width:100%' src='data:image/png;base64," in page
+    assert page.count("src='data:image/png;base64,") == 2 and "src='fig" not in page
