@@ -6,6 +6,7 @@ Runs where Chromium is installed (`apt-get install chromium`; `.ci/run` installs
 from __future__ import annotations
 
 import importlib.util
+import re
 from pathlib import Path
 
 import pytest
@@ -73,7 +74,5 @@ def test_figure_5_gives_up_height_to_a_longer_table_or_introduction():
 def test_every_committed_report_embeds_its_figures(report):
     """A figure linked by a relative path vanishes when the page is read from a copy (the layout check reads one, so
     does a mail or a reviewer's download): every <img> carries its PNG as a data URI. Runs without Chromium."""
-    import re
-
     sources = re.findall(r"<img [^>]*src='([^']*)'", report.read_text())
     assert all(s.startswith("data:image/png;base64,") for s in sources), [s[:60] for s in sources]

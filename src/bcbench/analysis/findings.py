@@ -151,16 +151,17 @@ def _undertrained(points: list[Point]) -> list[str]:
     return sorted({p.run or p.name for p in points if p.converged is False})
 
 
+BOUNDS = {1.0: "ceiling", 0.0: "floor"}  # a score every episode of a comparison can share only at its bound
+
+
 def _bound(points: list[Point]) -> str:
     """'ceiling' (or 'floor') when every episode of every setting compared, every training seed, scored 1.0 (0.0).
 
     A task every policy solves (MetaWorld's drawer-open from 10 demonstrations) gives +0.000 [+0.000, +0.000] for any
     pair: a rule reads that as "no better by the margin" or "as good", but the task has nothing left to separate. The
     verdict keeps its rule; the evidence and the cross-task table say so beside it."""
-    scores = [v for p in points for run in (p.seeds or [p.scores]) for v in run.values()]
-    if len(points) < 2 or not scores or len(set(scores)) != 1 or scores[0] not in (0.0, 1.0):
-        return ""
-    return "ceiling" if scores[0] == 1.0 else "floor"
+    scores = {v for p in points for run in (p.seeds or [p.scores]) for v in run.values()}
+    return BOUNDS.get(scores.pop(), "") if len(points) > 1 and len(scores) == 1 else ""
 
 
 def _finish(number: int, claim: str, rule: str, verdict: str, evidence: str, used: list[Point],
@@ -169,7 +170,7 @@ def _finish(number: int, claim: str, rule: str, verdict: str, evidence: str, use
     `used`): every setting the comparison read, for the ceiling note."""
     bound = _bound(used if compared is None else compared)
     if bound:
-        evidence += (f"; every episode of every setting compared scored {1.0 if bound == 'ceiling' else 0.0:.1f}: at "
+        evidence += (f"; every episode of every setting compared scored {'1.0' if bound == 'ceiling' else '0.0'}: at "
                      f"the score's {bound}, this task cannot separate them")
     late = _undertrained(used)
     if late:
