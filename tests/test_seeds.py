@@ -353,3 +353,24 @@ def test_the_two_level_bootstrap_draws_as_the_plain_double_loop_does(k, m, sizes
         return [float(q) for q in np.quantile(boot, [alpha, 1.0 - alpha])]
 
     assert stats.two_level_bootstrap(seeds, others, n_boot=2000)["ci95"] == loop()
+
+
+@pytest.mark.parametrize("before", [0, 1, 2, 3], ids=lambda n: f"{n}-drawn-before")
+def test_bounded_draws_read_what_one_call_at_a_time_reads(before):
+    """stats.bounded_draws equals `rng.integers(0, b)` called once per bound, to the bit: with bounds whose words
+    are often dropped (3 * 2**30: a quarter of them, more than its spare words), bounds of 1 (no word read), a
+    half word held over from an earlier odd-sized draw (`before`), and the generator's next draw after it."""
+    from bcbench import stats
+
+    bounds = np.random.default_rng(before).choice([1, 2, 3, 93, 100, 3 * 2**30, 2**31 + 1, 2**32 - 1], size=3000)
+    one, bulk = np.random.default_rng(11), np.random.default_rng(11)
+    one.integers(0, 7, before), bulk.integers(0, 7, before)
+    calls = np.array([one.integers(0, b) for b in bounds])
+    got = stats.bounded_draws(bulk, bounds)
+    assert got.dtype == np.int64 and (got == calls).all(), np.flatnonzero(got != calls)[:5]
+    assert (np.asarray(bounds) == 3 * 2**30).sum() > 300  # enough drops to need more words than the spare 64
+    assert not stats.bounded_draws(np.random.default_rng(0), np.ones(5, dtype=np.int64)).any()
+    with pytest.raises(TypeError, match="PCG64"):
+        stats.bounded_draws(np.random.Generator(np.random.MT19937(0)), bounds)
+    with pytest.raises(ValueError, match="bounds"):
+        stats.bounded_draws(np.random.default_rng(0), [0, 3])
