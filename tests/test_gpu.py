@@ -22,9 +22,9 @@ import torch
 from bcbench.errors import BCBenchError
 from bcbench.evaluation.backends import apply_mode
 from bcbench.evaluation.timing import TimingConfig, latency_record
-from bcbench.interface import example_observation
 from bcbench.policies import learned_policies
 from bcbench.policies.checkpoint import load_runner
+from bcbench.tasks import example_for
 from bcbench.training.loop import TrainOptions, new_run, train
 from bcbench.utils.io import read_jsonl
 from tests.tiny import checkpoint_weights, tiny_overrides
@@ -42,32 +42,56 @@ def _opts(data, *callbacks) -> TrainOptions:
     return TrainOptions(data=str(data), device=DEVICE, threads=1, progress=False, callbacks=callbacks)
 
 
-def _new_run(policy: str, data, out: Path, epochs: int = 2, **optim) -> Path:
-    return new_run(policy, "quick", tiny_overrides(policy, epochs=epochs, precision="fp32", **optim), out, _opts(data))
+def _new_run(policy: str, data, out: Path, epochs: int = 2, task: str = "pusht", **optim) -> Path:
+    return new_run(policy, "quick", tiny_overrides(policy, epochs=epochs, precision="fp32", **optim), out, _opts(data),
+                   task=task)
 
 
-def _train(policy: str, data, out: Path, epochs: int = 2, **optim) -> Path:
-    run = _new_run(policy, data, out, epochs, **optim)
+def _train(policy: str, data, out: Path, epochs: int = 2, task: str = "pusht", **optim) -> Path:
+    run = _new_run(policy, data, out, epochs, task, **optim)
     train(run, _opts(data))
     return run
 
 
 def _chunk(runner, seed: int) -> np.ndarray:
     runner.model.reset_noise(seed)
-    return runner.predict_action_chunk(example_observation(batch=2, seed=1))  # (B, pred_horizon, 2) pixels
+    return runner.predict_action_chunk(example_for(runner.model, batch=2, seed=1))  # (B, pred_horizon, action_dim)
 
 
+MW_TASK = "metaworld/drawer-open"
+
+
+@pytest.fixture(scope="module")
+def metaworld_zarr(tmp_path_factory) -> Path:
+    """Two random episodes in the store format `bcbench data generate` writes for drawer-open (no MuJoCo needed to
+    train on it): the shapes of a task other than Push-T's (4-D actions in [-1, 1], 4 proprioception values)."""
+    from bcbench.tasks.metaworld.generate import _write_store
+    from bcbench.tasks.metaworld.table import state_names
+
+    rng, s = np.random.default_rng(0), len(state_names("drawer-open"))
+    kept = [{"img": rng.integers(0, 256, (n, 96, 96, 3), dtype=np.uint8), "length": n, "seed": i,
+             "state": rng.normal(size=(n, s)).astype(np.float32),
+             "action": rng.uniform(-1, 1, (n, 4)).astype(np.float32)} for i, n in enumerate((40, 36))]
+    out = tmp_path_factory.mktemp("mw") / "drawer-open.zarr"
+    _write_store(out, kept, {"format": "bcbench-metaworld-v1", "task": MW_TASK}, force=False)
+    return out
+
+
+@pytest.mark.parametrize("task", ["pusht", MW_TASK], ids=["pusht", "metaworld"])
 @pytest.mark.parametrize("policy", learned_policies())
-def test_trained_on_the_device_runs_on_the_cpu(policy, synthetic_zarr, tmp_path):
-    """Weights saved on the device load on the CPU; a deterministic policy predicts the same chunk on both."""
-    run = _train(policy, synthetic_zarr, tmp_path / policy)
+def test_trained_on_the_device_runs_on_the_cpu(policy, task, synthetic_zarr, metaworld_zarr, tmp_path):
+    """Weights saved on the device load on the CPU; a deterministic policy predicts the same chunk on both, in the
+    task's shapes (Push-T's 2-D pixels; MetaWorld's 4-D actions)."""
+    data = synthetic_zarr if task == "pusht" else metaworld_zarr
+    run = _train(policy, data, tmp_path / policy, task=task)
     segment = read_jsonl(run / "segments.jsonl")[-1]
     assert segment["device"].startswith(DEVICE)
     if DEVICE == "cuda":
         assert segment["gpu"] == torch.cuda.get_device_name()
     on_cpu, on_device = load_runner(run, device="cpu"), load_runner(run, device=DEVICE)
     a, b = _chunk(on_cpu, 0), _chunk(on_device, 0)
-    assert a.shape == b.shape == (2, on_cpu.model.config.pred_horizon, 2), a.shape
+    dim = 2 if task == "pusht" else 4
+    assert a.shape == b.shape == (2, on_cpu.model.config.pred_horizon, dim), a.shape
     assert np.isfinite(a).all() and np.isfinite(b).all()
     if np.array_equal(a, _chunk(on_cpu, 1)):  # the noise seed changes nothing: the two devices must agree
         # TF32 convolutions (cuDNN's default) round to 10 mantissa bits: about 1e-3 relative, on a 512-px field
