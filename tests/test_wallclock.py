@@ -85,8 +85,12 @@ def test_a_wall_clock_run_records_the_known_delay_and_never_blocks_the_simulator
     calls = record["episodes"][0]["calls"]
     assert len(calls) >= 5 and s["delays"]["calls"] == len(calls)  # 30 steps, a request every 5
     # sleep + the round trip: under 100 ms on a quiet machine, under 150 beside a test suite on the same 2 cores
-    # (one call of a suite run took 107 ms more); d = 3 or 4 either way, as checked below
-    assert all(0.25 <= c["delay_s"] < 0.4 for c in calls), [c["delay_s"] for c in calls]
+    # (one call of a suite run took 107 ms more); d = 3 or 4 either way, as checked below. A server process the
+    # suite starves can answer one call later still (seen: 506 ms, make test on a 2-core AMD EPYC): such a call must
+    # then be seen as the longer delay it was (d >= 5 at 100 ms steps), never hidden
+    assert all(c["delay_s"] >= 0.25 for c in calls), [c["delay_s"] for c in calls]
+    slow = [c for c in calls if c["delay_s"] >= 0.4]
+    assert all(c["delay_steps"] >= 4 for c in slow), slow
     assert s["delays"]["median_steps"] == 3 and s["simulated_delay"] == 3
     # the threshold learnt from the calls: each request's D is the warm-up's d before any call is measured, then the
     # median d (rounded up) of the calls answered before it, the last 20. Replayed from the record rather than read
@@ -100,10 +104,10 @@ def test_a_wall_clock_run_records_the_known_delay_and_never_blocks_the_simulator
     # that step ends), so fewer steps pass while the call is out (seen beside a suite and a training on 2 cores: d = 2
     # for a 0.25-0.4 s call); the record shows the overrun
     overran = {o["step"] for o in record["episodes"][0]["overruns"]}
-    odd = [c for c in calls if c["delay_steps"] not in (3, 4)]
+    odd = [c for c in calls if c["delay_steps"] not in (3, 4) and c not in slow]
     assert all(overran & set(range(c["request_step"] - 1, c["request_step"] + c["delay_steps"] + 1)) for c in odd), (
         odd, sorted(overran))
-    assert len(odd) <= 1, odd
+    assert len(odd) + len(slow) <= 1, (odd, slow)
     assert all(c["compute_ms"] >= SLEEP_MS for c in calls)
     assert record["episodes"][0]["length"] == 30
     # the world never waits: 100 ms periods while the policy computes (tolerance 15 ms median). A client that waited
