@@ -165,3 +165,29 @@ def test_each_tasks_figure_5_and_3_are_drawn_where_its_study_timed_and_stepped(t
     page = (out / "report" / "report.html").read_text()  # the figures embedded (a copied page keeps them)
     assert "<img alt='Figure 5, metaworld/peg-insert-side' style='max-width:100%' src='data:image/png;base64," in page
     assert page.count("src='data:image/png;base64,") == 2 and "src='fig" not in page
+
+
+def test_a_setting_whose_size_moves_with_the_task_is_one_row_with_its_range(tmp_path):
+    """DP's network is 5.34 M on drawer-open and 5.37 M on pick-place (the goal in its proprioception): one setting,
+    so one row, named with both sizes; a row whose size is the same on every task keeps its plain name."""
+    d, p = "metaworld/drawer-open", "metaworld/pick-place"
+
+    def dp(task: str, difficulty: str, params: int, successes: int) -> dict:
+        ev = _eval("diffusion", "Diffusion Policy", task, difficulty, successes, variant=("ddim", 10))
+        ev["policy"].update(parameters=params, config={"seed": 0, "pred_horizon": 4, "encoder_width": 16})
+        return ev
+
+    def bct(task: str, difficulty: str) -> dict:
+        ev = _eval("bct", "BCT", task, difficulty, 10)
+        ev["policy"].update(parameters=1_120_000, config={"seed": 0, "pred_horizon": 4, "encoder_width": 16})
+        return ev
+
+    _study(tmp_path / "drawer", d, "easy", {"dp@ddim10": dp(d, "easy", 5_340_000, 50), "bct@default": bct(d, "easy")})
+    _study(tmp_path / "pick", p, "hard", {"dp@ddim10": dp(p, "hard", 5_370_000, 6), "bct@default": bct(p, "hard")})
+    out = tmp_path / "across"
+    write_json(out / "across.json", {"tasks": ["../drawer", "../pick"], "why": "Sizes move with the task."})
+    md = Path(write_across_report(out)["markdown"]).read_text()
+    dp_rows = [line for line in md.splitlines() if line.startswith("| Diffusion Policy")]
+    assert dp_rows == ["| Diffusion Policy, 1/4 width (5.34-5.37 M by task) DDIM10 | 100.0% [92.9, 100.0], 1 training "
+                       "seed; not timed | 12.0% [5.6, 23.8], 1 training seed; not timed |"], dp_rows
+    assert "| BCT, 1/4 width (1.12 M) | 20.0% [11.2, 33.0], 1 training seed; not timed | 20.0%" in md

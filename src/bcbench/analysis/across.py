@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import html
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -97,9 +98,21 @@ def _column(folder: Path, f: Path, stated: dict[str, str]) -> TaskColumn:
                       judge(points_from_rows(settings), margin), sorted(file_commits(folder)))
 
 
+_SIZE = re.compile(r"\((\d+\.\d+) M")  # the parameter count a sized label carries: "1/4 width (5.34 M"
+
+
 def _key(r: Row) -> tuple[str, str]:
-    """A setting is the same across tasks by its study label and variant (its size moves with the task's shapes)."""
-    return (r.run_label or r.label, r.variant)
+    """A setting is the same across tasks by its study label and variant, its size left out: the size moves with the
+    task's shapes (pick-place's goal in the proprioception makes DP's network 5.37 M where drawer-open's is 5.34 M)."""
+    return (_SIZE.sub("(", r.run_label or r.label), r.variant)
+
+
+def _setting(rows: list[Row]) -> str:
+    """A row's name: the setting as its first task names it, or, where its size differs between tasks, with the
+    range: "..., 1/4 width (5.34-5.37 M by task)"."""
+    sizes = sorted({m.group(1) for r in rows if (m := _SIZE.search(r.setting))}, key=float)
+    name = rows[0].setting
+    return name if len(sizes) < 2 else _SIZE.sub(f"({sizes[0]}-{sizes[-1]} M by task", name, count=1)
 
 
 def success(r: Row) -> tuple[float, float, float, str]:
@@ -143,8 +156,9 @@ def table(columns: list[TaskColumn]) -> tuple[list[str], list[list[str]]]:
             first.setdefault(_key(r), r)
     order = sorted(by_key, key=lambda k: (ORDER.index(first[k].policy) if first[k].policy in ORDER else 99, k))
     header = ["policy", *(f"{c.task} ({c.difficulty or '-'})" for c in columns)]
-    rows = [[first[k].setting, *(f"{success_cell(by_key[k][c.task])}; {latency_cell(by_key[k][c.task])}"
-                                if c.task in by_key[k] else "-" for c in columns)] for k in order]
+    rows = [[_setting(list(by_key[k].values())),
+             *(f"{success_cell(by_key[k][c.task])}; {latency_cell(by_key[k][c.task])}" if c.task in by_key[k] else "-"
+               for c in columns)] for k in order]
     ref = [IMAGE_DP_3DDP.get(c.difficulty or "") for c in columns]
     if any(v is not None for v in ref):
         rows.append(["3D Diffusion Policy's image DP, 10 demos (its difficulty group's mean; published)",
