@@ -24,7 +24,7 @@ from bcbench.evaluation.backends import apply_mode
 from bcbench.evaluation.timing import TimingConfig, latency_record
 from bcbench.policies import learned_policies
 from bcbench.policies.checkpoint import load_runner
-from bcbench.tasks import example_for
+from bcbench.tasks import example_for, get_task
 from bcbench.training.loop import TrainOptions, new_run, train
 from bcbench.utils.io import read_jsonl
 from tests.tiny import checkpoint_weights, tiny_overrides
@@ -66,12 +66,11 @@ def metaworld_zarr(tmp_path_factory) -> Path:
     """Two random episodes in the store format `bcbench data generate` writes for drawer-open (no MuJoCo needed to
     train on it): the shapes of a task other than Push-T's (4-D actions in [-1, 1], 4 proprioception values)."""
     from bcbench.tasks.metaworld.generate import _write_store
-    from bcbench.tasks.metaworld.table import state_names
 
-    rng, s = np.random.default_rng(0), len(state_names("drawer-open"))
-    kept = [{"img": rng.integers(0, 256, (n, 96, 96, 3), dtype=np.uint8), "length": n, "seed": i,
-             "state": rng.normal(size=(n, s)).astype(np.float32),
-             "action": rng.uniform(-1, 1, (n, 4)).astype(np.float32)} for i, n in enumerate((40, 36))]
+    rng, task = np.random.default_rng(0), get_task(MW_TASK)
+    kept = [{"img": rng.integers(0, 256, (n, task.image_size, task.image_size, 3), dtype=np.uint8), "length": n,
+             "seed": i, "state": rng.normal(size=(n, task.state_dim)).astype(np.float32),
+             "action": rng.uniform(-1, 1, (n, task.action_dim)).astype(np.float32)} for i, n in enumerate((40, 36))]
     out = tmp_path_factory.mktemp("mw") / "drawer-open.zarr"
     _write_store(out, kept, {"format": "bcbench-metaworld-v1", "task": MW_TASK}, force=False)
     return out
@@ -90,8 +89,7 @@ def test_trained_on_the_device_runs_on_the_cpu(policy, task, synthetic_zarr, met
         assert segment["gpu"] == torch.cuda.get_device_name()
     on_cpu, on_device = load_runner(run, device="cpu"), load_runner(run, device=DEVICE)
     a, b = _chunk(on_cpu, 0), _chunk(on_device, 0)
-    dim = 2 if task == "pusht" else 4
-    assert a.shape == b.shape == (2, on_cpu.model.config.pred_horizon, dim), a.shape
+    assert a.shape == b.shape == (2, on_cpu.model.config.pred_horizon, get_task(task).action_dim), a.shape
     assert np.isfinite(a).all() and np.isfinite(b).all()
     if np.array_equal(a, _chunk(on_cpu, 1)):  # the noise seed changes nothing: the two devices must agree
         # TF32 convolutions (cuDNN's default) round to 10 mantissa bits: about 1e-3 relative, on a 512-px field

@@ -129,16 +129,12 @@ def test_committed_model_reproduces_its_committed_scores(model_dir):
     # the same vector units of the same maker: an AMD EPYC Zen 5 with the Xeon's flag list rounds otherwise (flow's
     # seed 100001 read 0.994 for the Xeon's 1.000 on 3 episodes), so flags alone do not make two CPUs alike
     same_units = tuple(hw.get("cpu_flags") or ()) == cpu_flags() and hw.get("cpu_model") == cpu_model()
-    old_threads = torch.get_num_threads()
-    # One thread, whatever the record's count: two xdist workers at two threads each oversubscribe two cores (the DP
-    # model's 10 episodes took 92 s in `make test`, 21 s with one thread alone; the linear-beta DP's 2 took 47.6 s
-    # there and 7 s alone). On the same units one thread still reproduces to rounding: the four models published from
-    # this AMD EPYC (avx2, fma) at 2 threads re-scored at 1 within 3.7e-6 of their records (at 2: within 3.7e-6 too).
-    torch.set_num_threads(1)
-    try:
-        rows = _reproduce(model_dir, record, 2 if same_units else 10)
-    finally:
-        torch.set_num_threads(old_threads)
+    # At the suite's one thread (conftest), whatever the record's count: two xdist workers at two threads each
+    # oversubscribe two cores (the DP model's 10 episodes took 92 s in `make test`, 21 s with one thread alone; the
+    # linear-beta DP's 2 took 47.6 s there and 7 s alone). On the same units one thread still reproduces to rounding:
+    # the four models published from this AMD EPYC (avx2, fma) at 2 threads re-scored at 1 within 3.7e-6 of their
+    # records (at 2: within 3.7e-6 too).
+    rows = _reproduce(model_dir, record, 2 if same_units else 10)
     if same_units:
         assert rows and all(abs(then - now) < 1e-3 for _, then, now in rows), rows
         return

@@ -127,7 +127,7 @@ def bounded_draws(rng: np.random.Generator, bounds: np.ndarray) -> np.ndarray:
     words = _words(rng, b.size + 64)
     i = shift = 0  # the next output to fill; the words dropped before it
     while i < b.size:
-        if i + shift + (b.size - i) > words.size:  # more drops than the spare words: read more
+        if shift + b.size > words.size:  # more drops than the spare words: read more
             words = np.concatenate([words, _words(rng, b.size)])
         m = words[i + shift: shift + b.size] * b[i:]  # (N - i,) exact in 64 bits: both factors < 2**32
         dropped = (m & np.uint64(0xFFFFFFFF)) < threshold[i:]
@@ -147,10 +147,10 @@ def _resampled_means(per_seed: list[tuple[np.ndarray, np.ndarray]], rng: np.rand
     the means are taken per training seed along a contiguous last axis (the same pairwise sum as a 1-D mean)."""
     k = len(per_seed)
     m = per_seed[0][1].shape[0]
-    sizes = np.array([a.size for a, _ in per_seed])
     draws = rng.integers(0, k, size=(n_boot, k)).ravel()  # training seeds, with replacement, in slot order
-    episodes = bounded_draws(rng, np.repeat(sizes[draws], sizes[draws]))  # each slot's n_j episode draws, in order
-    starts = np.concatenate([[0], np.cumsum(sizes[draws])[:-1]])
+    n = np.array([a.size for a, _ in per_seed])[draws]  # (n_boot * k,) each slot's episode count
+    episodes = bounded_draws(rng, np.repeat(n, n))  # each slot's n_j episode draws, in order
+    starts = np.cumsum(n) - n  # where each slot's draws begin
     ma, mr = np.empty((n_boot, k)), np.empty((n_boot, k, m))
     for j, (a, rest) in enumerate(per_seed):
         where = np.flatnonzero(draws == j)  # the (b, slot) positions that drew seed j, in draw order
