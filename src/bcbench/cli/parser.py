@@ -31,8 +31,8 @@ from bcbench.utils.fields import field_docs
 
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(prog="bcbench", description=__doc__.split("\n")[0] if __doc__ else None)
-    parser.description = ("Train, evaluate and benchmark visuomotor behavior-cloning policies on Push-T: "
-                          "task accuracy against real-time inference latency.")
+    parser.description = ("Train, evaluate and benchmark visuomotor behavior-cloning policies on Push-T and "
+                          "MetaWorld tasks (--task): task accuracy against real-time inference latency.")
     parser.add_argument("--version", action="version", version=f"bcbench {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=OneLineParser)
     sub.required = True
@@ -318,7 +318,7 @@ def _add_strategy_args(p: argparse.ArgumentParser, sweep: bool = False) -> None:
 
 
 def _add_eval_command(sub: Any) -> None:
-    p = sub.add_parser("eval", help="evaluate a policy over seeded Push-T episodes (JSON result, videos)")
+    p = sub.add_parser("eval", help="evaluate a policy over seeded episodes of its task (JSON result, videos)")
     p.add_argument("--policy", metavar="NAME", help="policy to evaluate: a baseline (random, scripted), a plug-in, "
                    "or my_pkg.my_module:factory (`bcbench policies` lists them; a trained run: --checkpoint)")
     _add_policy_arg(p)
