@@ -121,6 +121,12 @@ def test_a_record_without_its_difficulty_takes_the_stated_one_and_a_clash_is_ref
     ({"tasks": ["../drawer"], "difficulty": {"metaworld/drawer-open": 1}}, "'difficulty' maps a task name"),
     ({"tasks": ["../drawer"], "demos": 3}, "'demos' names the folder of the demonstration records"),
     ({"tasks": ["../drawer"], "demos": "../bogus"}, "not a demonstration record (no attempted, scripted"),
+    ({"tasks": ["../drawer"], "more_demos": {"metaworld/drawer-open": 3}}, "'more_demos' maps a task name"),
+    ({"tasks": ["../drawer"], "more_demos": {"metaworld/door-open": "../drawer2"}},
+     "'more_demos' names metaworld/door-open, which none of its 'tasks' folders is on"),
+    ({"tasks": ["../drawer"], "more_demos": {"metaworld/drawer-open": "../bogus"}}, "which is not a study folder"),
+    ({"tasks": ["../drawer"], "more_demos": {"metaworld/drawer-open": "../peg"}},
+     "gives ../peg for metaworld/drawer-open, but that study ran metaworld/peg-insert-side"),
 ])
 def test_bad_across_files_are_one_line_errors(tmp_path, spec, message, capsys):
     _two_tasks(tmp_path)
@@ -191,3 +197,37 @@ def test_a_setting_whose_size_moves_with_the_task_is_one_row_with_its_range(tmp_
     assert dp_rows == ["| Diffusion Policy, 1/4 width (5.34-5.37 M by task) DDIM10 | 100.0% [92.9, 100.0], 1 training "
                        "seed; not timed | 12.0% [5.6, 23.8], 1 training seed; not timed |"], dp_rows
     assert "| BCT, 1/4 width (1.12 M) | 20.0% [11.2, 33.0], 1 training seed; not timed | 20.0%" in md
+
+
+def test_a_task_under_the_goal_reads_its_twice_the_steps_check_and_a_stage_with_more_demonstrations(tmp_path):
+    out = _two_tasks(tmp_path)  # drawer-open 100%, peg 92%: neither is under 80%, so neither gets a why
+    p = "metaworld/pick-place"
+
+    def dp(successes: int, label: str = "Diffusion Policy", **study: str) -> dict:
+        ev = _eval("diffusion", label, p, "hard", successes, variant=("ddim", 10))
+        ev["study"].update(study)
+        return ev
+
+    pick = _study(tmp_path / "pick", p, "hard", {"dp@ddim10": dp(6)})  # its test score: 12%
+    write_json(pick / "runs" / "dp@ddim10" / "check-ddim10.json", dp(10))  # the check base, validation: 20%
+    write_json(pick / "runs" / "dp@ddim10" / "run.json", {"data_split": {"demos": 10}})
+    write_json(out / "across.json", {"tasks": ["../drawer", "../peg", "../pick"]})
+    why = [x for x in Path(write_across_report(out)["markdown"]).read_text().splitlines() if x.startswith("- **")]
+    assert why[-1] == ("- **metaworld/pick-place**: twice the steps: no twice-the-steps check yet; demonstration "
+                       "count: no stage with more demonstrations yet."), why
+    assert sum("drawer-open**: twice" in x or "peg-insert-side**: twice" in x for x in why) == 0
+
+    # the confirm run's twice-the-steps check lands (12 of the same 50 validation episodes against its base's 10)
+    write_json(pick / "runs" / "dp2x@ddim10" / "check-ddim10.json",
+               dp(12, "Diffusion Policy, twice the steps", doubles="Diffusion Policy"))
+    # and an explore stage trains the same DP on 50 demonstrations, read on those validation episodes: 35 of 50
+    more = _study(tmp_path / "pick50", p, "hard", {"dp50@ddim10": dp(35)})
+    write_json(more / "runs" / "dp50@ddim10" / "run.json", {"data_split": {"demos": 50}})
+    write_json(out / "across.json", {"tasks": ["../drawer", "../peg", "../pick"], "more_demos": {p: "../pick50"}})
+    md = Path(write_across_report(out)["markdown"]).read_text()
+    line = next(x for x in md.splitlines() if x.startswith("- **metaworld/pick-place**: twice"))
+    assert "twice the steps (training seed 0's check): +0.040 [" in line and "over 1 of 1 settings" in line
+    assert ("demonstration count: diffusion DDIM10 (training seed 0) from 50 demonstrations 70% against 20% from 10 "
+            "on the same 50 validation episodes: +0.500 [") in line
+    assert line.endswith("(paired; one training seed each; pick50).")
+    assert "metaworld/pick-place: twice the steps" in (out / "report" / "report.html").read_text()

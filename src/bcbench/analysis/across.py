@@ -6,13 +6,15 @@ or a combined report's, each on one task) side by side:
     {"tasks": ["../metaworld-explore-1", "../metaworld-explore-1-peg"],    # one folder per task, in this order
      "demos": "../metaworld-demos",                                         # optional: the generated stores' records
      "difficulty": {"metaworld/drawer-open": "easy"},   # optional: only for records written before they held it
+     "more_demos": {"metaworld/peg-insert-side": "../metaworld-explore-5-peg"},  # optional (analysis.whynot)
      "why": "what the reader gets from reading them together"}
 
 Each folder keeps its own report (Figure 5, Figure 3, learning curves, its findings in full); this one holds what
 only a side-by-side reading shows: per task the success of every policy setting with its interval and training-seed
 count and its latency at batch 1 in the fastest exact mode timed; the findings' verdicts per task (their rules
 unchanged: `bcbench.analysis.findings`); per task whether the best setting reaches the issue's 80% and where image
-Diffusion Policy stands against 3D Diffusion Policy's image-DP number for the task's difficulty group.
+Diffusion Policy stands against 3D Diffusion Policy's image-DP number for the task's difficulty group, and for a task
+under 80% what its files say of why (its twice-the-steps check; a stage with more demonstrations: analysis.whynot).
 Reads result files only.
 """
 
@@ -32,6 +34,7 @@ from bcbench.analysis.results import Row, file_commits, load_rows
 from bcbench.analysis.seeds import merge_training_seeds
 from bcbench.analysis.studies import ACROSS_FILE, study_spec
 from bcbench.analysis.tables import html_image, html_table, md_table
+from bcbench.analysis.whynot import more_demos_folders, why_not_lines
 from bcbench.errors import BCBenchError
 from bcbench.protocol import held_out_episodes
 from bcbench.reference import IMAGE_DP_3DDP
@@ -184,6 +187,19 @@ def trained_on(r: Row, kept: int | None) -> int | None:
     return None if kept is None else kept - held_out_episodes(kept, float(r.data_split.get("val_fraction", 0.1)))
 
 
+def best_setting(c: TaskColumn) -> Row | None:
+    """The task's learned setting with the highest success (None: nothing learned evaluated yet)."""
+    learned = [r for r in c.settings if r.train_seed is not None or r.seed_scores]
+    return max(learned, key=lambda r: success(r)[0]) if learned else None
+
+
+def why_lines(results: Path, spec: dict[str, Any], columns: list[TaskColumn]) -> list[str]:
+    """For each task whose best setting is under the goal, what its files say of why (analysis.whynot)."""
+    stages = more_demos_folders(results, spec, [c.task for c in columns])
+    return [why_not_lines(c.folder, c.task, best, stages.get(c.task)) for c in columns
+            if (best := best_setting(c)) is not None and success(best)[0] < GOAL]
+
+
 def goal_lines(columns: list[TaskColumn], kept: dict[str, int] | None = None) -> list[str]:
     """Per task: the best setting's success against the 80% goal (point estimate and interval), and image DP against
     3D-DP's group number, compared only where it trained on their 10 demonstrations (`kept`: each task's store
@@ -191,10 +207,10 @@ def goal_lines(columns: list[TaskColumn], kept: dict[str, int] | None = None) ->
     kept = kept or {}
     out = []
     for c in columns:
-        learned = [r for r in c.settings if r.train_seed is not None or r.seed_scores]
-        if not learned:
+        best = best_setting(c)
+        if best is None:
             continue
-        best = max(learned, key=lambda r: success(r)[0])
+        learned = [r for r in c.settings if r.train_seed is not None or r.seed_scores]
         v, lo, _, _ = success(best)
         seeds = len(best.seed_scores) or 1
         verdict = (f"its whole interval is at or above {GOAL:.0%}" if lo >= GOAL else
@@ -272,6 +288,10 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
     records = demo_records(results, spec, columns)
     demos = _demo_lines(records, columns)
     goals = goal_lines(columns, {t: int(d["kept"]) for t, d in records.items()})
+    whys = why_lines(results, spec, columns)
+    why_head = (f"Why under {GOAL:.0%}, per task below it: the best setting's twice-the-steps check, then a stage that "
+                "trained the same policy on more demonstrations, paired with the confirm run on its check base's "
+                "validation episodes (one training seed each: evidence on a cause, not a reported score).")
     fig_lines, figs = figure_lines(columns, out)
     notes = [f"{c.task}: {c.folder.name}, result files at commit(s) {', '.join(x[:7] for x in c.commits)}"
              for c in columns]
@@ -280,7 +300,8 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
           "findings' interval over training seeds, t widened to the episodes' where the seeds agree), training seeds; "
           "latency at batch 1 in the fastest exact mode timed (median; 'not timed' where the study timed nothing).",
           "", md_table(head, rows), "",
-          "## Against the goals", "", *goals, "", "## The study's findings per task", "",
+          "## Against the goals", "", *goals, "", *([why_head, "", *whys, ""] if whys else []),
+          "## The study's findings per task", "",
           "Each task's verdicts under the rules of its own report (paired over its episodes; '-' where a task has "
           "no evidence for a finding).", "", md_table(fhead, frows), "",
           *(["## Demonstrations", "", *demos, ""] if demos else []),
@@ -295,8 +316,10 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
            "th{background:#f3f3f3}")
     body = (f"<h1>bcbench report across tasks</h1><p>{html.escape(top)}</p><h2>Success and latency per task</h2>"
             f"{html_table(head, rows)}<h2>Against the goals</h2><ul>"
-            + "".join(f"<li>{html.escape(x[2:].replace('**', ''))}</li>" for x in goals)
-            + f"</ul><h2>The study's findings per task</h2>{html_table(fhead, frows)}"
+            + "".join(f"<li>{html.escape(x[2:].replace('**', ''))}</li>" for x in goals) + "</ul>"
+            + ((f"<p>{html.escape(why_head)}</p><ul>"
+                + "".join(f"<li>{html.escape(x[2:].replace('**', ''))}</li>" for x in whys) + "</ul>") if whys else "")
+            + f"<h2>The study's findings per task</h2>{html_table(fhead, frows)}"
             + (("<h2>Demonstrations</h2><ul>" + "".join(f"<li>{html.escape(x[2:])}</li>" for x in demos) + "</ul>")
                if demos else "")
             + "<h2>Each task's report and figures</h2><ul>"

@@ -133,13 +133,13 @@ def apply_checks(rows: list[Row], checks: list[Check], strict: bool, margin: flo
             r.converged = all(v.verdict == CONVERGED for v in mine)
             r.check_verdict = (CONVERGED if r.converged else NOT_CONVERGED
                                if any(v.verdict == NOT_CONVERGED for v in mine) else INCONCLUSIVE)
-            r.convergence = "; ".join(_verdict_text(v) for v in mine)
+            r.convergence = "; ".join(verdict_text(v) for v in mine)
         elif strict:
             r.converged, r.convergence = False, f"{NO_CHECK} (" + r.convergence + ")"
     return verdicts
 
 
-def _verdict_text(v: RunVerdict) -> str:
+def verdict_text(v: RunVerdict) -> str:
     counts = collections.Counter(c.verdict for c in v.settings)
     each = ", ".join(f"{counts[x]} {x}" for x in (NOT_CONVERGED, INCONCLUSIVE, CONVERGED) if counts[x])
     return (f"twice the steps (training seed {v.train_seed}'s check): {v.est:+.3f} [{v.lo:+.3f}, {v.hi:+.3f}] over "
