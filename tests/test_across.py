@@ -231,3 +231,25 @@ def test_a_task_under_the_goal_reads_its_twice_the_steps_check_and_a_stage_with_
             "on the same 50 validation episodes: +0.500 [") in line
     assert line.endswith("(paired; one training seed each; pick50).")
     assert "metaworld/pick-place: twice the steps" in (out / "report" / "report.html").read_text()
+
+
+def test_the_compute_each_study_recorded_is_summed_with_its_machines(tmp_path):
+    out = _two_tasks(tmp_path)  # drawer: 4 evaluations of 50 episodes; peg: 3
+    zen3 = {"cpu_model": "AMD EPYC", "cpu_id": "AuthenticAMD family 25 model 1", "cpu_flags": ["avx2"]}
+    zen5 = {"cpu_model": "AMD EPYC", "cpu_id": "AuthenticAMD family 26 model 2", "cpu_flags": ["avx512_bf16"]}
+    runs = tmp_path / "drawer" / "runs"
+    # a training in two sessions on two machines, and one on one: 1,800 s + 5,400 s of optimiser steps
+    write_json(runs / "dp0@ddim10" / "train_summary.json", {"train_time_s": 1800.0, "hardware": zen3,
+                                                            "segments": [zen5, zen3]})
+    write_json(runs / "cnn@default" / "train_summary.json", {"train_time_s": 5400.0, "hardware": zen3})
+    ev = json.loads((runs / "cnn@default" / "eval-default.json").read_text())
+    ev["summary"]["wall_time_s"] = 720.0
+    write_json(runs / "cnn@default" / "eval-default.json", ev)
+    write_json(runs / "cnn@default" / "latency-default.json", {"type": "latency", "hardware": zen3, "modes": {}})
+    md = Path(write_across_report(out)["markdown"]).read_text()
+    # every machine named once, sorted; _eval's records name "test cpu"
+    both = ("AMD EPYC [AuthenticAMD family 25 model 1] (avx2); AMD EPYC [AuthenticAMD family 26 model 2] "
+            "(avx512_bf16); test cpu")
+    assert f"| drawer | 2 | 2.00 | 4 (200) | 0.20 | 1 | {both} |" in md
+    assert "| peg | 0 | 0.00 | 3 (150) | 0.00 | 0 | test cpu |" in md
+    assert f"| **total** | 2 | 2.00 | 7 (350) | 0.20 | 1 | {both} |" in md

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from bcbench.analysis.accuracy_latency import figure5
+from bcbench.analysis.compute import cost_table
 from bcbench.analysis.figures import figure3
 from bcbench.analysis.findings import DEFAULT_MARGIN, Finding, judge, points_from_rows
 from bcbench.analysis.results import Row, file_commits, load_rows
@@ -193,9 +194,8 @@ def best_setting(c: TaskColumn) -> Row | None:
     return max(learned, key=lambda r: success(r)[0]) if learned else None
 
 
-def why_lines(results: Path, spec: dict[str, Any], columns: list[TaskColumn]) -> list[str]:
+def why_lines(columns: list[TaskColumn], stages: dict[str, Path]) -> list[str]:
     """For each task whose best setting is under the goal, what its files say of why (analysis.whynot)."""
-    stages = more_demos_folders(results, spec, [c.task for c in columns])
     return [why_not_lines(c.folder, c.task, best, stages.get(c.task)) for c in columns
             if (best := best_setting(c)) is not None and success(best)[0] < GOAL]
 
@@ -288,11 +288,17 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
     records = demo_records(results, spec, columns)
     demos = _demo_lines(records, columns)
     goals = goal_lines(columns, {t: int(d["kept"]) for t, d in records.items()})
-    whys = why_lines(results, spec, columns)
+    stages = more_demos_folders(results, spec, [c.task for c in columns])
+    whys = why_lines(columns, stages)
     why_head = (f"Why under {GOAL:.0%}, per task below it: the best setting's twice-the-steps check, then a stage that "
                 "trained the same policy on more demonstrations, paired with the confirm run on its check base's "
                 "validation episodes (one training seed each: evidence on a cause, not a reported score).")
     fig_lines, figs = figure_lines(columns, out)
+    chead, crows = cost_table([(c.folder.name, c.folder) for c in columns] + [(f.name, f) for f in stages.values()])
+    cost_note = ("What every run recorded: training time is its optimiser steps (every session it ran; pauses and "
+                 "evaluation during training excluded: a floor on its wall time), evaluation time its episodes' "
+                 "rollouts (test and validation); a run trained on several machines is counted under each it names. "
+                 "Times from different machines do not compare.")
     notes = [f"{c.task}: {c.folder.name}, result files at commit(s) {', '.join(x[:7] for x in c.commits)}"
              for c in columns]
     md = ["# bcbench report across tasks", "", top, "", "## Success and latency per task", "",
@@ -306,6 +312,7 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
           "no evidence for a finding).", "", md_table(fhead, frows), "",
           *(["## Demonstrations", "", *demos, ""] if demos else []),
           "## Each task's report and figures", "", *fig_lines, "",
+          "## Compute recorded", "", cost_note, "", md_table(chead, crows), "",
           "## Provenance", "", *[f"- {n}" for n in notes], ""]
     md_path = out / "report.md"
     with atomic_path(md_path) as tmp:
@@ -326,6 +333,8 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
             + "".join(f"<li><a href='{_rel(c.folder / 'report' / 'report.html', out)}'>{html.escape(c.task)}</a></li>"
                       for c in columns) + "</ul>"
             + "".join(html_image(t, p, style="max-width:100%") for t, p in figs.items())
+            + f"<h2>Compute recorded</h2><p>{html.escape(cost_note)}</p>"
+            + html_table(chead, [[x.replace("**", "") for x in r] for r in crows])
             + "<h2>Provenance</h2><ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
     with atomic_path(html_path) as tmp:
         tmp.write_text(f"<!doctype html><html><head><meta charset='utf-8'><title>bcbench report across tasks</title>"
