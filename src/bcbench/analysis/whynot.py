@@ -79,7 +79,8 @@ def demos_readings(task_folder: Path, stage: Path) -> list[str]:
             continue
         shared = r.scores.keys() & b.scores.keys()
         more, fewer = (100 * sum(x.scores[k] for k in shared) / n for x in (r, b))
-        out.append(f"{r.policy} {r.variant.upper()} (training seed {r.train_seed}) from {mine} demonstrations "
+        name = b.label.split(", ")[0]  # "Diffusion Policy (cosine)": the label less its demos, horizons and size
+        out.append(f"{name} {r.variant.upper()} (training seed {r.train_seed}) from {mine} demonstrations "
                    f"{more:.0f}% against {fewer:.0f}% from {theirs} on the same {n} validation episodes: "
                    f"{est:+.3f} [{lo:+.3f}, {hi:+.3f}] (paired; one training seed each; {stage.name})")
     return out
