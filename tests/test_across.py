@@ -227,8 +227,8 @@ def test_a_task_under_the_goal_reads_its_twice_the_steps_check_and_a_stage_with_
     md = Path(write_across_report(out)["markdown"]).read_text()
     line = next(x for x in md.splitlines() if x.startswith("- **metaworld/pick-place**: twice"))
     assert "twice the steps (training seed 0's check): +0.040 [" in line and "over 1 of 1 settings" in line
-    assert ("demonstration count: Diffusion Policy DDIM10 (training seed 0) from 50 demonstrations 70% against 20% from 10 "
-            "on the same 50 validation episodes: +0.500 [") in line
+    assert ("demonstration count: Diffusion Policy DDIM10 (training seed 0) from 50 demonstrations 70% against 20% "
+            "from 10 on the same 50 validation episodes: +0.500 [") in line
     assert line.endswith("(paired; one training seed each; pick50).")
     assert "metaworld/pick-place: twice the steps" in (out / "report" / "report.html").read_text()
 

@@ -56,6 +56,29 @@ def test_task_describes_itself(name):
     json.dumps(task.describe())
 
 
+def test_a_larger_frame_is_its_own_task_and_only_the_frame_changes():
+    """metaworld/pick-place@128: the same world, proprioception, actions and rules, 128 px frames; its own name (so
+    its own run keys and store); the family's 96 takes no suffix and an unknown size is refused."""
+    big, small = get_task("metaworld/pick-place@128"), get_task("metaworld/pick-place")
+    assert (big.name, big.image_size, small.image_size) == ("metaworld/pick-place@128", 128, 96)
+    same = ("state_names", "action_names", "action_low", "action_high", "control_hz", "max_steps", "difficulty",
+            "camera", "step_limit", "action_hold")
+    assert all(getattr(big, k) == getattr(small, k) for k in same)
+    assert "frames at 128 px" in big.notes and "frames at" not in small.notes
+    for bad, msg in (("pick-place@96", "takes no suffix"), ("pick-place@100", "is one of 128"),
+                     ("nope@128", "unknown MetaWorld task 'nope'")):
+        with pytest.raises(BCBenchError, match=msg):
+            get_task(f"metaworld/{bad}")
+    a, b = big.make_episode(7, None), small.make_episode(7, None)
+    try:
+        (oa, _, _), (ob, _, _) = a.reset(), b.reset()
+        assert oa["pixels"].shape == (128, 128, 3) and ob["pixels"].shape == (96, 96, 3)
+        assert np.array_equal(oa["agent_pos"], ob["agent_pos"])
+    finally:
+        a.close()
+        b.close()
+
+
 # ------------------------------------------------------------------ the episode
 @pytest.mark.parametrize("name", NAMES)
 def test_expert_succeeds_through_the_episode(name):
@@ -281,6 +304,26 @@ def test_store_round_trips_through_the_reader(stores):
         assert np.array_equal(buf.images[0], obs["pixels"]) and np.array_equal(buf.state[0], obs["agent_pos"])
     finally:
         ep.close()
+
+
+def test_a_larger_frames_store_records_the_same_episodes_and_is_not_the_96_px_tasks(stores, tmp_path):
+    """The expert acts on state, so at 128 px the same seeds and noise give the same states and actions; only the
+    frames differ. Each task's loader refuses the other's store (a frame size is part of the task)."""
+    out = tmp_path / "big.zarr"
+    generate("pick-place@128", 2, out, noise=0.1, progress=False, workers=1)
+    small, big = _arrays(stores["a"][0]), _arrays(out)
+    for key in ("data/state", "data/action", "meta/episode_ends", "meta/seeds"):
+        assert np.array_equal(small[key], big[key]), key
+    assert big["data/img"].shape == (len(big["data/state"]), 128, 128, 3)
+    info = store_info(out)
+    assert info["task"] == "metaworld/pick-place@128" and info["generator"]["image_size"] == 128
+    buf = get_task("metaworld/pick-place@128").load_buffer(out, True)
+    assert buf.images.shape[1:] == (128, 128, 3)
+    theirs = "holds demonstrations of metaworld/pick-place, not metaworld/pick-place@128"
+    with pytest.raises(DatasetError, match=re.escape(theirs)):
+        get_task("metaworld/pick-place@128").load_buffer(stores["a"][0], True)
+    with pytest.raises(DatasetError, match=re.escape("of metaworld/pick-place@128, not metaworld/pick-place") + "$"):
+        get_task("metaworld/pick-place").load_buffer(out, True)
 
 
 def test_reader_refuses_a_bad_store(tmp_path):

@@ -104,3 +104,22 @@ eval = [{{ sampler = "ddim", steps = [2] }}]
     assert f"mw-smoke on {TASK}" in report and "the study's A100 numbers are Push-T's" in report
     row = next(line for line in report.splitlines() if line.startswith("| diffusion (quick)") and " M | " in line)
     assert row.rstrip(" |").endswith("-")  # no published Push-T number beside a MetaWorld row
+
+
+def test_a_policy_trains_and_is_scored_on_larger_frames(tmp_path, capsys):
+    """metaworld/NAME@128 end to end: its own demonstrations at 128 px, DP's encoder on them, scored in 128 px
+    episodes. The network's image_size is part of its config (and run key), so it is set, not inferred: a config
+    left at 96 is refused in one line that says what to set."""
+    task, data, run = "metaworld/drawer-open@128", tmp_path / "big.zarr", tmp_path / "dp"
+    assert main(["data", "generate", "--task", task, "--episodes", "2", "--out", str(data), "--workers", "1",
+                 "--quiet"]) == 0
+    train = ["train", "--task", task, "--data", str(data), "--policy", "diffusion", *_sets("diffusion"), "--quiet"]
+    assert main([*train, "--out", str(tmp_path / "refused")]) == 2
+    assert "image_size is 96, task metaworld/drawer-open@128's frames 128: --set image_size=128" in \
+        capsys.readouterr().err
+    assert main([*train, "--set", "image_size=128", "--out", str(run)]) == 0
+    assert json.loads((run / "run.json").read_text())["task"] == task
+    assert main(["eval", "--checkpoint", str(run), "--episodes", "1", "--max-steps", "4", "--workers", "1",
+                 "--quiet", "--out", str(tmp_path / "eval")]) == 0
+    rec = json.loads((tmp_path / "eval" / "eval.json").read_text())
+    assert rec["task"]["name"] == task and rec["task"]["image_size"] == 128 and rec["episodes"][0]["length"] == 4

@@ -19,21 +19,29 @@ from pathlib import Path
 from bcbench.data.replay_buffer import ReplayBuffer
 from bcbench.errors import BCBenchError, DatasetError
 from bcbench.tasks.metaworld.reader import load_metaworld_buffer, store_info
-from bcbench.tasks.metaworld.table import CAMERA, CONTROL_HZ, IMAGE_SIZE, MAX_PATH_LENGTH, TASKS, state_names
+from bcbench.tasks.metaworld.table import (
+    CAMERA,
+    CONTROL_HZ,
+    IMAGE_SIZE,
+    MAX_PATH_LENGTH,
+    TASKS,
+    split_name,
+    state_names,
+)
 from bcbench.tasks.spec import Episode, Task
 
 __all__ = ["TASKS", "default_dataset_path", "load_metaworld_buffer", "metaworld_task"]
 
 
-def _episode(name: str, seed: int, video_size: int | None) -> Episode:
+def _episode(name: str, image_size: int, seed: int, video_size: int | None) -> Episode:
     from bcbench.tasks.metaworld.env import MetaWorldEpisode  # MuJoCo only where an episode runs
 
-    return MetaWorldEpisode(name, seed, video_size)
+    return MetaWorldEpisode(name, seed, video_size, image_size=image_size)
 
 
 def default_dataset_path(name: str) -> Path:
     """Where `bcbench data generate --task metaworld/NAME` writes by default: $BCBENCH_HOME or ~/.cache/bcbench,
-    then data/metaworld/NAME.zarr."""
+    then data/metaworld/NAME.zarr (NAME with its frame size, e.g. pick-place@128, where it has one)."""
     from bcbench.data.paths import data_home
 
     return data_home() / "data" / "metaworld" / f"{name}.zarr"
@@ -52,15 +60,16 @@ def _dataset(name: str, path: str | None) -> Path:
     return chosen
 
 
-def _load(name: str, path: Path, images: bool) -> ReplayBuffer:
-    """The store at `path`, refused in one line when its generator wrote another task's demonstrations."""
+def _load(name: str, image_size: int, path: Path, images: bool) -> ReplayBuffer:
+    """The store at `path`, refused in one line when its generator wrote another task's demonstrations (a frame
+    size is part of the task: metaworld/pick-place@128's store is not pick-place's)."""
     wrote = store_info(path).get("task")
     if wrote != f"metaworld/{name}":
         raise DatasetError(f"{path} holds demonstrations of {wrote}, not metaworld/{name}")
-    return load_metaworld_buffer(path, images=images, image_size=IMAGE_SIZE)
+    return load_metaworld_buffer(path, images=images, image_size=image_size)
 
 
-def _notes(name: str) -> str:
+def _notes(name: str, image_size: int) -> str:
     spec = TASKS[name]
     ok, n = spec["expert_success"]
     median, longest = spec["expert_length"]
@@ -68,18 +77,22 @@ def _notes(name: str) -> str:
     return (f"MetaWorld {spec['env']} (3.1.1), goal observable, object and goal drawn from the seed (env.seed); "
             f"camera {spec['camera']} flipped upright; proprioception hand xyz + gripper opening {goal} the goal "
             f"xyz; scripted expert {spec['expert']}: {ok}/{n} successes on seeds 0-{n - 1}, length median "
-            f"{median:g} / max {longest}; cap {spec['max_steps']} >= 1.5x the longest (see table.py)")
+            f"{median:g} / max {longest}; cap {spec['max_steps']} >= 1.5x the longest (see table.py)"
+            + ("" if image_size == IMAGE_SIZE else f"; frames at {image_size} px, not the family's {IMAGE_SIZE}"))
 
 
 @functools.cache
 def metaworld_task(name: str) -> Task:
-    """The bcbench Task for MetaWorld's `name` (drawer-open, ...); an unknown name is one BCBenchError."""
-    if name not in TASKS:
-        raise BCBenchError(f"unknown MetaWorld task '{name}' (choose {', '.join(TASKS)})")
-    spec = TASKS[name]
+    """The bcbench Task for MetaWorld's `name` (drawer-open, ..., or pick-place@128: the same task seen in larger
+    frames); an unknown name or size is one BCBenchError."""
+    try:
+        base, size = split_name(name)
+    except ValueError as e:
+        raise BCBenchError(str(e)) from None
+    spec = TASKS[base]
     return Task(
-        name=f"metaworld/{name}", family="metaworld", image_size=IMAGE_SIZE, camera=CAMERA,
-        state_names=state_names(name), action_names=("dx", "dy", "dz", "grip"),
+        name=f"metaworld/{name}", family="metaworld", image_size=size, camera=CAMERA,
+        state_names=state_names(base), action_names=("dx", "dy", "dz", "grip"),
         action_low=(-1.0,) * 4, action_high=(1.0,) * 4,
         action_units=("end-effector displacement (x, y, z; scaled by MetaWorld's action_scale 1/100 m) and "
                       "gripper effort (-1 open, +1 close)"),
@@ -87,9 +100,9 @@ def metaworld_task(name: str) -> Task:
         score="success at any step (1/0)",
         success="MetaWorld's info['success'] (the episode ends)",
         progress="MetaWorld's shaped reward / 10 (in [0, 1]; its shaping, not always 1 at success)",
-        make_episode=functools.partial(_episode, name), dataset=functools.partial(_dataset, name),
-        load_buffer=functools.partial(_load, name), step_limit=MAX_PATH_LENGTH,
+        make_episode=functools.partial(_episode, base, size), dataset=functools.partial(_dataset, name),
+        load_buffer=functools.partial(_load, name, size), step_limit=MAX_PATH_LENGTH,
         action_hold=(False, False, False, True),  # while waiting: the hand stands still, the grip is kept
         state_range=(-1.0, 1.0),
-        difficulty=spec["difficulty"], notes=_notes(name),
+        difficulty=spec["difficulty"], notes=_notes(base, size),
     )

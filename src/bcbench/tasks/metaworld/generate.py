@@ -30,7 +30,7 @@ import numpy as np
 from bcbench.errors import BCBenchError
 from bcbench.protocol import TEST_EPISODES, TEST_SEED_START, VALIDATION_SEED_START, overlaps_test_seeds
 from bcbench.tasks.metaworld.reader import FORMAT
-from bcbench.tasks.metaworld.table import CAMERA, CONTROL_HZ, IMAGE_SIZE, TASKS, state_names
+from bcbench.tasks.metaworld.table import CAMERA, CONTROL_HZ, TASKS, split_name, state_names
 
 MAX_ATTEMPTS_PER_EPISODE = 4  # give up when the expert would need more than 4 tries per kept episode
 IMG_CHUNK = 100  # steps per image chunk (about 2.8 MB raw)
@@ -59,11 +59,12 @@ class _Runner:
     def __init__(self, name: str) -> None:
         from bcbench.tasks.metaworld.env import MetaWorldEpisode
 
-        self.episode = MetaWorldEpisode(name, 0)  # first: it turns a MuJoCo that cannot load into one clear line
+        base, size = split_name(name)  # the expert acts on state: a frame size changes only what is recorded
+        self.episode = MetaWorldEpisode(base, 0, image_size=size)  # first: a MuJoCo that cannot load is one line
         import metaworld.policies as policies
 
-        self.expert = getattr(policies, TASKS[name]["expert"])()
-        self.max_steps = int(TASKS[name]["max_steps"])
+        self.expert = getattr(policies, TASKS[base]["expert"])()
+        self.max_steps = int(TASKS[base]["max_steps"])
 
     def run(self, seed: int, noise: float) -> dict[str, Any]:
         """One expert episode: {"seed", "success", "length"} and, when it succeeded, its arrays."""
@@ -87,7 +88,7 @@ class _Runner:
                     break
         out: dict[str, Any] = {"seed": seed, "success": success, "length": len(actions)}
         if success:
-            out.update(img=np.stack(imgs), state=np.stack(states).astype(np.float32),  # (T,96,96,3), (T,S)
+            out.update(img=np.stack(imgs), state=np.stack(states).astype(np.float32),  # (T,H,W,3), (T,S)
                        action=np.stack(actions))  # (T,4)
         return out
 
@@ -175,8 +176,10 @@ def generate(name: str, episodes: int, out: str | Path, *, seed_start: int = 0, 
     `out` (a zarr v2 folder; an existing one needs `force`). Returns a summary (counts, success rate, timing)."""
     from tqdm import tqdm
 
-    if name not in TASKS:
-        raise BCBenchError(f"unknown MetaWorld task '{name}' (choose {', '.join(TASKS)})")
+    try:
+        base, size = split_name(name)
+    except ValueError as e:
+        raise BCBenchError(str(e)) from None
     if not noise >= 0:
         raise BCBenchError(f"noise is a standard deviation: need noise >= 0, got {noise}")
     out = Path(out)
@@ -202,7 +205,7 @@ def generate(name: str, episodes: int, out: str | Path, *, seed_start: int = 0, 
             if len(kept) + attempts - i < episodes:
                 raise BCBenchError(
                     f"metaworld/{name}: the scripted expert succeeded in {len(kept)} of {i} episodes (cap "
-                    f"{TASKS[name]['max_steps']} steps{f', noise {noise:g}' if noise else ''}): {episodes} "
+                    f"{TASKS[base]['max_steps']} steps{f', noise {noise:g}' if noise else ''}): {episodes} "
                     f"successes cannot come within {attempts} tries; lower the noise or ask for fewer")
     finally:
         results.close()  # stops the pool (or closes this process's environment)
@@ -210,11 +213,11 @@ def generate(name: str, episodes: int, out: str | Path, *, seed_start: int = 0, 
     attempted = len(kept) + len(failed)
     seconds = time.perf_counter() - t0
     attrs = {
-        "format": FORMAT, "task": f"metaworld/{name}", "env": TASKS[name]["env"], "expert": TASKS[name]["expert"],
+        "format": FORMAT, "task": f"metaworld/{name}", "env": TASKS[base]["env"], "expert": TASKS[base]["expert"],
         "generator": {"seed_start": seed_start, "noise": noise, "noise_is": "std of Gaussian noise added to the "
                       "expert's action before clipping to [-1, 1], drawn from default_rng(seed)",
-                      "camera": CAMERA, "image_size": IMAGE_SIZE, "max_steps": int(TASKS[name]["max_steps"]),
-                      "control_hz": CONTROL_HZ, "state_names": list(state_names(name))},
+                      "camera": CAMERA, "image_size": size, "max_steps": int(TASKS[base]["max_steps"]),
+                      "control_hz": CONTROL_HZ, "state_names": list(state_names(base))},
         "attempted": attempted, "kept": len(kept), "scripted_success_rate": len(kept) / attempted,
         "failed_seeds": failed, "versions": _versions(),
         "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
