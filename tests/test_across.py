@@ -218,7 +218,8 @@ def test_a_task_under_the_goal_reads_its_twice_the_steps_check_and_a_stage_with_
     assert sum("drawer-open**: twice" in x or "peg-insert-side**: twice" in x for x in why) == 0
 
     # the confirm run's twice-the-steps check lands (12 of the same 50 validation episodes against its base's 10)
-    write_json(pick / "runs" / "dp2x@ddim10" / "check-ddim10.json",
+    # (its folder sorts after the base's: the twice-the-steps run's files must not stand in for the base's)
+    write_json(pick / "runs" / "zz2x@ddim10" / "check-ddim10.json",
                dp(12, "Diffusion Policy, twice the steps", doubles="Diffusion Policy"))
     # and an explore stage trains the same DP on 50 demonstrations, read on those validation episodes: 35 of 50
     more = _study(tmp_path / "pick50", p, "hard", {"dp50@ddim10": dp(35)})

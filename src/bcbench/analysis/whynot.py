@@ -66,7 +66,8 @@ def demos_readings(task_folder: Path, stage: Path) -> list[str]:
     """Each evaluation of the stage paired with the confirm run's check base of the same policy, sampler setting and
     training seed on a different demonstration count: both success rates on the shared validation episodes and the
     paired difference (more minus fewer)."""
-    bases = {(b.policy, b.variant, b.train_seed): b for b in load_check_rows(task_folder)}
+    # the checked runs' own readings: a twice-the-steps run's check files share their policy, setting and seed
+    bases = {(b.policy, b.variant, b.train_seed): b for b in load_check_rows(task_folder) if not b.doubles}
     out = []
     for r in sorted(load_rows(stage), key=lambda r: r.key):
         b = bases.get((r.policy, r.variant, r.train_seed))
