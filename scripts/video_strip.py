@@ -21,12 +21,18 @@ from bcbench.utils.io import atomic_path
 
 def strip(videos: list[Path], steps: list[int], scale: float) -> np.ndarray:
     """(rows * H, len(steps) * W, 3) uint8: each video's frames at `steps`, left to right, scaled by `scale`."""
-    rows = []
+    rows, first = [], None
     for v in videos:
-        frames = iio.imread(v)  # (T, H, W, 3)
+        try:
+            frames = iio.imread(v)  # (T, H, W, 3)
+        except OSError as e:
+            raise ValueError(f"{v}: not a readable video ({e})") from None
         late = [s for s in steps if s >= len(frames)]
         if late:
             raise ValueError(f"{v}: {len(frames)} frames, no step {late[0]}")
+        first = first or frames.shape[1:]  # (H, W, 3) of the first video: every row must match it
+        if frames.shape[1:] != first:
+            raise ValueError(f"{v}: frames of {frames.shape[2]}x{frames.shape[1]} px, the first video's differ")
         rows.append(np.concatenate([frames[s] for s in steps], axis=1))
     out = np.concatenate(rows, axis=0)
     k = max(1, round(1 / scale))  # integer subsampling: no resampling library needed, no blur added

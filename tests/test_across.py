@@ -221,6 +221,7 @@ def test_a_task_under_the_goal_reads_its_twice_the_steps_check_and_a_stage_with_
     # (its folder sorts after the base's: the twice-the-steps run's files must not stand in for the base's)
     write_json(pick / "runs" / "zz2x@ddim10" / "check-ddim10.json",
                dp(12, "Diffusion Policy, twice the steps", doubles="Diffusion Policy"))
+    write_json(pick / "runs" / "zz2x@ddim10" / "run.json", {"data_split": {"demos": 10}})
     # and an explore stage trains the same DP on 50 demonstrations, read on those validation episodes: 35 of 50
     more = _study(tmp_path / "pick50", p, "hard", {"dp50@ddim10": dp(35)})
     write_json(more / "runs" / "dp50@ddim10" / "run.json", {"data_split": {"demos": 50}})
@@ -232,6 +233,15 @@ def test_a_task_under_the_goal_reads_its_twice_the_steps_check_and_a_stage_with_
             "from 10 on the same 50 validation episodes: +0.500 [") in line
     assert line.endswith("(paired; one training seed each; pick50).")
     assert "metaworld/pick-place: twice the steps" in (out / "report" / "report.html").read_text()
+
+    # a stage with nothing evaluated yet, and one whose run differs in more than its demonstrations, read nothing
+    write_json(more / "runs" / "dp50@ddim10" / "run.json", {"data_split": {"demos": 50},
+                                                            "overrides": {"pred_horizon": 16}})
+    line = next(x for x in Path(write_across_report(out)["markdown"]).read_text().splitlines()
+                if x.startswith("- **metaworld/pick-place**: twice"))
+    assert line.endswith("demonstration count: pick50 has no evaluation paired with this study's check bases yet.")
+    (more / "runs" / "dp50@ddim10" / "eval-ddim10.json").unlink()
+    assert "pick50 has no evaluation paired" in Path(write_across_report(out)["markdown"]).read_text()
 
 
 def test_the_compute_each_study_recorded_is_summed_with_its_machines(tmp_path):

@@ -38,3 +38,14 @@ def test_a_step_past_the_end_or_a_missing_video_is_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no video" in err[0]
     assert not (tmp_path / "s.png").exists()
+
+
+def test_videos_of_different_sizes_or_an_unreadable_file_are_one_line(tmp_path, capsys):
+    a = _video(tmp_path / "a.mp4", 5, 40)
+    b = tmp_path / "b.mp4"
+    imageio.mimwrite(b, [np.zeros((16, 16, 3), np.uint8)] * 5, fps=10, macro_block_size=1)
+    assert video_strip.main([str(tmp_path / "s.png"), str(a), str(b), "--steps", "0,1"]) == 2
+    assert "frames of 16x16 px, the first video's differ" in capsys.readouterr().err
+    (tmp_path / "c.mp4").write_bytes(b"not a video")
+    assert video_strip.main([str(tmp_path / "s.png"), str(tmp_path / "c.mp4")]) == 2
+    assert "not a readable video" in capsys.readouterr().err

@@ -297,8 +297,8 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
     chead, crows = cost_table([(c.folder.name, c.folder) for c in columns] + [(f.name, f) for f in stages.values()])
     cost_note = ("What every run recorded: training time is its optimiser steps (every session it ran; pauses and "
                  "evaluation during training excluded: a floor on its wall time), evaluation time its episodes' "
-                 "rollouts (test and validation); a run trained on several machines is counted under each it names. "
-                 "Times from different machines do not compare.")
+                 "rollouts (test and validation); a run trained on several machines lists them all, its time not "
+                 "split. Times from different machines do not compare.")
     notes = [f"{c.task}: {c.folder.name}, result files at commit(s) {', '.join(x[:7] for x in c.commits)}"
              for c in columns]
     md = ["# bcbench report across tasks", "", top, "", "## Success and latency per task", "",

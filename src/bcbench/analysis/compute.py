@@ -4,8 +4,7 @@ Issue 75's closing note asks for "the total compute and the machines". Every num
 runs wrote themselves: a training's `train_time_s` (its optimiser steps, every session it ran in; evaluation during
 training and pauses excluded: a floor on its wall time), an evaluation's `wall_time_s` (its episodes' rollouts, test
 or validation) and the count of timing records. A run trained in pieces on several machines names each (its
-`segments`); its time cannot be split between them, so it is counted once, under every machine it names. Reads
-result files only.
+`segments`); every one is listed, and its time is counted once, not split between them. Reads result files only.
 """
 
 from __future__ import annotations
@@ -51,25 +50,25 @@ def _machines(record: dict[str, Any]) -> set[str]:
 def folder_cost(folder: Path) -> Cost:
     """The compute every run under a study folder (or a combined report's studies) recorded."""
     c = Cost()
-    for _, f in study_files(folder, "train_summary.json"):
-        if "report" in f.parts:
+    for d, f in study_files(folder, "train_summary.json"):
+        if "report" in f.relative_to(d).parts:
             continue
         d = read_json(f)
         c.trainings += 1
         c.train_s += float(d.get("train_time_s") or 0.0)
         c.machines |= _machines(d)
     for pattern in ("eval-*.json", "check-*.json"):
-        for _, f in study_files(folder, pattern):
+        for where, f in study_files(folder, pattern):
             d = read_json(f)
-            if d.get("type") != "evaluation" or "report" in f.parts:
+            if d.get("type") != "evaluation" or "report" in f.relative_to(where).parts:
                 continue
             c.evaluations += 1
             c.episodes += len(d.get("episodes") or [])
             c.eval_s += float((d.get("summary") or {}).get("wall_time_s") or 0.0)
             c.machines |= _machines(d)
-    for _, f in study_files(folder, "latency-*.json"):
+    for where, f in study_files(folder, "latency-*.json"):
         d = read_json(f)
-        if d.get("type") == "latency" and "report" not in f.parts:
+        if d.get("type") == "latency" and "report" not in f.relative_to(where).parts:
             c.timings += 1
             c.machines |= _machines(d)
     return c

@@ -3,9 +3,9 @@
 A task whose best setting is under 80% must show why not: "its twice-the-steps check, the demonstration count". The
 first is the confirm study's own check (the best setting's run trained again with twice its steps, paired on
 validation episodes: `bcbench.analysis.convergence`). The second is an explore stage on validation seeds: the same
-policy trained on more demonstrations and read on the episodes of the confirm run's check base
-(`runs/*/check-*.json`: the run itself on 100 validation episodes), so the two pair episode by episode. across.json
-names each task's stage folder:
+policy, recipe and settings trained on more demonstrations and read on the episodes of the confirm run's check base
+(`runs/*/check-*.json`: the run itself on the study's `check_episodes` validation episodes), so the two pair episode
+by episode. across.json names each task's stage folder:
 
     "more_demos": {"metaworld/pick-place": "../metaworld-explore-5-pick"}
 
@@ -64,27 +64,48 @@ def steps_reading(task_folder: Path, best: Row) -> str:
 
 def demos_readings(task_folder: Path, stage: Path) -> list[str]:
     """Each evaluation of the stage paired with the confirm run's check base of the same policy, sampler setting and
-    training seed on a different demonstration count: both success rates on the shared validation episodes and the
-    paired difference (more minus fewer)."""
+    training seed, trained with the same recipe and settings on a different demonstration count (so the count is the
+    one difference): both success rates on the shared validation episodes and the paired difference (more minus
+    fewer). A stage with no evaluation yet reads none."""
+    bases: dict[tuple[str, str, int | None], Row] = {}
     # the checked runs' own readings: a twice-the-steps run's check files share their policy, setting and seed
-    bases = {(b.policy, b.variant, b.train_seed): b for b in load_check_rows(task_folder) if not b.doubles}
+    for b in load_check_rows(task_folder):
+        key = (b.policy, b.variant, b.train_seed)
+        if b.doubles:
+            continue
+        if key in bases and bases[key].run_label != b.run_label:
+            raise BCBenchError(f"{task_folder.name}: two checked runs of {b.policy} {b.variant} seed {b.train_seed} "
+                               f"({bases[key].run_label}; {b.run_label}): which one a stage with more demonstrations "
+                               "pairs with is ambiguous")
+        bases[key] = b
+    try:
+        rows = load_rows(stage)
+    except BCBenchError:  # nothing evaluated there yet
+        return []
     out = []
-    for r in sorted(load_rows(stage), key=lambda r: r.key):
+    for r in sorted(rows, key=lambda r: r.key):
         b = bases.get((r.policy, r.variant, r.train_seed))
-        mine, theirs = r.data_split.get("demos"), b.data_split.get("demos") if b else None
-        if b is None or mine is None or theirs is None or mine == theirs:
+        if r.doubles or b is None or (r.recipe, r.overrides) != (b.recipe, b.overrides):
             continue
-        est, lo, hi, n = paired_bootstrap(r.scores, [b.scores])
-        if n == 0:
-            out.append(f"{r.setting} from {mine} demonstrations shares no episode with the check base from {theirs}")
+        mine, theirs = r.data_split.get("demos"), b.data_split.get("demos")
+        if mine is None or theirs is None or mine == theirs:
             continue
-        shared = r.scores.keys() & b.scores.keys()
-        more, fewer = (100 * sum(x.scores[k] for k in shared) / n for x in (r, b))
-        name = b.label.split(", ")[0]  # "Diffusion Policy (cosine)": the label less its demos, horizons and size
-        out.append(f"{name} {r.variant.upper()} (training seed {r.train_seed}) from {mine} demonstrations "
-                   f"{more:.0f}% against {fewer:.0f}% from {theirs} on the same {n} validation episodes: "
-                   f"{est:+.3f} [{lo:+.3f}, {hi:+.3f}] (paired; one training seed each; {stage.name})")
+        out.append(_paired_line(r, b, stage.name))
     return out
+
+
+def _paired_line(r: Row, b: Row, stage: str) -> str:
+    mine, theirs = r.data_split["demos"], b.data_split["demos"]
+    est, lo, hi, n = paired_bootstrap(r.scores, [b.scores])
+    if n == 0:
+        return f"{r.setting} from {mine} demonstrations shares no episode with the check base from {theirs}"
+    shared = r.scores.keys() & b.scores.keys()
+    more, fewer = (100 * sum(x.scores[k] for k in shared) / n for x in (r, b))
+    name = b.label.split(", ")[0]  # "Diffusion Policy (cosine)": the label less its demos, horizons and size
+    setting = "" if r.variant == "default" else f" {r.variant.upper()}"
+    return (f"{name}{setting} (training seed {r.train_seed}) from {mine} demonstrations {more:.0f}% against "
+            f"{fewer:.0f}% from {theirs} on the same {n} validation episodes: {est:+.3f} [{lo:+.3f}, {hi:+.3f}] "
+            f"(paired; one training seed each; {stage})")
 
 
 def why_not_lines(task_folder: Path, task: str, best: Row, stage: Path | None) -> str:

@@ -88,7 +88,7 @@ def split_name(name: str) -> tuple[str, int]:
         raise ValueError(f"unknown MetaWorld task '{base}' (choose {', '.join(TASKS)})")
     if not at:
         return base, IMAGE_SIZE
-    if not size.isdigit() or int(size) not in LARGER_SIZES:
+    if size not in {str(n) for n in LARGER_SIZES}:  # "0128" would be a second name for one task
         raise ValueError(f"metaworld/{name}: the frame size after '@' is one of "
                          f"{', '.join(map(str, LARGER_SIZES))} (the family's {IMAGE_SIZE} px takes no suffix)")
     return base, int(size)
