@@ -253,10 +253,12 @@ def test_the_compute_each_study_recorded_is_summed_with_its_machines(tmp_path):
     write_json(runs / "dp0@ddim10" / "train_summary.json", {"train_time_s": 1800.0, "hardware": zen3,
                                                             "segments": [zen5, zen3]})
     write_json(runs / "cnn@default" / "train_summary.json", {"train_time_s": 5400.0, "hardware": zen3})
-    ev = json.loads((runs / "cnn@default" / "eval-default.json").read_text())
-    ev["summary"]["wall_time_s"] = 720.0
-    write_json(runs / "cnn@default" / "eval-default.json", ev)
     write_json(runs / "cnn@default" / "latency-default.json", {"type": "latency", "hardware": zen3, "modes": {}})
+    # the study's index: the hours are its report's sums (training from the runs' records, evaluation its seconds)
+    (tmp_path / "drawer" / "index.jsonl").write_text("".join(json.dumps(r) + "\n" for r in (
+        {"stage": "train", "file": "runs/dp0@ddim10/train_summary.json", "seconds": 9999.0},
+        {"stage": "train", "file": "runs/cnn@default/train_summary.json", "seconds": 9999.0},
+        {"stage": "eval", "file": "runs/cnn@default/eval-default.json", "seconds": 720.0})))
     md = Path(write_across_report(out)["markdown"]).read_text()
     # every machine named once, sorted; _eval's records name "test cpu"
     both = ("AMD EPYC [AuthenticAMD family 25 model 1] (avx2); AMD EPYC [AuthenticAMD family 26 model 2] "

@@ -188,9 +188,14 @@ def trained_on(r: Row, kept: int | None) -> int | None:
     return None if kept is None else kept - held_out_episodes(kept, float(r.data_split.get("val_fraction", 0.1)))
 
 
+def learned_settings(c: TaskColumn) -> list[Row]:
+    """The task's trained settings (one training seed or several), not the baselines."""
+    return [r for r in c.settings if r.train_seed is not None or r.seed_scores]
+
+
 def best_setting(c: TaskColumn) -> Row | None:
     """The task's learned setting with the highest success (None: nothing learned evaluated yet)."""
-    learned = [r for r in c.settings if r.train_seed is not None or r.seed_scores]
+    learned = learned_settings(c)
     return max(learned, key=lambda r: success(r)[0]) if learned else None
 
 
@@ -210,7 +215,7 @@ def goal_lines(columns: list[TaskColumn], kept: dict[str, int] | None = None) ->
         best = best_setting(c)
         if best is None:
             continue
-        learned = [r for r in c.settings if r.train_seed is not None or r.seed_scores]
+        learned = learned_settings(c)
         v, lo, _, _ = success(best)
         seeds = len(best.seed_scores) or 1
         verdict = (f"its whole interval is at or above {GOAL:.0%}" if lo >= GOAL else
@@ -295,10 +300,11 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
                 "validation episodes (one training seed each: evidence on a cause, not a reported score).")
     fig_lines, figs = figure_lines(columns, out)
     chead, crows = cost_table([(c.folder.name, c.folder) for c in columns] + [(f.name, f) for f in stages.values()])
-    cost_note = ("What every run recorded: training time is its optimiser steps (every session it ran; pauses and "
-                 "evaluation during training excluded: a floor on its wall time), evaluation time its episodes' "
-                 "rollouts (test and validation); a run trained on several machines lists them all, its time not "
-                 "split. Times from different machines do not compare.")
+    cost_note = ("Each study's own report's sums: training time is its optimiser steps (every session it ran; pauses "
+                 "and curve rollouts excluded: a floor on its wall time), evaluation time its evaluation stages' "
+                 "seconds (test and validation); a run reused from an earlier study (same run key) counts as a "
+                 "training here and its hours there. A run trained on several machines lists them all, its time "
+                 "not split. Times from different machines do not compare.")
     notes = [f"{c.task}: {c.folder.name}, result files at commit(s) {', '.join(x[:7] for x in c.commits)}"
              for c in columns]
     md = ["# bcbench report across tasks", "", top, "", "## Success and latency per task", "",

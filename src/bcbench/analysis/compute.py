@@ -1,19 +1,18 @@
 """What a set of study folders cost, from their files: trainings, evaluations and timings, and the machines they ran on.
 
-Issue 75's closing note asks for "the total compute and the machines". Every number here is a sum over records the
-runs wrote themselves: a training's `train_time_s` (its optimiser steps, every session it ran in; evaluation during
-training and pauses excluded: a floor on its wall time), an evaluation's `wall_time_s` (its episodes' rollouts, test
-or validation) and the count of timing records. A run trained in pieces on several machines names each (its
-`segments`); every one is listed, and its time is counted once, not split between them. Reads result files only.
+Issue 75's closing note asks for "the total compute and the machines". The hours and machines are each study's own
+report's (`bcbench.analysis.results.study_time`, `study_machines`): a training's `train_time_s` (its optimiser steps,
+every session it ran in; curve rollouts and pauses excluded: a floor on its wall time), an evaluation stage's recorded
+seconds (test and validation), every CPU a record names (each session of a resumed training). A run trained on several
+machines lists them all; its time is not split between them. The counts are of the files. Reads result files only.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
-from bcbench.analysis.results import cpu_text
+from bcbench.analysis.results import study_machines, study_time
 from bcbench.analysis.studies import study_files
 from bcbench.utils.io import read_json
 
@@ -40,38 +39,20 @@ class Cost:
         self.machines |= other.machines
 
 
-def _machines(record: dict[str, Any]) -> set[str]:
-    """Each CPU a record names: its hardware, and for a training each session's segment."""
-    named = [s for s in record.get("segments") or [] if isinstance(s, dict) and s.get("cpu_model")]
-    hw = record.get("hardware")
-    return {cpu_text(h) for h in [*named, *([hw] if isinstance(hw, dict) and hw.get("cpu_model") else [])]}
+def _files(folder: Path, pattern: str) -> list[Path]:
+    """The study files matching `pattern`, less those under a report folder inside a study."""
+    return [f for d, f in study_files(folder, pattern) if "report" not in f.relative_to(d).parts]
 
 
 def folder_cost(folder: Path) -> Cost:
     """The compute every run under a study folder (or a combined report's studies) recorded."""
-    c = Cost()
-    for d, f in study_files(folder, "train_summary.json"):
-        if "report" in f.relative_to(d).parts:
-            continue
-        d = read_json(f)
-        c.trainings += 1
-        c.train_s += float(d.get("train_time_s") or 0.0)
-        c.machines |= _machines(d)
-    for pattern in ("eval-*.json", "check-*.json"):
-        for where, f in study_files(folder, pattern):
-            d = read_json(f)
-            if d.get("type") != "evaluation" or "report" in f.relative_to(where).parts:
-                continue
-            c.evaluations += 1
-            c.episodes += len(d.get("episodes") or [])
-            c.eval_s += float((d.get("summary") or {}).get("wall_time_s") or 0.0)
-            c.machines |= _machines(d)
-    for where, f in study_files(folder, "latency-*.json"):
-        d = read_json(f)
-        if d.get("type") == "latency" and "report" not in f.relative_to(where).parts:
-            c.timings += 1
-            c.machines |= _machines(d)
-    return c
+    seconds = study_time(folder)
+    evals = [read_json(f) for pattern in ("eval-*.json", "check-*.json") for f in _files(folder, pattern)]
+    evals = [d for d in evals if d.get("type") == "evaluation"]
+    timings = [f for f in _files(folder, "latency-*.json") if read_json(f).get("type") == "latency"]
+    return Cost(trainings=len(_files(folder, "train_summary.json")), train_s=seconds["training"],
+                evaluations=len(evals), episodes=sum(len(d.get("episodes") or []) for d in evals),
+                eval_s=seconds["evaluation"], timings=len(timings), machines=set(study_machines(folder)))
 
 
 def cost_table(named: list[tuple[str, Path]]) -> tuple[list[str], list[list[str]]]:

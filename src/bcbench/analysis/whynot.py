@@ -51,25 +51,25 @@ def more_demos_folders(results: Path, spec: dict[str, Any], tasks: list[str]) ->
     return out
 
 
-def steps_reading(task_folder: Path, best: Row) -> str:
+def steps_reading(task_folder: Path, checks: list[Row], best: Row) -> str:
     """The best setting's run's twice-the-steps verdicts (each checked training seed's, as its study's report reads
-    them: `bcbench.analysis.convergence`), or that it has none yet."""
+    them: `bcbench.analysis.convergence`), or that it has none yet. `checks`: the folder's check-*.json rows."""
     margin = study_spec(task_folder).get("margin") or DEFAULT_MARGIN
     # a confirm study's checks are on validation episodes (check-*.json); an explore study's on its own episodes
-    rows = load_check_rows(task_folder) or load_rows(task_folder, None, margin)
+    rows = checks or load_rows(task_folder, None, margin)
     verdicts = run_verdicts(doubling_checks(rows, margin), margin)
     mine = [v for (run, _), v in sorted(verdicts.items(), key=lambda kv: kv[0][1] or 0) if run == best.run_label]
     return "; ".join(verdict_text(v) for v in mine) if mine else f"twice the steps: {NO_STEPS_CHECK}"
 
 
-def demos_readings(task_folder: Path, stage: Path) -> list[str]:
+def demos_readings(task_folder: Path, checks: list[Row], stage: Path) -> list[str]:
     """Each evaluation of the stage paired with the confirm run's check base of the same policy, sampler setting and
     training seed, trained with the same recipe and settings on a different demonstration count (so the count is the
     one difference): both success rates on the shared validation episodes and the paired difference (more minus
     fewer). A stage with no evaluation yet reads none."""
     bases: dict[tuple[str, str, int | None], Row] = {}
     # the checked runs' own readings: a twice-the-steps run's check files share their policy, setting and seed
-    for b in load_check_rows(task_folder):
+    for b in checks:
         key = (b.policy, b.variant, b.train_seed)
         if b.doubles:
             continue
@@ -110,10 +110,11 @@ def _paired_line(r: Row, b: Row, stage: str) -> str:
 
 def why_not_lines(task_folder: Path, task: str, best: Row, stage: Path | None) -> str:
     """One line for a task under the goal: the twice-the-steps reading, then the demonstration-count one."""
+    checks = load_check_rows(task_folder)  # read once: both readings use the confirm run's check files
     if stage is None:
         demos = f"demonstration count: {NO_DEMOS_STAGE}"
     else:
-        found = demos_readings(task_folder, stage)
+        found = demos_readings(task_folder, checks, stage)
         demos = ("demonstration count: " + "; ".join(found) if found else
                  f"demonstration count: {stage.name} has no evaluation paired with this study's check bases yet")
-    return f"- **{task}**: {steps_reading(task_folder, best)}; {demos}."
+    return f"- **{task}**: {steps_reading(task_folder, checks, best)}; {demos}."

@@ -17,7 +17,7 @@ import functools
 from pathlib import Path
 
 from bcbench.data.replay_buffer import ReplayBuffer
-from bcbench.errors import BCBenchError, DatasetError
+from bcbench.errors import DatasetError
 from bcbench.tasks.metaworld.reader import load_metaworld_buffer, store_info
 from bcbench.tasks.metaworld.table import (
     CAMERA,
@@ -85,10 +85,7 @@ def _notes(name: str, image_size: int) -> str:
 def metaworld_task(name: str) -> Task:
     """The bcbench Task for MetaWorld's `name` (drawer-open, ..., or pick-place@128: the same task seen in larger
     frames); an unknown name or size is one BCBenchError."""
-    try:
-        base, size = split_name(name)
-    except ValueError as e:
-        raise BCBenchError(str(e)) from None
+    base, size = split_name(name)
     spec = TASKS[base]
     return Task(
         name=f"metaworld/{name}", family="metaworld", image_size=size, camera=CAMERA,

@@ -176,10 +176,7 @@ def generate(name: str, episodes: int, out: str | Path, *, seed_start: int = 0, 
     `out` (a zarr v2 folder; an existing one needs `force`). Returns a summary (counts, success rate, timing)."""
     from tqdm import tqdm
 
-    try:
-        base, size = split_name(name)
-    except ValueError as e:
-        raise BCBenchError(str(e)) from None
+    base, size = split_name(name)
     if not noise >= 0:
         raise BCBenchError(f"noise is a standard deviation: need noise >= 0, got {noise}")
     out = Path(out)

@@ -30,6 +30,8 @@ and loses the object and target.
 
 from __future__ import annotations
 
+from bcbench.errors import BCBenchError
+
 IMAGE_SIZE = 96
 # a larger frame for a task whose detail 96 px may lose (issue 75: "96x96, or 128 where a task needs it: measure on
 # validation and say so"), named metaworld/NAME@128: its own demonstrations, its own task (run keys, stores)
@@ -82,14 +84,14 @@ TASKS: dict[str, dict] = {
 
 def split_name(name: str) -> tuple[str, int]:
     """'pick-place' -> ('pick-place', 96); 'pick-place@128' -> ('pick-place', 128). An unknown task or size is one
-    ValueError line (the default size takes no suffix: one task, one name)."""
+    BCBenchError line (the default size takes no suffix: one task, one name)."""
     base, at, size = name.partition("@")
     if base not in TASKS:
-        raise ValueError(f"unknown MetaWorld task '{base}' (choose {', '.join(TASKS)})")
+        raise BCBenchError(f"unknown MetaWorld task '{base}' (choose {', '.join(TASKS)})")
     if not at:
         return base, IMAGE_SIZE
     if size not in {str(n) for n in LARGER_SIZES}:  # "0128" would be a second name for one task
-        raise ValueError(f"metaworld/{name}: the frame size after '@' is one of "
+        raise BCBenchError(f"metaworld/{name}: the frame size after '@' is one of "
                          f"{', '.join(map(str, LARGER_SIZES))} (the family's {IMAGE_SIZE} px takes no suffix)")
     return base, int(size)
 
