@@ -201,10 +201,13 @@ def test_study_stages_runs_timing_first_and_the_study_then_skips_it(synthetic_za
     out = tmp_path / "out"
     assert stages.main([str(spec), str(out), "latency"]) == 2  # cnn_mlp's and DP's trainings are not done here
     assert "need a training that is not done here" in capsys.readouterr().err and not (out / "index.jsonl").exists()
+    assert stages.main(["--trained", str(spec), str(out), "latency"]) == 0  # only the random baseline's timing
+    assert "3 stage(s) wait for a training" in capsys.readouterr().out  # cnn_mlp once, DP in its two settings
+    assert [json.loads(x)["stage"] for x in (out / "index.jsonl").read_text().splitlines()] == ["latency"]
     spec.write_text(text[:text.index("[[run]]\npolicy = \"cnn_mlp\"")])  # the random baseline only
     assert stages.main([str(spec), str(out), "latency", "realtime"]) == 0
     index = [json.loads(x) for x in (out / "index.jsonl").read_text().splitlines()]
-    assert [i["stage"] for i in index] == ["latency", "realtime", "realtime"]  # naive and ensemble sweeps
+    assert [i["stage"] for i in index] == ["latency", "realtime", "realtime"]  # the timing above, then the sweeps
     assert all((out / i["file"]).is_file() for i in index)
     assert main(["study", str(spec), "--out", str(out), "--data", str(synthetic_zarr), "--quiet", "--no-report"]) == 0
     assert "1 stage(s) run, 3 already done" in capsys.readouterr().out  # only the evaluation was left
