@@ -127,6 +127,11 @@ def test_a_record_without_its_difficulty_takes_the_stated_one_and_a_clash_is_ref
     ({"tasks": ["../drawer"], "more_demos": {"metaworld/drawer-open": "../bogus"}}, "which is not a study folder"),
     ({"tasks": ["../drawer"], "more_demos": {"metaworld/drawer-open": "../peg"}},
      "gives ../peg for metaworld/drawer-open, but that study ran metaworld/peg-insert-side"),
+    ({"tasks": ["../drawer"], "larger_frame": {"metaworld/drawer-open": "../drawer2"}},
+     "gives ../drawer2 for metaworld/drawer-open, but that study ran metaworld/drawer-open, not "
+     "metaworld/drawer-open@SIZE"),
+    ({"tasks": ["../drawer"], "larger_frame": {"metaworld/door-open": "../drawer2"}},
+     "'larger_frame' names metaworld/door-open, which none of its 'tasks' folders is on"),
 ])
 def test_bad_across_files_are_one_line_errors(tmp_path, spec, message, capsys):
     _two_tasks(tmp_path)
@@ -242,6 +247,34 @@ def test_a_task_under_the_goal_reads_its_twice_the_steps_check_and_a_stage_with_
     assert line.endswith("demonstration count: pick50 has no evaluation paired with this study's check bases yet.")
     (more / "runs" / "dp50@ddim10" / "eval-ddim10.json").unlink()
     assert "pick50 has no evaluation paired" in Path(write_across_report(out)["markdown"]).read_text()
+
+
+def test_a_stage_in_larger_frames_pairs_with_the_check_base_where_the_frame_is_its_one_difference(tmp_path):
+    out = _two_tasks(tmp_path)
+    p = "metaworld/pick-place"
+
+    def dp(successes: int, task: str = p) -> dict:
+        return _eval("diffusion", "Diffusion Policy", task, "hard", successes, variant=("ddim", 10))
+
+    pick = _study(tmp_path / "pick", p, "hard", {"dp@ddim10": dp(6)})
+    write_json(pick / "runs" / "dp@ddim10" / "check-ddim10.json", dp(10))  # the check base: 20% of 50
+    write_json(pick / "runs" / "dp@ddim10" / "run.json", {"data_split": {"demos": 10}})
+    # the same DP on the same 10 demonstrations seen at 128 px (crop with it), on those validation episodes: 30 of 50
+    big = _study(tmp_path / "pick128", f"{p}@128", "hard", {"dp128@ddim10": dp(30, f"{p}@128")})
+    frame = {"data_split": {"demos": 10}, "overrides": {"image_size": 128, "crop": 112},
+             "preset_values": {"image_size": 96, "crop": 84}}
+    write_json(big / "runs" / "dp128@ddim10" / "run.json", frame)
+    write_json(out / "across.json", {"tasks": ["../drawer", "../peg", "../pick"], "larger_frame": {p: "../pick128"}})
+    md = Path(write_across_report(out)["markdown"]).read_text()
+    line = next(x for x in md.splitlines() if x.startswith("- **metaworld/pick-place**: twice"))
+    assert "demonstration count: no stage with more demonstrations yet; frame size: Diffusion Policy DDIM10 " in line
+    assert ("(training seed 0) at 128 px 60% against 20% at 96 px on the same 50 validation episodes: +0.400 ["
+            in line) and line.endswith("(paired; one training seed each; pick128).")
+    assert "| pick128 |" in md  # its compute counts beside the confirm studies'
+    # a stage that changed more than its frame (here its demonstrations too) pairs with nothing
+    write_json(big / "runs" / "dp128@ddim10" / "run.json", {**frame, "data_split": {"demos": 50}})
+    md = Path(write_across_report(out)["markdown"]).read_text()
+    assert "frame size: pick128 has no evaluation paired with this study's check bases yet." in md
 
 
 def test_the_compute_each_study_recorded_is_summed_with_its_machines(tmp_path):

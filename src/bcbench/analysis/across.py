@@ -7,6 +7,7 @@ or a combined report's, each on one task) side by side:
      "demos": "../metaworld-demos",                                         # optional: the generated stores' records
      "difficulty": {"metaworld/drawer-open": "easy"},   # optional: only for records written before they held it
      "more_demos": {"metaworld/peg-insert-side": "../metaworld-explore-5-peg"},  # optional (analysis.whynot)
+     "larger_frame": {"metaworld/pick-place": "../metaworld-explore-6-pick128"},  # optional (analysis.whynot)
      "why": "what the reader gets from reading them together"}
 
 Each folder keeps its own report (Figure 5, Figure 3, learning curves, its findings in full); this one holds what
@@ -14,7 +15,8 @@ only a side-by-side reading shows: per task the success of every policy setting 
 count and its latency at batch 1 in the fastest exact mode timed; the findings' verdicts per task (their rules
 unchanged: `bcbench.analysis.findings`); per task whether the best setting reaches the issue's 80% and where image
 Diffusion Policy stands against 3D Diffusion Policy's image-DP number for the task's difficulty group, and for a task
-under 80% what its files say of why (its twice-the-steps check; a stage with more demonstrations: analysis.whynot).
+under 80% what its files say of why (its twice-the-steps check; a stage with more demonstrations; one with larger
+frames: analysis.whynot).
 Reads result files only.
 """
 
@@ -35,7 +37,7 @@ from bcbench.analysis.results import Row, file_commits, load_rows
 from bcbench.analysis.seeds import merge_training_seeds
 from bcbench.analysis.studies import ACROSS_FILE, study_spec
 from bcbench.analysis.tables import html_image, html_table, md_table
-from bcbench.analysis.whynot import more_demos_folders, why_not_lines
+from bcbench.analysis.whynot import stage_folders, why_not_lines
 from bcbench.errors import BCBenchError
 from bcbench.protocol import held_out_episodes
 from bcbench.reference import IMAGE_DP_3DDP
@@ -199,9 +201,11 @@ def best_setting(c: TaskColumn) -> Row | None:
     return max(learned, key=lambda r: success(r)[0]) if learned else None
 
 
-def why_lines(columns: list[TaskColumn], stages: dict[str, Path]) -> list[str]:
-    """For each task whose best setting is under the goal, what its files say of why (analysis.whynot)."""
-    return [why_not_lines(c.folder, c.task, best, stages.get(c.task)) for c in columns
+def why_lines(columns: list[TaskColumn], stages: dict[str, dict[str, Path]]) -> list[str]:
+    """For each task whose best setting is under the goal, what its files say of why (analysis.whynot; `stages`:
+    kind -> task -> explore folder)."""
+    return [why_not_lines(c.folder, c.task, best, {k: v[c.task] for k, v in stages.items() if c.task in v})
+            for c in columns
             if (best := best_setting(c)) is not None and success(best)[0] < GOAL]
 
 
@@ -293,13 +297,16 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
     records = demo_records(results, spec, columns)
     demos = _demo_lines(records, columns)
     goals = goal_lines(columns, {t: int(d["kept"]) for t, d in records.items()})
-    stages = more_demos_folders(results, spec, [c.task for c in columns])
+    stages = stage_folders(results, spec, [c.task for c in columns])
     whys = why_lines(columns, stages)
     why_head = (f"Why under {GOAL:.0%}, per task below it: the best setting's twice-the-steps check, then a stage that "
-                "trained the same policy on more demonstrations, paired with the confirm run on its check base's "
-                "validation episodes (one training seed each: evidence on a cause, not a reported score).")
+                "trained the same policy on more demonstrations"
+                + (", then one that showed it larger frames" if stages.get("larger_frame") else "")
+                + ", paired with the confirm run on its check base's validation episodes (one training seed each: "
+                "evidence on a cause, not a reported score).")
     fig_lines, figs = figure_lines(columns, out)
-    chead, crows = cost_table([(c.folder.name, c.folder) for c in columns] + [(f.name, f) for f in stages.values()])
+    explored = list(dict.fromkeys((f.name, f) for by_task in stages.values() for f in by_task.values()))
+    chead, crows = cost_table([(c.folder.name, c.folder) for c in columns] + explored)
     cost_note = ("Each study's own report's sums: training time is its optimiser steps (every session it ran; pauses "
                  "and curve rollouts excluded: a floor on its wall time), evaluation time its evaluation stages' "
                  "seconds (test and validation); a run reused from an earlier study (same run key) counts as a "

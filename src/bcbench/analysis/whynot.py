@@ -1,16 +1,19 @@
-"""Why a task's best policy is under the goal: what the files say of the two causes issue 75 names.
+"""Why a task's best policy is under the goal: what the files say of the causes issue 75 names, and of one it allows.
 
 A task whose best setting is under 80% must show why not: "its twice-the-steps check, the demonstration count". The
 first is the confirm study's own check (the best setting's run trained again with twice its steps, paired on
-validation episodes: `bcbench.analysis.convergence`). The second is an explore stage on validation seeds: the same
-policy, recipe and settings trained on more demonstrations and read on the episodes of the confirm run's check base
+validation episodes: `bcbench.analysis.convergence`). The others are explore stages on validation seeds: the same
+policy, recipe and settings trained with one thing changed and read on the episodes of the confirm run's check base
 (`runs/*/check-*.json`: the run itself on the study's `check_episodes` validation episodes), so the two pair episode
-by episode. across.json names each task's stage folder:
+by episode. across.json names each task's stage folder, by what the stage changed:
 
-    "more_demos": {"metaworld/pick-place": "../metaworld-explore-5-pick"}
+    "more_demos": {"metaworld/pick-place": "../metaworld-explore-5-pick"},       # more demonstrations
+    "larger_frame": {"metaworld/pick-place": "../metaworld-explore-6-pick128"}   # the task seen in larger frames
 
-Both readings are on validation episodes (200000+) and one training seed each: evidence on a cause, not a reported
-score, and a difference says what that seed pair shows. Reads result files only.
+A larger-frame stage runs the task's `@SIZE` variant (the same seeds' demonstrations rendered larger) with the
+frame's size and its crop overridden: those two overrides are the one difference it may have. Every reading is on
+validation episodes (200000+) and one training seed each: evidence on a cause, not a reported score, and a difference
+says what that seed pair shows. Reads result files only.
 """
 
 from __future__ import annotations
@@ -29,25 +32,34 @@ NO_STEPS_CHECK = "no twice-the-steps check yet"
 NO_DEMOS_STAGE = "no stage with more demonstrations yet"
 
 
-def more_demos_folders(results: Path, spec: dict[str, Any], tasks: list[str]) -> dict[str, Path]:
-    """across.json's `more_demos` (task -> explore folder), validated: each a task of the report, each folder a study
-    on that task."""
+# what a stage changes: across.json's key -> how a why line names it
+STAGE_KINDS = {"more_demos": "demonstration count", "larger_frame": "frame size"}
+FRAME_KEYS = frozenset({"image_size", "crop"})  # a larger-frame stage's overrides: the frame and its crop
+
+
+def stage_folders(results: Path, spec: dict[str, Any], tasks: list[str]) -> dict[str, dict[str, Path]]:
+    """across.json's `more_demos` and `larger_frame` (each task -> explore folder), validated: each a task of the
+    report, each folder a study on that task (a larger-frame one on its `@SIZE` variant). Kind -> task -> folder."""
     f = results / ACROSS_FILE
-    named = spec.get("more_demos", {})
-    if not isinstance(named, dict) or not all(isinstance(v, str) and v for v in named.values()):
-        raise BCBenchError(f"{f}: 'more_demos' maps a task name to the folder of its explore stage with more "
-                           "demonstrations (a path relative to it)")
-    out = {}
-    for task, rel in named.items():
-        if task not in tasks:
-            raise BCBenchError(f"{f}: 'more_demos' names {task}, which none of its 'tasks' folders is on")
-        folder = results / rel
-        if not (folder / "spec.json").is_file():
-            raise BCBenchError(f"{f}: 'more_demos' names {rel}, which is not a study folder")
-        on = study_spec(folder).get("task") or "pusht"
-        if on != task:
-            raise BCBenchError(f"{f}: 'more_demos' gives {rel} for {task}, but that study ran {on}")
-        out[task] = folder
+    out: dict[str, dict[str, Path]] = {}
+    for kind in STAGE_KINDS:
+        named = spec.get(kind, {})
+        if not isinstance(named, dict) or not all(isinstance(v, str) and v for v in named.values()):
+            raise BCBenchError(f"{f}: '{kind}' maps a task name to the folder of its explore stage (a path relative "
+                               "to it)")
+        for task, rel in named.items():
+            if task not in tasks:
+                raise BCBenchError(f"{f}: '{kind}' names {task}, which none of its 'tasks' folders is on")
+            folder = results / rel
+            if not (folder / "spec.json").is_file():
+                raise BCBenchError(f"{f}: '{kind}' names {rel}, which is not a study folder")
+            on = study_spec(folder).get("task") or "pusht"
+            base, _, size = on.partition("@")
+            if (kind == "more_demos" and on != task) or (kind == "larger_frame" and (base != task or
+                                                                                   not size.isdigit())):
+                want = task if kind == "more_demos" else f"{task}@SIZE"
+                raise BCBenchError(f"{f}: '{kind}' gives {rel} for {task}, but that study ran {on}, not {want}")
+            out.setdefault(kind, {})[task] = folder
     return out
 
 
@@ -62,22 +74,44 @@ def steps_reading(task_folder: Path, checks: list[Row], best: Row) -> str:
     return "; ".join(verdict_text(v) for v in mine) if mine else f"twice the steps: {NO_STEPS_CHECK}"
 
 
-def demos_readings(task_folder: Path, checks: list[Row], stage: Path) -> list[str]:
-    """Each evaluation of the stage paired with the confirm run's check base of the same policy, sampler setting and
-    training seed, trained with the same recipe and settings on a different demonstration count (so the count is the
-    one difference): both success rates on the shared validation episodes and the paired difference (more minus
-    fewer). A stage with no evaluation yet reads none."""
+def _check_bases(task_folder: Path, checks: list[Row]) -> dict[tuple[str, str, int | None], Row]:
+    """The checked runs' own readings by (policy, setting, seed): a twice-the-steps run's check files share their
+    policy, setting and seed and are left out; two checked runs under one key are ambiguous."""
     bases: dict[tuple[str, str, int | None], Row] = {}
-    # the checked runs' own readings: a twice-the-steps run's check files share their policy, setting and seed
     for b in checks:
         key = (b.policy, b.variant, b.train_seed)
         if b.doubles:
             continue
         if key in bases and bases[key].run_label != b.run_label:
             raise BCBenchError(f"{task_folder.name}: two checked runs of {b.policy} {b.variant} seed {b.train_seed} "
-                               f"({bases[key].run_label}; {b.run_label}): which one a stage with more demonstrations "
-                               "pairs with is ambiguous")
+                               f"({bases[key].run_label}; {b.run_label}): which one an explore stage pairs with is "
+                               "ambiguous")
         bases[key] = b
+    return bases
+
+
+def _one_difference(r: Row, b: Row, kind: str) -> tuple[str, str] | None:
+    """How the stage's row and the base differ, as ('from 50 demonstrations', 'from 10') or ('at 128 px', 'at 96
+    px'), where that is their one difference; None otherwise (then they do not pair)."""
+    mine, theirs = r.data_split.get("demos"), b.data_split.get("demos")
+    if r.doubles or r.recipe != b.recipe or mine is None or theirs is None:
+        return None
+    if kind == "more_demos":
+        same = r.overrides == b.overrides and mine != theirs
+        return (f"from {mine} demonstrations", f"from {theirs}") if same else None
+    rest = [{k: v for k, v in x.overrides.items() if k not in FRAME_KEYS} for x in (r, b)]
+    # the stage overrides the frame; the base saw the preset's (the stage's record holds the preset's value)
+    big, small = r.overrides.get("image_size"), b.overrides.get("image_size", r.preset_values.get("image_size"))
+    same = rest[0] == rest[1] and mine == theirs and None not in (big, small) and big != small
+    return (f"at {big} px", f"at {small} px") if same else None
+
+
+def stage_readings(task_folder: Path, checks: list[Row], stage: Path, kind: str = "more_demos") -> list[str]:
+    """Each evaluation of the stage paired with the confirm run's check base of the same policy, sampler setting and
+    training seed, trained with the same recipe and settings but for what the stage changed (`kind`: its
+    demonstration count, or its frame size): both success rates on the shared validation episodes and the paired
+    difference (stage minus base). A stage with no evaluation yet reads none."""
+    bases = _check_bases(task_folder, checks)
     try:
         rows = load_rows(stage)
     except BCBenchError:  # nothing evaluated there yet
@@ -85,36 +119,37 @@ def demos_readings(task_folder: Path, checks: list[Row], stage: Path) -> list[st
     out = []
     for r in sorted(rows, key=lambda r: r.key):
         b = bases.get((r.policy, r.variant, r.train_seed))
-        if r.doubles or b is None or (r.recipe, r.overrides) != (b.recipe, b.overrides):
-            continue
-        mine, theirs = r.data_split.get("demos"), b.data_split.get("demos")
-        if mine is None or theirs is None or mine == theirs:
-            continue
-        out.append(_paired_line(r, b, stage.name))
+        differs = None if b is None else _one_difference(r, b, kind)
+        if differs is not None:
+            out.append(_paired_line(r, b, stage.name, *differs))
     return out
 
 
-def _paired_line(r: Row, b: Row, stage: str) -> str:
-    mine, theirs = r.data_split["demos"], b.data_split["demos"]
+def _paired_line(r: Row, b: Row, stage: str, mine: str, theirs: str) -> str:
     est, lo, hi, n = paired_bootstrap(r.scores, [b.scores])
     if n == 0:
-        return f"{r.setting} from {mine} demonstrations shares no episode with the check base from {theirs}"
+        return f"{r.setting} {mine} shares no episode with the check base {theirs}"
     shared = r.scores.keys() & b.scores.keys()
-    more, fewer = (100 * sum(x.scores[k] for k in shared) / n for x in (r, b))
+    ours, base = (100 * sum(x.scores[k] for k in shared) / n for x in (r, b))
     name = b.label.split(", ")[0]  # "Diffusion Policy (cosine)": the label less its demos, horizons and size
     setting = "" if r.variant == "default" else f" {r.variant.upper()}"
-    return (f"{name}{setting} (training seed {r.train_seed}) from {mine} demonstrations {more:.0f}% against "
-            f"{fewer:.0f}% from {theirs} on the same {n} validation episodes: {est:+.3f} [{lo:+.3f}, {hi:+.3f}] "
-            f"(paired; one training seed each; {stage})")
+    return (f"{name}{setting} (training seed {r.train_seed}) {mine} {ours:.0f}% against {base:.0f}% {theirs} on the "
+            f"same {n} validation episodes: {est:+.3f} [{lo:+.3f}, {hi:+.3f}] (paired; one training seed each; "
+            f"{stage})")
 
 
-def why_not_lines(task_folder: Path, task: str, best: Row, stage: Path | None) -> str:
-    """One line for a task under the goal: the twice-the-steps reading, then the demonstration-count one."""
-    checks = load_check_rows(task_folder)  # read once: both readings use the confirm run's check files
-    if stage is None:
-        demos = f"demonstration count: {NO_DEMOS_STAGE}"
-    else:
-        found = demos_readings(task_folder, checks, stage)
-        demos = ("demonstration count: " + "; ".join(found) if found else
-                 f"demonstration count: {stage.name} has no evaluation paired with this study's check bases yet")
-    return f"- **{task}**: {steps_reading(task_folder, checks, best)}; {demos}."
+def why_not_lines(task_folder: Path, task: str, best: Row, stages: dict[str, Path]) -> str:
+    """One line for a task under the goal: the twice-the-steps reading, the demonstration-count one, then a
+    larger frame's where a stage of it is named (`stages`: kind -> this task's folder)."""
+    checks = load_check_rows(task_folder)  # read once: every reading uses the confirm run's check files
+    parts = [steps_reading(task_folder, checks, best)]
+    for kind, what in STAGE_KINDS.items():
+        stage = stages.get(kind)
+        if stage is None:
+            if kind == "more_demos":  # the issue names it: say that it is missing
+                parts.append(f"{what}: {NO_DEMOS_STAGE}")
+            continue
+        found = stage_readings(task_folder, checks, stage, kind)
+        parts.append(f"{what}: " + ("; ".join(found) if found else
+                                    f"{stage.name} has no evaluation paired with this study's check bases yet"))
+    return f"- **{task}**: {'; '.join(parts)}."
