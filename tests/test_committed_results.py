@@ -27,7 +27,8 @@ def test_committed_report_regenerates_identically(study, tmp_path):
     named = json.loads(combine.read_text())["studies"] if combine.exists() else []  # clone
     if across.exists():  # a report across tasks: each task's folder (and its own studies) and the records
         spec = json.loads(across.read_text())
-        named = [*spec["tasks"], *([spec["demos"]] if "demos" in spec else []), *spec.get("more_demos", {}).values()]
+        named = [*spec["tasks"], *([spec["demos"]] if "demos" in spec else []), *spec.get("more_demos", {}).values(),
+                 *spec.get("larger_frame", {}).values()]
         named += [str(Path(t) / s) for t in spec["tasks"] if (study / t / "combine.json").exists()
                   for s in json.loads((study / t / "combine.json").read_text())["studies"]]
     for name in named:

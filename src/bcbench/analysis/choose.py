@@ -124,13 +124,20 @@ def control_loop_rows(rows: list[Row], realtime: dict[str, dict[str, Any]], marg
     return out
 
 
+def choose_header(realtime: dict[str, dict[str, Any]], step: tuple[float, str] = (10.0, "Push-T")) -> list[str]:
+    """The choice table's header, its last column capped at the task's step rate (the sweeps', else `step`'s): the
+    Markdown and the HTML report print the same one."""
+    top, task = next((step_rate(s) for s in realtime.values()), step)
+    return [*HEADER[:-1], HEADER[-1].replace("Push-T's 10 Hz", f"{task}'s {top:g} Hz")]
+
+
 def control_loop_lines(rows: list[Row], realtime: dict[str, dict[str, Any]], margin: float,
                        paired: dict[str, dict[str, Any]] | None = None,
                        step: tuple[float, str] = (10.0, "Push-T")) -> list[str]:
     """The report's control-loop section; `step`: the study task's step rate and name, where no sweep says it."""
     table = control_loop_rows(rows, realtime, margin, paired)
     top, task = next((step_rate(s) for s in realtime.values()), step)  # the sweeps' step rate
-    header = [*HEADER[:-1], HEADER[-1].replace("Push-T's 10 Hz", f"{task}'s {top:g} Hz")]
+    header = choose_header(realtime, step)
     run = one_interleaved_run(paired or {})
     source = (f" Times marked 'interleaved' come from one run that timed every policy and mode in turn, "
               f"{next(iter(run.values()))['rounds']} rounds (latency-paired*.json), so that neither a drifting "

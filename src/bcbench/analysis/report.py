@@ -17,8 +17,7 @@ from bcbench.analysis.accuracy_latency import figure5
 from bcbench.analysis.across import is_across, write_across_report
 from bcbench.analysis.baseline import HEADER as BASELINE_HEADER
 from bcbench.analysis.baseline import baseline_lines, baseline_rows
-from bcbench.analysis.choose import HEADER as CHOOSE_HEADER
-from bcbench.analysis.choose import control_loop_lines, control_loop_rows
+from bcbench.analysis.choose import choose_header, control_loop_lines, control_loop_rows
 from bcbench.analysis.convergence import NO_CHECK, NOT_CONVERGED, apply_checks, check_lines, doubling_checks
 from bcbench.analysis.fewstep import fewstep_lines, load_paired, one_interleaved_run
 from bcbench.analysis.figures import figure3, figure4, figure5_realtime, learning_curves, realtime_figure
@@ -322,7 +321,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
         choose = control_loop_rows(settings, realtime, margin, paired)
         under = _informed_sentence(informed) if informed else ""
         top = ((html_image(FIG5, fig5, "lead", _lead_height(lead, choose, under)) if fig5 else "")
-               + "<h2>Which policy for my control loop</h2>" + html_table(CHOOSE_HEADER, choose)
+               + "<h2>Which policy for my control loop</h2>" + html_table(choose_header(realtime, step), choose)
                + (f"<p>{html.escape(under)}</p>" if under else "")
                + ("<h2>Machines</h2>" + html_table(MACHINES_HEADER, machines) if machines else ""))
         tail = (f"<h2>How to read the numbers</h2><p>{html.escape(intro)}</p><h2>Provenance</h2><ul>"
@@ -339,13 +338,18 @@ def _informed_sentence(informed: list[str]) -> str:
             "test-seed result; each is listed under Provenance, with the file it read.")
 
 
+# A choice-table row's height in Chromium at 1280 x 900 (scripts/check_report.py): every row of every committed
+# report's table measured 35 px, two lines, the header's too (its long last column and the policies' labels wrap).
+ROW_PX = 35
+
+
 def _lead_height(intro: str, rows: list[list[str]], under: str = "") -> str:
     """Figure 5's height cap, so that it and the choice table fit the first screen: 46% of the window less what a
-    table of more than 5 rows (about 24 px each, 18 px more for each further line a long row wraps to, about 150
+    table of more than 4 rows (ROW_PX each, 18 px more for each further line a long row wraps to, about 150
     characters a line at a laptop's width), an introduction of more than 3 lines and a sentence under the table
     (about 22 px per 170 characters) take, never below 18% of the window (the table, the answer, comes first)."""
     wrapped = sum(-(-sum(len(c) for c in r) // 150) - 1 for r in rows)
-    extra = (24 * max(0, len(rows) - 5) + 18 * wrapped + 22 * max(0, -(-len(intro) // 170) - 3)
+    extra = (ROW_PX * max(0, len(rows) - 4) + 18 * wrapped + 22 * max(0, -(-len(intro) // 170) - 3)
              + 22 * -(-len(under) // 170))
     return f"max-height:max(18vh, calc(46vh - {extra}px))" if extra else ""
 
