@@ -10,8 +10,9 @@ the same result file, the same index line; the study's later run skips them.
         SPEC.toml OUT latency realtime          (then start the study as usual; it goes on with the rest)
 
 --trained runs those of the chosen stages whose training is done here and says how many wait for one (e.g. a
-confirm study's seed-0 networks timed while its later trainings are still to come); without it such a stage is an
-error before anything runs.
+confirm study's seed-0 networks timed before its later trainings run); without it such a stage is an error before
+anything runs. Never beside a running study on this machine: a timing needs the machine quiet, and two processes
+would both append to the study's index.
 """
 
 from __future__ import annotations
@@ -22,6 +23,8 @@ import time
 from bcbench.study.runner import StudyRunner
 from bcbench.study.spec import load_spec
 
+KINDS = {"latency", "realtime", "eval", "check"}  # a training is the study's to run
+
 
 def main(argv: list[str]) -> int:
     trained = "--trained" in argv
@@ -31,6 +34,11 @@ def main(argv: list[str]) -> int:
               "check)", file=sys.stderr)
         return 2
     spec_path, out, kinds = argv[0], argv[1], set(argv[2:])
+    wrong = sorted(k for k in {*argv[:2], *kinds} if k.startswith("-")) or sorted(kinds - KINDS)
+    if wrong:
+        print(f"error: {', '.join(wrong)}: not a stage kind ({', '.join(sorted(KINDS))}) nor --trained",
+              file=sys.stderr)
+        return 2
     runner = StudyRunner(load_spec(spec_path), out)
     todo = [s for s in runner.stages() if s[0] in kinds and not runner.is_done(*s)]
     missing = [s for s in todo if s[1].learned and not runner.is_done("train", s[1], None)]

@@ -271,10 +271,12 @@ def test_a_stage_in_larger_frames_pairs_with_the_check_base_where_the_frame_is_i
     assert ("(training seed 0) at 128 px 60% against 20% at 96 px on the same 50 validation episodes: +0.400 ["
             in line) and line.endswith("(paired; one training seed each; pick128).")
     assert "| pick128 |" in md  # its compute counts beside the confirm studies'
-    # a stage that changed more than its frame (here its demonstrations too) pairs with nothing
-    write_json(big / "runs" / "dp128@ddim10" / "run.json", {**frame, "data_split": {"demos": 50}})
-    md = Path(write_across_report(out)["markdown"]).read_text()
-    assert "frame size: pick128 has no evaluation paired with this study's check bases yet." in md
+    # a stage that changed more than its frame (its demonstrations, another setting, its split) pairs with nothing
+    for more in ({"data_split": {"demos": 50}}, {"overrides": {**frame["overrides"], "pred_horizon": 16}},
+                 {"data_split": {"demos": 10, "split_seed": 1}}):
+        write_json(big / "runs" / "dp128@ddim10" / "run.json", {**frame, **more})
+        md = Path(write_across_report(out)["markdown"]).read_text()
+        assert "frame size: pick128 has no evaluation paired with this study's check bases yet." in md, more
 
 
 def test_the_compute_each_study_recorded_is_summed_with_its_machines(tmp_path):

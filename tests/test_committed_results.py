@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import html
 import json
 import shutil
 from pathlib import Path
@@ -37,6 +38,10 @@ def test_committed_report_regenerates_identically(study, tmp_path):
     assert not list(copy.rglob("*.safetensors"))  # result files only
     paths = write_report(copy)
     assert Path(paths["markdown"]).read_text() == (study / "report" / "report.md").read_text()
+    choose = [x for x in Path(paths["markdown"]).read_text().splitlines() if "| median ms, batch 1 (fastest" in x]
+    if choose:  # the regenerated HTML heads its choice table as the regenerated Markdown does
+        cells = "".join(f"<th>{html.escape(c.strip())}</th>" for c in choose[0].strip("|").split("|"))
+        assert f"<thead><tr>{cells}</tr></thead>" in Path(paths["html"]).read_text()
     for png in (study / "report").glob("*.png"):
         assert (copy / "report" / png.name).stat().st_size > 1000  # every committed figure is redrawn
 

@@ -201,6 +201,8 @@ def test_study_stages_runs_timing_first_and_the_study_then_skips_it(synthetic_za
     out = tmp_path / "out"
     assert stages.main([str(spec), str(out), "latency"]) == 2  # cnn_mlp's and DP's trainings are not done here
     assert "need a training that is not done here" in capsys.readouterr().err and not (out / "index.jsonl").exists()
+    assert stages.main([str(spec), str(out), "lateny"]) == 2  # a misspelt kind is an error, not a quiet no-op
+    assert "lateny: not a stage kind" in capsys.readouterr().err
     assert stages.main(["--trained", str(spec), str(out), "latency"]) == 0  # only the random baseline's timing
     assert "3 stage(s) wait for a training" in capsys.readouterr().out  # cnn_mlp once, DP in its two settings
     assert [json.loads(x)["stage"] for x in (out / "index.jsonl").read_text().splitlines()] == ["latency"]

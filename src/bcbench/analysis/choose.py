@@ -124,10 +124,15 @@ def control_loop_rows(rows: list[Row], realtime: dict[str, dict[str, Any]], marg
     return out
 
 
+def _step(realtime: dict[str, dict[str, Any]], step: tuple[float, str]) -> tuple[float, str]:
+    """The step rate and task the choice table is capped at: the sweeps', else `step`."""
+    return next((step_rate(s) for s in realtime.values()), step)
+
+
 def choose_header(realtime: dict[str, dict[str, Any]], step: tuple[float, str] = (10.0, "Push-T")) -> list[str]:
-    """The choice table's header, its last column capped at the task's step rate (the sweeps', else `step`'s): the
-    Markdown and the HTML report print the same one."""
-    top, task = next((step_rate(s) for s in realtime.values()), step)
+    """The choice table's header, its last column capped at the task's step rate (`_step`): the Markdown and the
+    HTML report print the same one."""
+    top, task = _step(realtime, step)
     return [*HEADER[:-1], HEADER[-1].replace("Push-T's 10 Hz", f"{task}'s {top:g} Hz")]
 
 
@@ -136,7 +141,7 @@ def control_loop_lines(rows: list[Row], realtime: dict[str, dict[str, Any]], mar
                        step: tuple[float, str] = (10.0, "Push-T")) -> list[str]:
     """The report's control-loop section; `step`: the study task's step rate and name, where no sweep says it."""
     table = control_loop_rows(rows, realtime, margin, paired)
-    top, task = next((step_rate(s) for s in realtime.values()), step)  # the sweeps' step rate
+    top, task = _step(realtime, step)
     header = choose_header(realtime, step)
     run = one_interleaved_run(paired or {})
     source = (f" Times marked 'interleaved' come from one run that timed every policy and mode in turn, "

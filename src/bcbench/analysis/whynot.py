@@ -55,9 +55,8 @@ def stage_folders(results: Path, spec: dict[str, Any], tasks: list[str]) -> dict
                 raise BCBenchError(f"{f}: '{kind}' names {rel}, which is not a study folder")
             on = study_spec(folder).get("task") or "pusht"
             base, _, size = on.partition("@")
-            if (kind == "more_demos" and on != task) or (kind == "larger_frame" and (base != task or
-                                                                                   not size.isdigit())):
-                want = task if kind == "more_demos" else f"{task}@SIZE"
+            want = task if kind == "more_demos" else f"{task}@SIZE"  # a larger frame: the task's @SIZE variant
+            if on != task if kind == "more_demos" else (base != task or not size.isdigit()):
                 raise BCBenchError(f"{f}: '{kind}' gives {rel} for {task}, but that study ran {on}, not {want}")
             out.setdefault(kind, {})[task] = folder
     return out
@@ -92,9 +91,11 @@ def _check_bases(task_folder: Path, checks: list[Row]) -> dict[tuple[str, str, i
 
 def _one_difference(r: Row, b: Row, kind: str) -> tuple[str, str] | None:
     """How the stage's row and the base differ, as ('from 50 demonstrations', 'from 10') or ('at 128 px', 'at 96
-    px'), where that is their one difference; None otherwise (then they do not pair)."""
+    px'), where that is their one difference (same preset, recipe and data split but for the stage's change); None
+    otherwise (then they do not pair)."""
     mine, theirs = r.data_split.get("demos"), b.data_split.get("demos")
-    if r.doubles or r.recipe != b.recipe or mine is None or theirs is None:
+    split = [{k: v for k, v in x.data_split.items() if k != "demos"} for x in (r, b)]  # which episodes it trains on
+    if r.doubles or (r.preset, r.recipe) != (b.preset, b.recipe) or split[0] != split[1] or None in (mine, theirs):
         return None
     if kind == "more_demos":
         same = r.overrides == b.overrides and mine != theirs
@@ -102,11 +103,11 @@ def _one_difference(r: Row, b: Row, kind: str) -> tuple[str, str] | None:
     rest = [{k: v for k, v in x.overrides.items() if k not in FRAME_KEYS} for x in (r, b)]
     # the stage overrides the frame; the base saw the preset's (the stage's record holds the preset's value)
     big, small = r.overrides.get("image_size"), b.overrides.get("image_size", r.preset_values.get("image_size"))
-    same = rest[0] == rest[1] and mine == theirs and None not in (big, small) and big != small
+    same = rest[0] == rest[1] and mine == theirs and None not in (big, small) and big > small
     return (f"at {big} px", f"at {small} px") if same else None
 
 
-def stage_readings(task_folder: Path, checks: list[Row], stage: Path, kind: str = "more_demos") -> list[str]:
+def stage_readings(task_folder: Path, checks: list[Row], stage: Path, kind: str) -> list[str]:
     """Each evaluation of the stage paired with the confirm run's check base of the same policy, sampler setting and
     training seed, trained with the same recipe and settings but for what the stage changed (`kind`: its
     demonstration count, or its frame size): both success rates on the shared validation episodes and the paired
