@@ -305,7 +305,7 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
                 + ", paired with the confirm run on its check base's validation episodes (one training seed each: "
                 "evidence on a cause, not a reported score).")
     fig_lines, figs = figure_lines(columns, out)
-    explored = list(dict.fromkeys((f.name, f) for by_task in stages.values() for f in by_task.values()))
+    explored = [(f.name, f) for by_task in stages.values() for f in by_task.values()]  # a folder has one kind and task
     chead, crows = cost_table([(c.folder.name, c.folder) for c in columns] + explored)
     cost_note = ("Each study's own report's sums: training time is its optimiser steps (every session it ran; pauses "
                  "and curve rollouts excluded: a floor on its wall time), evaluation time its evaluation stages' "

@@ -129,11 +129,14 @@ def _step(realtime: dict[str, dict[str, Any]], step: tuple[float, str]) -> tuple
     return next((step_rate(s) for s in realtime.values()), step)
 
 
+def _header(top: float, task: str) -> list[str]:
+    return [*HEADER[:-1], HEADER[-1].replace("Push-T's 10 Hz", f"{task}'s {top:g} Hz")]
+
+
 def choose_header(realtime: dict[str, dict[str, Any]], step: tuple[float, str] = (10.0, "Push-T")) -> list[str]:
     """The choice table's header, its last column capped at the task's step rate (`_step`): the Markdown and the
     HTML report print the same one."""
-    top, task = _step(realtime, step)
-    return [*HEADER[:-1], HEADER[-1].replace("Push-T's 10 Hz", f"{task}'s {top:g} Hz")]
+    return _header(*_step(realtime, step))
 
 
 def control_loop_lines(rows: list[Row], realtime: dict[str, dict[str, Any]], margin: float,
@@ -142,7 +145,7 @@ def control_loop_lines(rows: list[Row], realtime: dict[str, dict[str, Any]], mar
     """The report's control-loop section; `step`: the study task's step rate and name, where no sweep says it."""
     table = control_loop_rows(rows, realtime, margin, paired)
     top, task = _step(realtime, step)
-    header = choose_header(realtime, step)
+    header = _header(top, task)
     run = one_interleaved_run(paired or {})
     source = (f" Times marked 'interleaved' come from one run that timed every policy and mode in turn, "
               f"{next(iter(run.values()))['rounds']} rounds (latency-paired*.json), so that neither a drifting "

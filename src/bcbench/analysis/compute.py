@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from bcbench.analysis.results import study_machines, study_time
-from bcbench.analysis.studies import study_files
+from bcbench.analysis.studies import run_files
 from bcbench.utils.io import read_json
 
 
@@ -40,8 +40,7 @@ class Cost:
 
 
 def _files(folder: Path, pattern: str) -> list[Path]:
-    """The study files matching `pattern`, less those under a report folder inside a study."""
-    return [f for d, f in study_files(folder, pattern) if "report" not in f.relative_to(d).parts]
+    return [f for _, f in run_files(folder, pattern)]
 
 
 def folder_cost(folder: Path) -> Cost:

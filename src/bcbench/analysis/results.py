@@ -14,7 +14,7 @@ from typing import Any
 
 from bcbench.analysis.curves import Curve, load_curve, plateau
 from bcbench.analysis.realtime import pool_training_seeds
-from bcbench.analysis.studies import left_out_runs, study_dirs, study_files, study_roles
+from bcbench.analysis.studies import left_out_runs, run_files, study_dirs, study_files, study_roles
 from bcbench.errors import BCBenchError
 from bcbench.modes import EXACT_MODES
 from bcbench.reference import sized_label
@@ -202,8 +202,7 @@ def load_rows(results: str | Path, extra_dirs: list[str] | None = None, margin: 
 def load_check_rows(results: str | Path) -> list[Row]:
     """A confirm study's twice-the-steps checks (runs/*/check-*.json, on validation episodes), one row each."""
     roles = {d: study_roles(d) for d in study_dirs(Path(results))}
-    return [_row_from_eval(f, role=roles[d].get(f.parent.name)) for d, f in study_files(results, "check-*.json")
-            if "report" not in f.relative_to(d).parts]
+    return [_row_from_eval(f, role=roles[d].get(f.parent.name)) for d, f in run_files(results, "check-*.json")]
 
 
 def load_latency_files(dirs: list[str | Path]) -> list[dict[str, Any]]:

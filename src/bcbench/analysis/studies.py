@@ -163,6 +163,11 @@ def study_files(results: str | Path, pattern: str) -> list[tuple[Path, Path]]:
             if not skip.intersection(f.parents)]
 
 
+def run_files(results: str | Path, pattern: str) -> list[tuple[Path, Path]]:
+    """`study_files` less a report folder's copies inside a study (its own report/ holds no result file)."""
+    return [(d, f) for d, f in study_files(results, pattern) if "report" not in f.relative_to(d).parts]
+
+
 def study_spec(results: Path) -> dict[str, Any]:
     """The study's spec.json; for a combined report, the margin, purpose, task and control rate its studies share
     (they must: one rule judges every finding, on one task; studies of several tasks are read side by side by a

@@ -32,9 +32,16 @@ NO_STEPS_CHECK = "no twice-the-steps check yet"
 NO_DEMOS_STAGE = "no stage with more demonstrations yet"
 
 
-# what a stage changes: across.json's key -> how a why line names it
-STAGE_KINDS = {"more_demos": "demonstration count", "larger_frame": "frame size"}
+# what a stage changes: across.json's key -> (how a why line names it, what it says where a task has no such stage:
+# only of the cause the issue names)
+STAGE_KINDS = {"more_demos": ("demonstration count", NO_DEMOS_STAGE), "larger_frame": ("frame size", None)}
 FRAME_KEYS = frozenset({"image_size", "crop"})  # a larger-frame stage's overrides: the frame and its crop
+
+
+def _runs_on(kind: str, task: str, on: str) -> bool:
+    """Whether a stage of `kind` for `task` may run `on`: the task itself, or for a larger frame its @SIZE variant."""
+    base, _, size = on.partition("@")
+    return on == task if kind == "more_demos" else base == task and size.isdigit()
 
 
 def stage_folders(results: Path, spec: dict[str, Any], tasks: list[str]) -> dict[str, dict[str, Path]]:
@@ -54,9 +61,8 @@ def stage_folders(results: Path, spec: dict[str, Any], tasks: list[str]) -> dict
             if not (folder / "spec.json").is_file():
                 raise BCBenchError(f"{f}: '{kind}' names {rel}, which is not a study folder")
             on = study_spec(folder).get("task") or "pusht"
-            base, _, size = on.partition("@")
-            want = task if kind == "more_demos" else f"{task}@SIZE"  # a larger frame: the task's @SIZE variant
-            if on != task if kind == "more_demos" else (base != task or not size.isdigit()):
+            if not _runs_on(kind, task, on):
+                want = task if kind == "more_demos" else f"{task}@SIZE"
                 raise BCBenchError(f"{f}: '{kind}' gives {rel} for {task}, but that study ran {on}, not {want}")
             out.setdefault(kind, {})[task] = folder
     return out
@@ -144,11 +150,10 @@ def why_not_lines(task_folder: Path, task: str, best: Row, stages: dict[str, Pat
     larger frame's where a stage of it is named (`stages`: kind -> this task's folder)."""
     checks = load_check_rows(task_folder)  # read once: every reading uses the confirm run's check files
     parts = [steps_reading(task_folder, checks, best)]
-    for kind, what in STAGE_KINDS.items():
+    for kind, (what, none) in STAGE_KINDS.items():
         stage = stages.get(kind)
         if stage is None:
-            if kind == "more_demos":  # the issue names it: say that it is missing
-                parts.append(f"{what}: {NO_DEMOS_STAGE}")
+            parts += [f"{what}: {none}"] if none else []
             continue
         found = stage_readings(task_folder, checks, stage, kind)
         parts.append(f"{what}: " + ("; ".join(found) if found else
