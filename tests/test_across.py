@@ -130,6 +130,8 @@ def test_a_record_without_its_difficulty_takes_the_stated_one_and_a_clash_is_ref
     ({"tasks": ["../drawer"], "larger_frame": {"metaworld/drawer-open": "../drawer2"}},
      "gives ../drawer2 for metaworld/drawer-open, but that study ran metaworld/drawer-open, not "
      "metaworld/drawer-open@SIZE"),
+    ({"tasks": ["../drawer"], "more_demo": {"metaworld/drawer-open": "../drawer2"}},
+     "unknown key(s) 'more_demo'; across.json takes demos, difficulty, larger_frame, more_demos, tasks, why"),
     ({"tasks": ["../drawer"], "larger_frame": {"metaworld/door-open": "../drawer2"}},
      "'larger_frame' names metaworld/door-open, which none of its 'tasks' folders is on"),
 ])
@@ -202,6 +204,28 @@ def test_a_setting_whose_size_moves_with_the_task_is_one_row_with_its_range(tmp_
     assert dp_rows == ["| Diffusion Policy, 1/4 width (5.34-5.37 M by task) DDIM10 | 100.0% [92.9, 100.0], 1 training "
                        "seed; not timed | 12.0% [5.6, 23.8], 1 training seed; not timed |"], dp_rows
     assert "| BCT, 1/4 width (1.12 M) | 20.0% [11.2, 33.0], 1 training seed; not timed | 20.0%" in md
+
+
+def test_what_every_learned_row_shares_is_said_once_under_the_table(tmp_path):
+    """The first table has to end in a laptop's first screen as tasks fill in: a part of the label every learned
+    row shares ("10 demos") is said once under it, a part some rows lack stays in theirs, a comma inside a size's
+    parentheses does not split it, and the baseline keeps its name."""
+    d = "metaworld/drawer-open"
+    labels = {"cnn_mlp": "CNN-MLP, 10 demos", "resnet50": "ResNet-50 CNN, 10 demos, 1/8 width (0.48 M, random init)",
+              "bct": "BCT, 10 demos, horizons 4 / 3"}
+    runs = {f"{k}@default": _eval(k, label, d, "easy", 10) for k, label in labels.items()}
+    runs["rnd@default"] = {**_eval("random", "random", d, "easy", 0), "policy": {"name": "random", "parameters": 0}}
+    _study(tmp_path / "drawer", d, "easy", runs)
+    out = tmp_path / "across"
+    write_json(out / "across.json", {"tasks": ["../drawer"]})
+    md = Path(write_across_report(out)["markdown"]).read_text()
+    names = [line.split(" | ")[0][2:] for line in md.splitlines() if line.startswith("| ") and "%" in line]
+    assert names == ["random", "CNN-MLP", "ResNet-50 CNN, 1/8 width (0.48 M, random init)", "BCT, horizons 4 / 3",
+                     "3D Diffusion Policy's image DP, 10 demos (its difficulty group's mean; published)"], names
+    assert ("training seeds; latency at batch 1 in the fastest exact mode timed (median; 'not timed' where the study "
+            "timed nothing). Every learned setting: 10 demos.") in md
+    page = (out / "report" / "report.html").read_text()
+    assert page.index("<div class='grid'><table>") < page.index("Every learned setting: 10 demos.")
 
 
 def test_a_task_under_the_goal_reads_its_twice_the_steps_check_and_a_stage_with_more_demonstrations(tmp_path):

@@ -24,12 +24,22 @@ from __future__ import annotations
 
 import html
 import os
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from bcbench.analysis.accuracy_latency import figure5
+from bcbench.analysis.across_cells import (
+    ORDER,
+    baseline,
+    common_parts,
+    latency_cell,
+    setting_key,
+    setting_name,
+    success,
+    success_cell,
+    without,
+)
 from bcbench.analysis.compute import cost_table
 from bcbench.analysis.figures import figure3
 from bcbench.analysis.findings import DEFAULT_MARGIN, Finding, judge, points_from_rows
@@ -37,15 +47,14 @@ from bcbench.analysis.results import Row, file_commits, load_rows
 from bcbench.analysis.seeds import merge_training_seeds
 from bcbench.analysis.studies import ACROSS_FILE, study_spec
 from bcbench.analysis.tables import html_image, html_table, md_table
-from bcbench.analysis.whynot import stage_folders, why_not_lines
+from bcbench.analysis.whynot import STAGE_KINDS, stage_folders, why_not_lines
 from bcbench.errors import BCBenchError
 from bcbench.protocol import held_out_episodes
 from bcbench.reference import IMAGE_DP_3DDP
-from bcbench.stats import wilson
 from bcbench.utils.io import atomic_path, read_json
 
 GOAL = 0.80  # issue 75: the best policy on every task at >= 80% success over 3 training seeds
-ORDER = ["random", "scripted", "cnn_mlp", "resnet50", "bet", "bct", "diffusion", "flow"]
+KEYS = {"tasks", "demos", "difficulty", "why", *STAGE_KINDS}  # what across.json may hold
 
 
 @dataclass
@@ -72,6 +81,10 @@ def read_across(results: Path) -> tuple[dict[str, Any], list[TaskColumn]]:
     names = spec.get("tasks") if isinstance(spec, dict) else None
     if not isinstance(names, list) or len(names) < 1 or not all(isinstance(n, str) and n for n in names):
         raise BCBenchError(f"{f}: 'tasks' must list the study folders it reads, one per task (paths relative to it)")
+    unknown = sorted(set(spec) - KEYS)
+    if unknown:  # a misspelt key ("more_demo") would otherwise leave its stages out of the report without a word
+        raise BCBenchError(f"{f}: unknown key(s) {', '.join(map(repr, unknown))}; across.json takes "
+                           f"{', '.join(sorted(KEYS))}")
     if "demos" in spec and not (isinstance(spec["demos"], str) and spec["demos"]):
         raise BCBenchError(f"{f}: 'demos' names the folder of the demonstration records (a path relative to it)")
     stated = spec.get("difficulty", {})
@@ -104,72 +117,27 @@ def _column(folder: Path, f: Path, stated: dict[str, str]) -> TaskColumn:
                       judge(points_from_rows(settings), margin), sorted(file_commits(folder)))
 
 
-_SIZE = re.compile(r"\((\d+\.\d+) M")  # the parameter count a sized label carries: "1/4 width (5.34 M"
-
-
-def _key(r: Row) -> tuple[str, str]:
-    """A setting is the same across tasks by its study label and variant, its size left out: the size moves with the
-    task's shapes (pick-place's goal in the proprioception makes DP's network 5.37 M where drawer-open's is 5.34 M)."""
-    return (_SIZE.sub("(", r.run_label or r.label), r.variant)
-
-
-def _setting(rows: list[Row]) -> str:
-    """A row's name: the setting as its first task names it, or, where its size differs between tasks, with the
-    range: "..., 1/4 width (5.34-5.37 M by task)"."""
-    sizes = sorted({m.group(1) for r in rows if (m := _SIZE.search(r.setting))}, key=float)
-    name = rows[0].setting
-    return name if len(sizes) < 2 else _SIZE.sub(f"({sizes[0]}-{sizes[-1]} M by task", name, count=1)
-
-
-def success(r: Row) -> tuple[float, float, float, str]:
-    """A setting's success rate, its 95% interval and how it was formed. On a task scored by success (MetaWorld) the
-    mean score is the success rate: Wilson over the episodes for one run, the report's interval over training seeds
-    (t, widened to the episodes' where the seeds agree: bcbench.stats.over_training_seeds) for several. On Push-T
-    (scored by coverage) the success share is read instead, pooled over the seeds' episodes with Wilson's interval
-    (the pooled interval ignores the training seeds' spread: said so)."""
-    n = int(r.summary.get("n") or len(r.scores))
-    if r.seed_scores and r.task != "pusht":
-        v, (lo, hi) = r.summary["mean_score"]["value"], r.summary["mean_score"]["ci95"]
-        return v, max(lo, 0.0), min(hi, 1.0), f"{len(r.seed_scores)} training seeds"
-    v = float(r.summary.get("success_rate", r.summary["mean_score"])["value"])
-    lo, hi = wilson(round(v * n), n)
-    how = ("no training" if r.train_seed is None and not r.seed_scores else
-           f"{len(r.seed_scores)} training seeds, episodes pooled" if r.seed_scores else "1 training seed")
-    return v, lo, hi, how
-
-
-def success_cell(r: Row) -> str:
-    """'92.0% [81.2, 96.8], 1 training seed' or '85.3% [78.0, 92.6], 3 training seeds'."""
-    v, lo, hi, how = success(r)
-    return f"{100 * v:.1f}% [{100 * lo:.1f}, {100 * hi:.1f}], {how}"
-
-
-def latency_cell(r: Row) -> str:
-    fast = r.deployed_ms()
-    if fast:
-        return f"{fast[1]:.1f} ms ({fast[0]})"
-    ref = r.latency_ms("reference")
-    return "not timed" if ref is None else f"{ref:.1f} ms (reference)"
-
-
-def table(columns: list[TaskColumn]) -> tuple[list[str], list[list[str]]]:
-    """policy setting x task: success [interval], training seeds; latency at batch 1 (fastest exact mode timed)."""
+def table(columns: list[TaskColumn]) -> tuple[list[str], list[list[str]], list[str]]:
+    """policy setting x task: success [interval], training seeds; latency at batch 1 (fastest exact mode timed); and
+    the parts of a name every learned row shares, left out of its rows (`common_parts`)."""
     by_key: dict[tuple[str, str], dict[str, Row]] = {}
     first: dict[tuple[str, str], Row] = {}
     for c in columns:
         for r in c.settings:
-            by_key.setdefault(_key(r), {})[c.task] = r
-            first.setdefault(_key(r), r)
+            by_key.setdefault(setting_key(r), {})[c.task] = r
+            first.setdefault(setting_key(r), r)
     order = sorted(by_key, key=lambda k: (ORDER.index(first[k].policy) if first[k].policy in ORDER else 99, k))
     header = ["policy", *(f"{c.task} ({c.difficulty or '-'})" for c in columns)]
-    rows = [[_setting(list(by_key[k].values())),
+    labels = {k: setting_name(list(by_key[k].values())) for k in order}  # (label, variant suffix)
+    shared = common_parts([labels[k][0] for k in order if not baseline(first[k])])
+    rows = [[without(labels[k][0], shared) + labels[k][1],
              *(f"{success_cell(by_key[k][c.task])}; {latency_cell(by_key[k][c.task])}" if c.task in by_key[k] else "-"
                for c in columns)] for k in order]
     ref = [IMAGE_DP_3DDP.get(c.difficulty or "") for c in columns]
     if any(v is not None for v in ref):
         rows.append(["3D Diffusion Policy's image DP, 10 demos (its difficulty group's mean; published)",
                      *("-" if v is None else f"{100 * v:.1f}%" for v in ref)])
-    return header, rows
+    return header, rows, shared
 
 
 def findings_table(columns: list[TaskColumn]) -> tuple[list[str], list[list[str]]]:
@@ -291,7 +259,7 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
     spec, columns = read_across(results)
     out = results / "report"
     out.mkdir(parents=True, exist_ok=True)
-    head, rows = table(columns)
+    head, rows, shared = table(columns)
     fhead, frows = findings_table(columns)
     top = lead(spec, columns, results.name)
     records = demo_records(results, spec, columns)
@@ -314,11 +282,12 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
                  "not split. Times from different machines do not compare.")
     notes = [f"{c.task}: {c.folder.name}, result files at commit(s) {', '.join(x[:7] for x in c.commits)}"
              for c in columns]
-    md = ["# bcbench report across tasks", "", top, "", "## Success and latency per task", "",
-          "Each cell: success [95% interval] (Wilson over the episodes for one training seed; for several, the "
-          "findings' interval over training seeds, t widened to the episodes' where the seeds agree), training seeds; "
-          "latency at batch 1 in the fastest exact mode timed (median; 'not timed' where the study timed nothing).",
-          "", md_table(head, rows), "",
+    cells = ("Each cell: success [95% interval] (Wilson over the episodes for one training seed; for several, the "
+             "findings' interval over training seeds, t widened to the episodes' where the seeds agree), training "
+             "seeds; latency at batch 1 in the fastest exact mode timed (median; 'not timed' where the study timed "
+             "nothing)." + (f" Every learned setting: {', '.join(shared)}." if shared else ""))
+    md = ["# bcbench report across tasks", "", top, "", "## Success and latency per task", "", md_table(head, rows),
+          "", cells, "",
           "## Against the goals", "", *goals, "", *([why_head, "", *whys, ""] if whys else []),
           "## The study's findings per task", "",
           "Each task's verdicts under the rules of its own report (paired over its episodes; '-' where a task has "
@@ -333,9 +302,13 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
     html_path = out / "report.html"
     css = ("body{font-family:system-ui,sans-serif;max-width:1400px;margin:0 auto 2em;padding:0 1em;color:#222}"
            "table{border-collapse:collapse;font-size:12px}td,th{border:1px solid #ccc;padding:3px 6px;text-align:left}"
-           "th{background:#f3f3f3}")
+           "th{background:#f3f3f3}"
+           # the first table grows with every task and setting and has to end in a laptop's first screen (scripts/
+           # check_report.py): 11 px and tighter cells keep a table with all 5 tasks' cells filled 120 px above it
+           ".grid table{font-size:11px}.grid td,.grid th{padding:2px 4px}.note{font-size:13px;color:#444}")
     body = (f"<h1>bcbench report across tasks</h1><p>{html.escape(top)}</p><h2>Success and latency per task</h2>"
-            f"{html_table(head, rows)}<h2>Against the goals</h2><ul>"
+            f"<div class='grid'>{html_table(head, rows)}</div><p class='note'>{html.escape(cells)}</p>"
+            "<h2>Against the goals</h2><ul>"
             + "".join(f"<li>{html.escape(x[2:].replace('**', ''))}</li>" for x in goals) + "</ul>"
             + ((f"<p>{html.escape(why_head)}</p><ul>"
                 + "".join(f"<li>{html.escape(x[2:].replace('**', ''))}</li>" for x in whys) + "</ul>") if whys else "")
