@@ -268,9 +268,12 @@ def test_a_task_under_the_goal_reads_its_twice_the_steps_check_and_a_stage_with_
                                                             "overrides": {"pred_horizon": 16}})
     line = next(x for x in Path(write_across_report(out)["markdown"]).read_text().splitlines()
                 if x.startswith("- **metaworld/pick-place**: twice"))
-    assert line.endswith("demonstration count: pick50 has no evaluation paired with this study's check bases yet.")
+    assert line.endswith("demonstration count: pick50's 1 evaluation pairs with none of this study's check bases (the "
+                         "same policy, setting and training seed, differing in its demonstration count alone): nothing "
+                         "to read."), line
     (more / "runs" / "dp50@ddim10" / "eval-ddim10.json").unlink()
-    assert "pick50 has no evaluation paired" in Path(write_across_report(out)["markdown"]).read_text()
+    assert ("demonstration count: pick50 has no evaluation paired with this study's check bases yet."
+            in Path(write_across_report(out)["markdown"]).read_text())
 
 
 def test_a_stage_in_larger_frames_pairs_with_the_check_base_where_the_frame_is_its_one_difference(tmp_path):
@@ -300,7 +303,8 @@ def test_a_stage_in_larger_frames_pairs_with_the_check_base_where_the_frame_is_i
                  {"data_split": {"demos": 10, "split_seed": 1}}):
         write_json(big / "runs" / "dp128@ddim10" / "run.json", {**frame, **more})
         md = Path(write_across_report(out)["markdown"]).read_text()
-        assert "frame size: pick128 has no evaluation paired with this study's check bases yet." in md, more
+        assert ("frame size: pick128's 1 evaluation pairs with none of this study's check bases (the same policy, "
+                "setting and training seed, differing in its frame size alone): nothing to read.") in md, more
 
 
 def test_the_compute_each_study_recorded_is_summed_with_its_machines(tmp_path):

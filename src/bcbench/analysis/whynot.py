@@ -117,7 +117,8 @@ def stage_readings(task_folder: Path, checks: list[Row], stage: Path, kind: str)
     """Each evaluation of the stage paired with the confirm run's check base of the same policy, sampler setting and
     training seed, trained with the same recipe and settings but for what the stage changed (`kind`: its
     demonstration count, or its frame size): both success rates on the shared validation episodes and the paired
-    difference (stage minus base). A stage with no evaluation yet reads none."""
+    difference (stage minus base). A stage with no evaluation yet reads none; one whose evaluations pair with no base
+    (they differ from it in more than the stage's change, or no base has their policy, setting and seed) says so."""
     bases = _check_bases(task_folder, checks)
     try:
         rows = load_rows(stage)
@@ -129,6 +130,11 @@ def stage_readings(task_folder: Path, checks: list[Row], stage: Path, kind: str)
         differs = None if b is None else _one_difference(r, b, kind)
         if differs is not None:
             out.append(_paired_line(r, b, stage.name, *differs))
+    if rows and not out:
+        n = f"{len(rows)} evaluation{'s' if len(rows) > 1 else ''}"
+        out.append(f"{stage.name}'s {n} pair{'' if len(rows) > 1 else 's'} with none of this study's check bases (the "
+                   f"same policy, setting and training seed, differing in its {STAGE_KINDS[kind][0]} alone): nothing "
+                   "to read")
     return out
 
 
