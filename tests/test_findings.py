@@ -364,3 +364,19 @@ def test_finding_1_says_what_it_reads_without_the_faster_settings_of_one_trainin
     assert both.verdict == "inconclusive"  # the single run's level against seed 1's 0.78 widens the interval
     assert "without the 1 faster settings of one training seed (held fixed), the comparison would read supported" in (
         both.evidence)
+
+
+def test_a_learning_curve_reads_its_rollout_and_validation_lines_only(tmp_path):
+    """load_curve skips the training-loss lines before parsing them (a report reads ~150 runs' logs); the rollout and
+    validation lines it keeps are read as before, and a torn last line is still ignored."""
+    import json
+
+    from bcbench.analysis.curves import load_curve
+
+    lines = [{"step": s, "samples": 64 * s, "loss": 0.5} for s in range(1, 5)]
+    lines.insert(2, {"step": 2, "samples": 128, "eval_score": {"value": 0.25, "ci95": [0.1, 0.4]}})
+    lines.append({"step": 4, "samples": 256, "val_loss": 0.125})
+    (tmp_path / "metrics.jsonl").write_text("\n".join(map(json.dumps, lines)) + '\n{"step": 5, "val_loss": 0.')
+    c = load_curve(tmp_path)
+    assert (c.samples, c.steps, c.score, c.lo, c.hi) == ([128], [2], [0.25], [0.1], [0.4])
+    assert (c.val_samples, c.val_loss) == ([256], [0.125])

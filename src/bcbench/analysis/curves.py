@@ -43,7 +43,10 @@ def load_curve(run_dir: str | Path) -> Curve:
     metrics = Path(run_dir) / "metrics.jsonl"
     if not metrics.exists():
         return c
-    for m in read_jsonl(metrics):
+    # a long run logs its training loss every few steps (tens of thousands of lines); only the rollout and validation
+    # lines feed the curve, so the others are skipped before parsing (a report reads ~150 runs' logs)
+    wanted = ('"eval_score"', '"val_loss"')
+    for m in read_jsonl(metrics, keep=lambda line: any(w in line for w in wanted)):
         samples = int(m.get("samples", 0))
         if "eval_score" in m:
             c.samples.append(samples)

@@ -8,7 +8,7 @@ import json
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -85,13 +85,16 @@ def append_jsonl(path: str | Path, record: dict[str, Any]) -> None:
         os.fsync(f.fileno())
 
 
-def read_jsonl(path: str | Path) -> list[dict[str, Any]]:
-    """Read every complete line of a JSON Lines file (a torn last line is ignored)."""
+def read_jsonl(path: str | Path, keep: Callable[[str], bool] | None = None) -> list[dict[str, Any]]:
+    """Read every complete line of a JSON Lines file (a torn last line is ignored); with `keep`, only the lines
+    whose text it accepts are parsed."""
     out = []
     path = Path(path)
     if not path.exists():
         return out
     for line in path.read_text().splitlines():
+        if keep is not None and not keep(line):
+            continue
         try:
             out.append(json.loads(line))
         except json.JSONDecodeError:
