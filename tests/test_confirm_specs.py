@@ -20,6 +20,7 @@ def _blocks():
 
 # an epoch of 200 demonstrations per task (scripts/metaworld_confirm_runs.py says how it is counted)
 EPOCHS = [("peg", 291), ("drawer", 229), ("door", 211), ("pick", 129), ("assembly", 233)]
+CHECKED = {"pick": ("bct",)}  # a twice-the-steps check beyond DP's and flow's (its spec says why)
 
 
 @pytest.mark.parametrize(("name", "epoch"), EPOCHS)
@@ -27,10 +28,22 @@ def test_a_confirm_spec_holds_the_generated_runs(name, epoch):
     from bcbench.study.spec import load_spec
 
     path = ROOT / "studies" / f"metaworld-confirm-{name}.toml"
-    assert path.read_text().rstrip().endswith(_blocks()(epoch, "4/3").rstrip())
-    runs = load_spec(str(path)).runs
-    assert len(runs) == 15 and sum(r.doubles is not None for r in runs) == 2
+    checked = CHECKED.get(name, ())
+    assert path.read_text().rstrip().endswith(_blocks()(epoch, "4/3", checked).rstrip())
+    spec = load_spec(str(path))
+    runs = spec.runs
+    assert len(runs) == 15 + len(checked) and sum(r.doubles is not None for r in runs) == 2 + len(checked)
     assert all(r.overrides.get("pred_horizon") == 4 for r in runs if r.policy != "random")
+    # a check added because of a test score is listed as the protocol's exception
+    assert bool(checked) == bool(spec.test_informed)
+
+
+def test_an_added_check_runs_after_seed_1_and_doubles_seed_0():
+    runs = _blocks()(129, "4/3", ("bct",)).split("\n\n[[run]]")
+    labels = [next(x for x in r.splitlines() if x.startswith("label")) for r in runs]
+    at = labels.index('label = "BCT, 10 demos, horizons 4 / 3, twice the steps"')
+    assert "seeds = [1]" in runs[at - 1] and "BCT" in labels[at - 1] and "seeds = [2]" in runs[at + 1]
+    assert "steps = 7740" in runs[at] and 'doubles = "BCT, 10 demos, horizons 4 / 3"' in runs[at]
 
 
 def test_the_default_horizons_add_no_override():
