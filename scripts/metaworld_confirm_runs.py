@@ -52,13 +52,15 @@ def blocks(epoch: int, horizons: str = "4/3", checked: tuple[str, ...] = ()) -> 
 
 
 if __name__ == "__main__":
-    args, checked = sys.argv[1:], []
+    args, checked, bad = sys.argv[1:], [], False
     while "--check" in args:
         i = args.index("--check")
+        bad = bad or i + 1 == len(args)  # a trailing --check names nothing
         checked += args[i + 1:i + 2]
         args = args[:i] + args[i + 2:]
     others = ("bct", "bet", "resnet50", "cnn_mlp")  # DP's and flow's checks are always there
-    bad = not all(c in others for c in checked) or len(set(checked)) < len(checked)
+    bad = bad or not all(c in others for c in checked) or len(set(checked)) < len(checked)
+    bad = bad or any(a.startswith("-") for a in args)  # --check=bct and other spellings
     if len(args) not in (1, 2) or not args[0].isdigit() or bad:
         print("usage: python scripts/metaworld_confirm_runs.py EPOCH [PRED/ACT] [--check bct|bet|resnet50|cnn_mlp]",
               file=sys.stderr)

@@ -48,3 +48,17 @@ def test_an_added_check_runs_after_seed_1_and_doubles_seed_0():
 
 def test_the_default_horizons_add_no_override():
     assert "pred_horizon" not in _blocks()(229, "16/8")
+
+
+BAD_CHECKS = [["129", "4/3", "--check"], ["129", "--check=bct"], ["129", "--check", "bct", "--check", "bct"],
+              ["129", "--check", "flow"]]  # nothing named, another spelling, twice, one always checked
+
+
+@pytest.mark.parametrize("args", BAD_CHECKS)
+def test_a_bad_check_is_the_usage_line(args):
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "metaworld_confirm_runs.py"), *args],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and proc.stdout == "" and proc.stderr.startswith("usage:"), proc

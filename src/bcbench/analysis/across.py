@@ -129,8 +129,12 @@ def table(columns: list[TaskColumn]) -> tuple[list[str], list[list[str]], list[s
     order = sorted(by_key, key=lambda k: (ORDER.index(first[k].policy) if first[k].policy in ORDER else 99, k))
     header = ["policy", *(f"{c.task} ({c.difficulty or '-'})" for c in columns)]
     labels = {k: setting_name(list(by_key[k].values())) for k in order}  # (label, variant suffix)
-    shared = common_parts([labels[k][0] for k in order if not baseline(first[k])])
-    rows = [[without(labels[k][0], shared) + labels[k][1],
+    learned = [k for k in order if not baseline(first[k])]
+    shared = common_parts([labels[k][0] for k in learned])
+    names = {k: (without(labels[k][0], shared) if k in learned else labels[k][0]) + labels[k][1] for k in order}
+    if len(set(names.values())) < len(names):  # two settings would read alike (their parts in another order): keep all
+        shared, names = [], {k: "".join(labels[k]) for k in order}
+    rows = [[names[k],
              *(f"{success_cell(by_key[k][c.task])}; {latency_cell(by_key[k][c.task])}" if c.task in by_key[k] else "-"
                for c in columns)] for k in order]
     ref = [IMAGE_DP_3DDP.get(c.difficulty or "") for c in columns]

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import re
 
+from bcbench.analysis.baseline import UNTRAINED
 from bcbench.analysis.results import Row
 from bcbench.stats import wilson
 
@@ -61,14 +62,15 @@ def latency_cell(r: Row) -> str:
 
 
 def baseline(r: Row) -> bool:
-    return r.train_seed is None and not r.seed_scores
+    """An untrained baseline (random, scripted): its name keeps every part (the note speaks of learned rows)."""
+    return r.policy in UNTRAINED
 
 
 def _parts(label: str) -> list[str]:
     """A label split at its top-level commas: "ResNet-50 CNN, 10 demos, 1/8 width (0.48 M, random init)" has 3."""
     parts, depth, start = [], 0, 0
     for i, ch in enumerate(label):
-        depth += (ch == "(") - (ch == ")")
+        depth = max(0, depth + (ch == "(") - (ch == ")"))  # a stray ")" must not stop later commas splitting
         if ch == "," and depth == 0:
             parts.append(label[start:i].strip())
             start = i + 1
@@ -76,13 +78,13 @@ def _parts(label: str) -> list[str]:
 
 
 def common_parts(labels: list[str]) -> list[str]:
-    """The parts of a setting's label that every learned row shares ("10 demos", "horizons 4 / 3"), said once above
+    """The parts of a setting's label that every learned row shares ("10 demos", "horizons 4 / 3"), said once under
     the table rather than in every row (the table has to fit a laptop's first screen). The policy's own name (the
     first part) always stays; two rows at least."""
     if len(labels) < 2:
         return []
     split = [_parts(x) for x in labels]
-    return [p for p in split[0][1:] if all(p in parts[1:] for parts in split[1:])]
+    return list(dict.fromkeys(p for p in split[0][1:] if all(p in parts[1:] for parts in split[1:])))
 
 
 def without(label: str, shared: list[str]) -> str:

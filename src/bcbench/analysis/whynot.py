@@ -124,13 +124,18 @@ def stage_readings(task_folder: Path, checks: list[Row], stage: Path, kind: str)
         rows = load_rows(stage)
     except BCBenchError:  # nothing evaluated there yet
         return []
-    out = []
+    out, unchecked = [], []
     for r in sorted(rows, key=lambda r: r.key):
         b = bases.get((r.policy, r.variant, r.train_seed))
         differs = None if b is None else _one_difference(r, b, kind)
-        if differs is not None:
+        if b is None:
+            unchecked.append(r)
+        elif differs is not None:
             out.append(_paired_line(r, b, stage.name, *differs))
-    if rows and not out:
+    if rows and not out and len(unchecked) == len(rows):  # the confirm run's check files may still be to come
+        out.append(f"{stage.name} has evaluations, but this study has no check base of the same policy, setting and "
+                   "training seed yet")
+    elif rows and not out:
         n = f"{len(rows)} evaluation{'s' if len(rows) > 1 else ''}"
         out.append(f"{stage.name}'s {n} pair{'' if len(rows) > 1 else 's'} with none of this study's check bases (the "
                    f"same policy, setting and training seed, differing in its {STAGE_KINDS[kind][0]} alone): nothing "
@@ -163,5 +168,5 @@ def why_not_lines(task_folder: Path, task: str, best: Row, stages: dict[str, Pat
             continue
         found = stage_readings(task_folder, checks, stage, kind)
         parts.append(f"{what}: " + ("; ".join(found) if found else
-                                    f"{stage.name} has no evaluation paired with this study's check bases yet"))
+                                    f"{stage.name} has no evaluation yet"))
     return f"- **{task}**: {'; '.join(parts)}."
