@@ -71,3 +71,24 @@ def test_goal_and_reward():
     assert env.coverage() > 0.99
     assert reward_from_coverage(0.95) == 1.0 and reward_from_coverage(0.475) == pytest.approx(0.5)
     assert np.linalg.norm(goal_centroid() - np.array([256, 256])) == pytest.approx(40.71, abs=0.05)
+
+
+def test_the_fast_frame_is_upstreams_frame_pixel_for_pixel():
+    """PushTEnv._get_img reads the surface's RGB bytes instead of upstream's copy-and-transpose: the same pixels at
+    the observation's, a video's and the world's size, on moving scenes; a frame with the action drawn is upstream's."""
+    from gym_pusht.envs.pusht import PushTEnv as Upstream
+
+    env = make_env(video_size=256)
+    env.reset(options={"reset_to_state": dp_initial_state(100000)})
+    rng = np.random.default_rng(0)
+    compared = 0
+    for step in range(30):
+        env.step(rng.uniform(50.0, 460.0, size=2))
+        screen = env._draw()
+        for size in (96, 256, 512):
+            ours, theirs = env._get_img(screen, size, size), Upstream._get_img(env, screen, size, size)
+            assert ours.dtype == theirs.dtype and np.array_equal(ours, theirs), (step, size)
+            compared += 1
+        drawn = env._get_img(screen, 256, 256, render_action=True)  # the marker: upstream's path
+        assert np.array_equal(drawn, Upstream._get_img(env, screen, 256, 256, render_action=True))
+    assert compared == 90 and not np.array_equal(drawn, env._get_img(screen, 256, 256))  # the marker was drawn

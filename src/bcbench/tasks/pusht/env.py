@@ -24,6 +24,8 @@ with warnings.catch_warnings():
     # pygame (imported by gym-pusht) reaches for setuptools' pkg_resources where it is installed, which then warns
     # on every command that it is deprecated; pygame falls back without it, and bcbench uses none of it
     warnings.filterwarnings("ignore", message="pkg_resources is deprecated", category=UserWarning)
+    import cv2
+    import pygame
     from gym_pusht.envs.pusht import PushTEnv as _GymPushTEnv
 
 WORLD_SIZE = 512.0
@@ -46,6 +48,15 @@ class PushTEnv(_GymPushTEnv):
 
     def coverage(self) -> float:
         return float(self._get_coverage())
+
+    def _get_img(self, screen, width, height, render_action=False):  # type: ignore[override]
+        """Upstream's frame, pixel for pixel, without its slowest line: it copies pygame's column-major pixel view
+        into a new array and transposes it (about 2.5 ms of a 4 ms step here); the surface's row-major RGB bytes are
+        that image already. A frame that draws the last action (a video's) goes upstream's way."""
+        if render_action:
+            return super()._get_img(screen, width, height, render_action)
+        rows = np.frombuffer(pygame.image.tobytes(screen, "RGB"), dtype=np.uint8)
+        return cv2.resize(rows.reshape(screen.get_height(), screen.get_width(), 3), (width, height))
 
 
 def dp_initial_state(seed: int) -> np.ndarray:
