@@ -289,8 +289,8 @@ def test_a_task_under_the_goal_reads_its_twice_the_steps_check_and_a_stage_with_
         **dp(35)["policy"], "sampler": "ddpm"}})
     line = next(x for x in Path(write_across_report(out)["markdown"]).read_text().splitlines()
                 if x.startswith("- **metaworld/pick-place**: twice"))
-    assert line.endswith("demonstration count: pick50 has evaluations, but this study has no check base of the same "
-                         "policy, setting and training seed yet."), line
+    assert line.endswith("demonstration count: pick50's 1 evaluation has no check base in this study (a check of the "
+                         "same policy, setting and training seed): nothing to read."), line
 
 
 def test_a_stage_in_larger_frames_pairs_with_the_check_base_where_the_frame_is_its_one_difference(tmp_path):
@@ -346,3 +346,13 @@ def test_the_compute_each_study_recorded_is_summed_with_its_machines(tmp_path):
     assert f"| drawer | 2 | 2.00 | 4 (200) | 0.20 | 1 | {both} |" in md
     assert "| peg | 0 | 0.00 | 3 (150) | 0.00 | 0 | test cpu |" in md
     assert f"| **total** | 2 | 2.00 | 7 (350) | 0.20 | 1 | {both} |" in md
+
+
+def test_a_label_splits_at_its_top_level_commas_and_a_shared_part_is_listed_once():
+    from bcbench.analysis.across_cells import _parts, common_parts
+
+    assert _parts("ResNet-50 CNN, 10 demos, 1/8 width (0.48 M, random init)") == [
+        "ResNet-50 CNN", "10 demos", "1/8 width (0.48 M, random init)"]
+    assert _parts("a), b, c") == ["a)", "b", "c"]  # a stray ")" does not stop later commas splitting
+    assert common_parts(["X, a, a", "Y, a"]) == ["a"]  # listed once
+    assert common_parts(["X, a"]) == [] and common_parts(["X", "Y"]) == []  # one row; nothing but the names

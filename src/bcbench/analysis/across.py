@@ -132,8 +132,9 @@ def table(columns: list[TaskColumn]) -> tuple[list[str], list[list[str]], list[s
     learned = [k for k in order if not baseline(first[k])]
     shared = common_parts([labels[k][0] for k in learned])
     names = {k: (without(labels[k][0], shared) if k in learned else labels[k][0]) + labels[k][1] for k in order}
-    if len(set(names.values())) < len(names):  # two settings would read alike (their parts in another order): keep all
-        shared, names = [], {k: "".join(labels[k]) for k in order}
+    full = {k: "".join(labels[k]) for k in order}
+    if len(set(names.values())) < len(names) == len(set(full.values())):  # dropping the shared parts made two
+        shared, names = [], full  # settings read alike (their parts in another order): keep every part
     rows = [[names[k],
              *(f"{success_cell(by_key[k][c.task])}; {latency_cell(by_key[k][c.task])}" if c.task in by_key[k] else "-"
                for c in columns)] for k in order]
@@ -164,7 +165,7 @@ def trained_on(r: Row, kept: int | None) -> int | None:
 
 def learned_settings(c: TaskColumn) -> list[Row]:
     """The task's trained settings (one training seed or several), not the baselines."""
-    return [r for r in c.settings if r.train_seed is not None or r.seed_scores]
+    return [r for r in c.settings if not baseline(r)]
 
 
 def best_setting(c: TaskColumn) -> Row | None:

@@ -132,9 +132,10 @@ def stage_readings(task_folder: Path, checks: list[Row], stage: Path, kind: str)
             unchecked.append(r)
         elif differs is not None:
             out.append(_paired_line(r, b, stage.name, *differs))
-    if rows and not out and len(unchecked) == len(rows):  # the confirm run's check files may still be to come
-        out.append(f"{stage.name} has evaluations, but this study has no check base of the same policy, setting and "
-                   "training seed yet")
+    if rows and not out and len(unchecked) == len(rows):  # its checks may be still to come, or never be run
+        n = f"{len(rows)} evaluation{'s' if len(rows) > 1 else ''}"
+        out.append(f"{stage.name}'s {n} ha{'ve' if len(rows) > 1 else 's'} no check base in this study (a check of "
+                   "the same policy, setting and training seed): nothing to read")
     elif rows and not out:
         n = f"{len(rows)} evaluation{'s' if len(rows) > 1 else ''}"
         out.append(f"{stage.name}'s {n} pair{'' if len(rows) > 1 else 's'} with none of this study's check bases (the "
