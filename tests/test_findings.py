@@ -374,9 +374,10 @@ def test_a_learning_curve_reads_its_rollout_and_validation_lines_only(tmp_path):
     from bcbench.analysis.curves import load_curve
 
     lines = [{"step": s, "samples": 64 * s, "loss": 0.5} for s in range(1, 5)]
-    lines.insert(2, {"step": 2, "samples": 128, "eval_score": {"value": 0.25, "ci95": [0.1, 0.4]}})
+    lines.insert(2, {"step": 2, "samples": 128, "eval_score": {"value": 0.25, "ci95": [0.1, 0.4]}, "eval_wall_s": 1.5})
     lines.append({"step": 4, "samples": 256, "val_loss": 0.125})
     (tmp_path / "metrics.jsonl").write_text("\n".join(map(json.dumps, lines)) + '\n{"step": 5, "val_loss": 0.')
     c = load_curve(tmp_path)
     assert (c.samples, c.steps, c.score, c.lo, c.hi) == ([128], [2], [0.25], [0.1], [0.4])
     assert (c.val_samples, c.val_loss) == ([256], [0.125])
+    assert c.rollout_s == 1.5  # the study's time counts the rollouts from here

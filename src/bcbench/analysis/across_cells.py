@@ -42,7 +42,7 @@ def success(r: Row) -> tuple[float, float, float, str]:
         return v, max(lo, 0.0), min(hi, 1.0), f"{len(r.seed_scores)} training seeds"
     v = float(r.summary.get("success_rate", r.summary["mean_score"])["value"])
     lo, hi = wilson(round(v * n), n)
-    how = ("no training" if r.train_seed is None and not r.seed_scores else
+    how = ("no training" if baseline(r) else
            f"{len(r.seed_scores)} training seeds, episodes pooled" if r.seed_scores else "1 training seed")
     return v, lo, hi, how
 

@@ -36,6 +36,7 @@ class Curve:
     hi: list[float] = field(default_factory=list)
     val_samples: list[int] = field(default_factory=list)
     val_loss: list[float] = field(default_factory=list)
+    rollout_s: float = 0.0  # the rollouts' wall time (eval_wall_s), summed: the study's time counts it apart
 
 
 def load_curve(run_dir: str | Path) -> Curve:
@@ -45,9 +46,10 @@ def load_curve(run_dir: str | Path) -> Curve:
         return c
     # a long run logs its training loss every few steps (tens of thousands of lines); only the rollout and validation
     # lines feed the curve, so the others are skipped before parsing (a report reads ~150 runs' logs)
-    wanted = ('"eval_score"', '"val_loss"')
+    wanted = ('"eval_score"', '"val_loss"', '"eval_wall_s"')
     for m in read_jsonl(metrics, keep=lambda line: any(w in line for w in wanted)):
         samples = int(m.get("samples", 0))
+        c.rollout_s += float(m.get("eval_wall_s", 0.0))
         if "eval_score" in m:
             c.samples.append(samples)
             c.steps.append(int(m["step"]))

@@ -295,10 +295,7 @@ def _add_stage(out: dict[str, float], kinds: dict[str, str], results: Path, rec:
     elif rec["stage"] == "train":
         run = (results / rec["file"]).parent
         out["training"] += float(read_json(run / "train_summary.json").get("train_time_s", 0.0))
-        metrics = run / "metrics.jsonl"
-        if metrics.exists():
-            out["curve rollouts"] += sum(float(m.get("eval_wall_s", 0.0))
-                                         for m in read_jsonl(metrics, keep=lambda line: '"eval_wall_s"' in line))
+        out["curve rollouts"] += load_curve(run).rollout_s
 
 
 def cpu_text(h: dict[str, Any]) -> str:

@@ -124,23 +124,19 @@ def stage_readings(task_folder: Path, checks: list[Row], stage: Path, kind: str)
         rows = load_rows(stage)
     except BCBenchError:  # nothing evaluated there yet
         return []
-    out, unchecked = [], []
+    out, based = [], 0  # `based`: the rows with a check base of their policy, setting and seed
     for r in sorted(rows, key=lambda r: r.key):
         b = bases.get((r.policy, r.variant, r.train_seed))
-        differs = None if b is None else _one_difference(r, b, kind)
-        if b is None:
-            unchecked.append(r)
-        elif differs is not None:
+        based += b is not None
+        if b is not None and (differs := _one_difference(r, b, kind)) is not None:
             out.append(_paired_line(r, b, stage.name, *differs))
-    if rows and not out and len(unchecked) == len(rows):  # its checks may be still to come, or never be run
-        n = f"{len(rows)} evaluation{'s' if len(rows) > 1 else ''}"
-        out.append(f"{stage.name}'s {n} ha{'ve' if len(rows) > 1 else 's'} no check base in this study (a check of "
-                   "the same policy, setting and training seed): nothing to read")
-    elif rows and not out:
-        n = f"{len(rows)} evaluation{'s' if len(rows) > 1 else ''}"
-        out.append(f"{stage.name}'s {n} pair{'' if len(rows) > 1 else 's'} with none of this study's check bases (the "
-                   f"same policy, setting and training seed, differing in its {STAGE_KINDS[kind][0]} alone): nothing "
-                   "to read")
+    if rows and not out:
+        many = len(rows) > 1
+        out.append(f"{stage.name}'s {len(rows)} evaluation{'s' if many else ''} " + (
+            f"pair{'' if many else 's'} with none of this study's check bases (the same policy, setting and training "
+            f"seed, differing in its {STAGE_KINDS[kind][0]} alone)" if based else  # checks may come, or never run
+            f"ha{'ve' if many else 's'} no check base in this study (a check of the same policy, setting and "
+            "training seed)") + ": nothing to read")
     return out
 
 
