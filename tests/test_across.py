@@ -348,6 +348,30 @@ def test_the_compute_each_study_recorded_is_summed_with_its_machines(tmp_path):
     assert f"| **total** | 2 | 2.00 | 7 (350) | 0.20 | 1 | {both} |" in md
 
 
+def test_when_each_tasks_latencies_were_timed_is_said_sitting_by_sitting(tmp_path):
+    """A latency compares with one of the same sitting: the note under the table says when each task's timings ran,
+    split where no timing ran for 30 min (a stage's start is its end less its seconds)."""
+    out = _two_tasks(tmp_path)
+    md = Path(write_across_report(out)["markdown"]).read_text()
+    assert "Timed (UTC" not in md  # nothing timed: nothing said
+
+    def stage(end: str, seconds: float, kind: str = "latency") -> str:
+        return json.dumps({"stage": kind, "file": "runs/x/latency-default.json", "seconds": seconds,
+                           "finished": end}) + "\n"
+
+    (tmp_path / "drawer" / "index.jsonl").write_text(
+        stage("2026-12-06T17:33:00+00:00", 60) + stage("2026-12-06T17:36:00+00:00", 30)
+        + stage("2026-12-06T18:10:00+00:00", 120, "eval")  # not a timing: no sitting of its own
+        + stage("2026-12-07T00:04:00+00:00", 30) + stage("2026-12-07T00:40:00+00:00", 7 * 60))
+    (tmp_path / "peg" / "index.jsonl").write_text(stage("2026-12-06T23:59:30+00:00", 60)
+                                                  + stage("2026-12-07T00:01:00+00:00", 20))
+    md = Path(write_across_report(out)["markdown"]).read_text()
+    # 00:04 and 00:40 are 29 min apart once the second's 7 min are counted: one sitting; a sitting over midnight
+    assert ("Timed (UTC; a sitting ends where no timing ran for 30 min): metaworld/drawer-open 2 sittings, "
+            "2026-12-06 17:32-17:36, 2026-12-07 00:03-00:40; metaworld/peg-insert-side 2026-12-06 23:58-"
+            "2026-12-07 00:01. A latency compares with one of the same sitting") in md
+
+
 def test_a_label_splits_at_its_top_level_commas_and_a_shared_part_is_listed_once():
     from bcbench.analysis.across_cells import _parts, common_parts
 

@@ -12,7 +12,8 @@ or a combined report's, each on one task) side by side:
 
 Each folder keeps its own report (Figure 5, Figure 3, learning curves, its findings in full); this one holds what
 only a side-by-side reading shows: per task the success of every policy setting with its interval and training-seed
-count and its latency at batch 1 in the fastest exact mode timed; the findings' verdicts per task (their rules
+count and its latency at batch 1 in the fastest exact mode timed (and when each task's timings ran, sitting by
+sitting: analysis.compute); the findings' verdicts per task (their rules
 unchanged: `bcbench.analysis.findings`); per task whether the best setting reaches the issue's 80% and where image
 Diffusion Policy stands against 3D Diffusion Policy's image-DP number for the task's difficulty group, and for a task
 under 80% what its files say of why (its twice-the-steps check; a stage with more demonstrations; one with larger
@@ -40,7 +41,7 @@ from bcbench.analysis.across_cells import (
     success_cell,
     without,
 )
-from bcbench.analysis.compute import cost_table
+from bcbench.analysis.compute import cost_table, sittings_text
 from bcbench.analysis.figures import figure3
 from bcbench.analysis.findings import DEFAULT_MARGIN, Finding, judge, points_from_rows
 from bcbench.analysis.results import Row, file_commits, load_rows
@@ -291,6 +292,8 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
              "findings' interval over training seeds, t widened to the episodes' where the seeds agree), training "
              "seeds; latency at batch 1 in the fastest exact mode timed (median; 'not timed' where the study timed "
              "nothing)." + (f" Every learned setting: {', '.join(shared)}." if shared else ""))
+    timed = sittings_text([(c.task, c.folder) for c in columns])
+    cells += f" {timed}" if timed else ""
     md = ["# bcbench report across tasks", "", top, "", "## Success and latency per task", "", md_table(head, rows),
           "", cells, "",
           "## Against the goals", "", *goals, "", *([why_head, "", *whys, ""] if whys else []),

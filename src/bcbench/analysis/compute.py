@@ -4,17 +4,22 @@ Issue 75's closing note asks for "the total compute and the machines". The hours
 report's (`bcbench.analysis.results.study_time`, `study_machines`): a training's `train_time_s` (its optimiser steps,
 every session it ran in; curve rollouts and pauses excluded: a floor on its wall time), an evaluation stage's recorded
 seconds (test and validation), every CPU a record names (each session of a resumed training). A run trained on several
-machines lists them all; its time is not split between them. The counts are of the files. Reads result files only.
+machines lists them all; its time is not split between them. The counts are of the files. When a folder's timings ran
+(`timing_sittings`) is read from its index: a latency compares with another of the same sitting, not across sittings
+on a machine whose speed drifts. Reads result files only.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from datetime import datetime, timedelta
 from pathlib import Path
 
 from bcbench.analysis.results import study_machines, study_time
-from bcbench.analysis.studies import run_files
-from bcbench.utils.io import read_json
+from bcbench.analysis.studies import run_files, study_dirs
+from bcbench.utils.io import read_json, read_jsonl
+
+SITTING_GAP_S = 1800  # timings with no timing between them for this long belong to two sittings
 
 
 @dataclass
@@ -70,3 +75,41 @@ def cost_table(named: list[tuple[str, Path]]) -> tuple[list[str], list[list[str]
 def _row(name: str, c: Cost) -> list[str]:
     return [name, str(c.trainings), f"{c.train_s / 3600:.2f}", f"{c.evaluations} ({c.episodes})",
             f"{c.eval_s / 3600:.2f}", str(c.timings), "; ".join(sorted(c.machines)) or "-"]
+
+
+def timing_sittings(folder: Path) -> list[tuple[datetime, datetime]]:
+    """(start, end) of each sitting in which a study folder's (or a combined report's studies') latency stages ran,
+    from their index lines (a stage's end and its seconds), in time order: stages less than SITTING_GAP_S apart share
+    a sitting. Why: a timing compares with another from the same few minutes; a VM's speed drifts between sittings."""
+    spans = []
+    for d in study_dirs(folder):
+        for i in read_jsonl(d / "index.jsonl"):
+            if i.get("stage") == "latency" and i.get("finished"):
+                end = datetime.fromisoformat(i["finished"])
+                spans.append((end - timedelta(seconds=float(i.get("seconds") or 0.0)), end))
+    out: list[tuple[datetime, datetime]] = []
+    for start, end in sorted(spans):
+        if out and (start - out[-1][1]).total_seconds() < SITTING_GAP_S:
+            out[-1] = (out[-1][0], max(out[-1][1], end))
+        else:
+            out.append((start, end))
+    return out
+
+
+def sittings_text(named: list[tuple[str, Path]]) -> str:
+    """One sentence: when each named folder's latencies were timed (UTC), sitting by sitting; '' where none was."""
+    def span(s: tuple[datetime, datetime]) -> str:
+        a, b = s  # index times are UTC ("+00:00")
+        return f"{a:%Y-%m-%d %H:%M}-{b:%H:%M}" if a.date() == b.date() else f"{a:%Y-%m-%d %H:%M}-{b:%Y-%m-%d %H:%M}"
+
+    parts = []
+    for name, folder in named:
+        sittings = timing_sittings(folder)
+        if sittings:
+            many = f"{len(sittings)} sittings, " if len(sittings) > 1 else ""
+            parts.append(f"{name} {many}{', '.join(span(s) for s in sittings)}")
+    if not parts:
+        return ""
+    return ("Timed (UTC; a sitting ends where no timing ran for "
+            f"{SITTING_GAP_S // 60} min): {'; '.join(parts)}. A latency compares with one of the same sitting: a "
+            "machine's speed drifts between sittings.")
