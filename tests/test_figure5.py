@@ -10,6 +10,7 @@ import matplotlib.pyplot as plt
 import pytest
 
 from bcbench.analysis.accuracy_latency import Panel, figure5, place_labels, zoom_box
+from bcbench.analysis.figures import budgets, row_budgets
 from bcbench.analysis.findings import shared_timing
 
 
@@ -24,6 +25,9 @@ class _Row:
     ms: float
     params: int = 5_330_000
     summary: dict = field(default_factory=dict)
+    control_hz: float = 10.0  # Push-T's rate and horizon unless a test says otherwise
+    action_horizon: int | None = 8
+    train_seed: int | None = 0
 
     @property
     def key(self) -> str:
@@ -96,3 +100,24 @@ def test_configurations_that_share_an_interleaved_timing_are_named(timed):
     assert shared_timing(rows, {"median_ms": timed}) == ["DP cosine", "DP linear"]
     assert shared_timing(rows, {"median_ms": {"euler2": 9.0}}) == []  # one flow configuration: nothing shared
     assert shared_timing(rows, None) == []
+
+
+def test_the_budget_lines_are_the_tasks_rate_and_the_runs_horizons():
+    """Figure 5's dashed lines: one control step at the task's rate and one chunk of each trained run's executed
+    steps. Push-T's 100 and 800 ms are not MetaWorld's (80 Hz, 3 executed: 12.5 and 37.5 ms)."""
+    assert budgets() == ((100.0, "10 Hz, re-plan every step (100 ms)"),
+                         (800.0, "10 Hz, re-plan every 8 steps (800 ms)"))
+    meta = [_Row("DP", "diffusion", "ddim10", 0.13, 60.0, control_hz=80.0, action_horizon=3),
+            _Row("BCT", "bct", "default", 0.24, 8.0, control_hz=80.0, action_horizon=3),
+            # a baseline's configured horizon was never trained to execute: it draws no line
+            _Row("random", "random", "default", 0.0, 0.01, control_hz=80.0, action_horizon=8, train_seed=None)]
+    assert row_budgets(meta) == ((12.5, "80 Hz, re-plan every step (12.5 ms)"),
+                                 (37.5, "80 Hz, re-plan every 3 steps (37.5 ms)"))
+    assert [ms for ms, _ in row_budgets([*meta, _Row("flow", "flow", "euler2", 0.1, 6.0, control_hz=80.0,
+                                                         action_horizon=8)])] == [12.5, 37.5, 100.0]
+    assert row_budgets([meta[2]]) == budgets(80.0, [8])  # baselines only: their horizon
+    assert row_budgets([meta[0], _Row("CNN", "cnn_mlp", "default", 0.5, 4.0)]) == ()  # two rates: no one task's lines
+    fig, ax = plt.subplots()
+    Panel(meta, {r.key: r.ms for r in meta}, "reference", None).draw(ax)
+    assert sorted(line.get_xdata()[0] for line in ax.lines if line.get_linestyle() == "--") == [12.5, 37.5]
+    plt.close(fig)

@@ -35,6 +35,9 @@ def test_timing_statistics_and_verdicts():
     assert v["realtime_chunked"] and not v["realtime_every_step"]
     assert v["max_rate_every_step_hz"] == pytest.approx(1000 / 120)
     assert v["max_rate_chunked_hz"] == pytest.approx(8000 / 120)
+    # the re-plan interval its chunked verdict used is recorded (a figure's budget line reads it): 3 at 80 Hz
+    m = verdicts(30.0, 80.0, action_horizon=3)
+    assert m["action_horizon"] == 3 and m["realtime_chunked"] and not m["realtime_every_step"]
 
 
 def test_latency_record_for_a_trained_style_runner_and_a_baseline():

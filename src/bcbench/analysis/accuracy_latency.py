@@ -14,7 +14,7 @@ from typing import Any
 import matplotlib.pyplot as plt
 
 from bcbench.analysis.fewstep import interleaved_medians
-from bcbench.analysis.figures import COLOURS, MARKERS, budget_lines, colour, nth_of_policy, save_png
+from bcbench.analysis.figures import COLOURS, MARKERS, budget_lines, colour, nth_of_policy, row_budgets, save_png
 from bcbench.analysis.findings import interleaved_key, shared_timing
 from bcbench.reference import STUDY_REFERENCE
 
@@ -64,7 +64,7 @@ class Panel:
                 ax.scatter(deployed[1], r.score, s=0)  # the axis reaches the arrow's tip
         ax.set_xscale("log")
         ax.grid(alpha=0.3, which="both")
-        budget_lines(ax)
+        budget_lines(ax, lines=row_budgets(self.pts))  # the task's rate and the runs' action horizons
         return legend, markers
 
     def label(self, r: Any) -> tuple[float, float, str, str]:

@@ -15,7 +15,29 @@ import matplotlib.pyplot as plt
 from bcbench.analysis.realtime import delay_curve, strategy_of
 from bcbench.utils.io import atomic_path
 
-BUDGETS_MS = ((100.0, "10 Hz, re-plan every step (100 ms)"), (800.0, "10 Hz, re-plan every 8 steps (800 ms)"))
+
+def budgets(rate_hz: float = 10.0, horizons: tuple[int, ...] | list[int] = (8,)) -> tuple[tuple[float, str], ...]:
+    """The real-time budget lines of a task: one control step at its rate (a policy re-planning every step answers
+    within it) and, per action horizon k the figure's runs execute, k steps (re-planning every k steps). Push-T's
+    10 Hz and 8 by default; MetaWorld's 80 Hz and 3 give 12.5 and 37.5 ms."""
+    step = 1e3 / rate_hz
+    out = [(step, f"{rate_hz:g} Hz, re-plan every step ({step:g} ms)")]
+    out += [(k * step, f"{rate_hz:g} Hz, re-plan every {k} steps ({k * step:g} ms)") for k in sorted(set(horizons))
+            if k > 1]
+    return tuple(out)
+
+
+def row_budgets(rows: list[Any]) -> tuple[tuple[float, str], ...]:
+    """The budget lines for a figure of result rows: their task's control rate and their trained runs' action
+    horizons (a baseline's configured horizon is not one it was trained to execute; with no trained run, every
+    row's). Rows of several rates (never one task's) get no lines rather than one task's."""
+    rates = sorted({r.control_hz for r in rows})
+    horizons = ({r.action_horizon for r in rows if r.train_seed is not None and r.action_horizon}
+                or {r.action_horizon for r in rows if r.action_horizon})
+    return budgets(rates[0], sorted(horizons) or [8]) if len(rates) == 1 else ()
+
+
+BUDGETS_MS = budgets()  # Push-T's
 COLOURS = {"cnn_mlp": "tab:blue", "resnet50": "tab:orange", "bet": "tab:purple", "bct": "tab:green",
            "diffusion": "tab:red", "flow": "tab:pink", "random": "tab:gray", "scripted": "tab:brown"}
 
@@ -51,8 +73,8 @@ def save_png(fig: Any, path: Path) -> Path:
     return path
 
 
-def budget_lines(ax: Any, vertical: bool = True) -> None:
-    for ms, label in BUDGETS_MS:
+def budget_lines(ax: Any, vertical: bool = True, lines: tuple[tuple[float, str], ...] = BUDGETS_MS) -> None:
+    for ms, label in lines:
         (ax.axvline if vertical else ax.axhline)(ms, ls="--", lw=1, color="k", alpha=0.5)
         if vertical:
             # at the foot of the line: the points (good scores) crowd the top of these figures
@@ -147,7 +169,8 @@ def figure4(rows: list[Any], path: Path) -> Path | None:
     return save_png(fig, path)
 
 
-def latency_bars(records: list[dict[str, Any]], path: Path, title: str) -> Path | None:
+def latency_bars(records: list[dict[str, Any]], path: Path, title: str,
+                 lines: tuple[tuple[float, str], ...] = BUDGETS_MS) -> Path | None:
     """Horizontal bars of median latency (log x) per row, with the real-time budget lines."""
     if not records:
         return None
@@ -159,7 +182,7 @@ def latency_bars(records: list[dict[str, Any]], path: Path, title: str) -> Path 
     ax.set_yticks(range(len(records)), labels, fontsize=7)
     ax.invert_yaxis()
     ax.set_xscale("log")
-    budget_lines(ax)
+    budget_lines(ax, lines=lines)
     ax.set_xlabel("median latency per call, batch 1 (ms, log scale)")
     ax.set_title(title)
     ax.grid(alpha=0.3, axis="x", which="both")

@@ -83,6 +83,8 @@ class Row:
     seed_scores: list[dict[int, float]] = field(default_factory=list)
     seed_ids: list[int] = field(default_factory=list)
     task: str = "pusht"  # the task its episodes ran (a record from before tasks: Push-T)
+    control_hz: float = 10.0  # its task's control rate (a record from before tasks: Push-T's 10 Hz)
+    action_horizon: int | None = None  # the steps of each chunk it executes, from its config (None: not recorded)
     difficulty: str | None = None  # the task's published difficulty group, where its record names one
     data_split: dict[str, Any] = field(default_factory=dict)  # its run.json's (val_fraction, split_seed, demos)
 
@@ -147,7 +149,9 @@ def _row_from_eval(path: Path, margin: float = 0.05, role: dict[str, Any] | None
               git_commit=ev.get("git_commit"), hardware=ev.get("hardware", {}), source=str(path),
               train_seed=cfg.get("seed") if "run_dir" in pol else None,
               task=(ev.get("eval_config") or {}).get("task") or "pusht",
-              difficulty=(ev.get("task") or {}).get("difficulty"))
+              difficulty=(ev.get("task") or {}).get("difficulty"),
+              control_hz=float((ev.get("task") or {}).get("control_hz") or 10.0),
+              action_horizon=cfg.get("action_horizon"))
     lat = run_dir / f"latency-{vkey}.json"
     if lat.exists():
         record = read_json(lat)

@@ -367,7 +367,7 @@ def _latency_runners(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def cmd_latency(args: argparse.Namespace) -> int:
-    from bcbench.analysis.figures import latency_bars
+    from bcbench.analysis.figures import budgets, latency_bars
     from bcbench.evaluation.benchmark import run_latency_benchmark
     from bcbench.modes import BACKEND_MODES
     from bcbench.policies.outside import parse_kwargs
@@ -380,8 +380,10 @@ def cmd_latency(args: argparse.Namespace) -> int:
                                 task=args.task)
     rec, plot = out["record"], Path(out["json"]).with_name("latency.png")
     hw = rec["hardware"]
+    horizons = sorted({r["action_horizon"] for r in rec["rows"] if r.get("action_horizon")})
     latency_bars([{**r, "label": f"{r['policy']} {r['preset']} {r['variant']} {r['mode']}"} for r in rec["rows"]],
-                 plot, f"Latency per call, batch 1 ({hw.get('gpu') or hw['cpu_model']}, {hw['torch_threads']} threads)")
+                 plot, f"Latency per call, batch 1 ({hw.get('gpu') or hw['cpu_model']}, {hw['torch_threads']} threads)",
+                 budgets(rec["rate_hz"], horizons or [8]))
     print(f"latency results: {out['json']}  table: {out['table']}  plot: {plot}")
     return 0
 

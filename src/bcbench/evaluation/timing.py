@@ -113,6 +113,7 @@ def verdicts(tail_ms: float, rate_hz: float, action_horizon: int = ACTION_HORIZO
     s = tail_ms / 1e3
     return {
         "rate_hz": rate_hz,
+        "action_horizon": action_horizon,  # the chunked verdict's re-plan interval, in steps
         "verdict_statistic": tail_stat,  # "p99" (>= 100 calls) or "max of N"
         "realtime_chunked": s <= action_horizon / rate_hz,  # re-plan every action_horizon steps
         "realtime_every_step": s <= 1.0 / rate_hz,  # re-plan at every control step
