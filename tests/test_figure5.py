@@ -121,3 +121,24 @@ def test_the_budget_lines_are_the_tasks_rate_and_the_runs_horizons():
     Panel(meta, {r.key: r.ms for r in meta}, "reference", None).draw(ax)
     assert sorted(line.get_xdata()[0] for line in ax.lines if line.get_linestyle() == "--") == [12.5, 37.5]
     plt.close(fig)
+
+
+@pytest.mark.parametrize("task, word", [("pusht", "mean score"), ("metaworld/pick-place", "success rate")])
+def test_a_score_axis_names_what_its_task_scores(task, word, monkeypatch, tmp_path):
+    """Push-T's score is a coverage; a MetaWorld task's is success (1/0), so its axes say success rate."""
+    import bcbench.analysis.figures as figures
+
+    @dataclass
+    class _Step(_Row):
+        sampler: str = "ddim"
+        steps: int = 10
+        beta_schedule: str | None = None
+        spacing: str | None = "trailing"
+        task: str = "pusht"
+
+    rows = [_Step("DP", "diffusion", f"ddim{k}", 0.5, 6.0 * k, steps=k, task=task) for k in (2, 10)]
+    drawn = []
+    monkeypatch.setattr(figures, "save_png", lambda fig, path: drawn.append(fig) or path)
+    figures.figure3(rows, tmp_path / "fig3.png")
+    assert figures.score_word(rows) == word and drawn[0].axes[0].get_ylabel() == f"{word} (95% CI)"
+    plt.close("all")

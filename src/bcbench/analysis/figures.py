@@ -38,6 +38,11 @@ def row_budgets(rows: list[Any]) -> tuple[tuple[float, str], ...]:
 
 
 BUDGETS_MS = budgets()  # Push-T's
+
+
+def score_word(rows: Any) -> str:
+    """What a score axis shows: Push-T's 'mean score' (coverage), or the 'success rate' of a task scored 1/0."""
+    return "mean score" if all(getattr(r, "task", "pusht") == "pusht" for r in rows) else "success rate"
 COLOURS = {"cnn_mlp": "tab:blue", "resnet50": "tab:orange", "bet": "tab:purple", "bct": "tab:green",
            "diffusion": "tab:red", "flow": "tab:pink", "random": "tab:gray", "scripted": "tab:brown"}
 
@@ -132,7 +137,7 @@ def figure3(rows: list[Any], path: Path, mode: str = "reference") -> Path | None
         a.set_xscale("log")
         a.set_xlabel("denoising / integration steps (log scale)")
         a.grid(alpha=0.3, which="both")
-    ax.set_ylabel("mean score (95% CI)")
+    ax.set_ylabel(f"{score_word(rows)} (95% CI)")
     ax.set_ylim(-0.05, 1.05)
     ax.legend(fontsize=7)
     ax2.set_yscale("log")
@@ -162,7 +167,7 @@ def figure4(rows: list[Any], path: Path) -> Path | None:
         ax.bar(xs, vals, width, yerr=err, capsize=3, alpha=0.8, label=f"{name}\n({seeds})")
     ax.set_xticks(range(len(all_steps)), [str(k) for k in all_steps])
     ax.set_xlabel("denoising iterations")
-    ax.set_ylabel("mean score (95% CI)")
+    ax.set_ylabel(f"{score_word(rows)} (95% CI)")
     ax.set_ylim(0, 1.05)
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)  # outside the data
     ax.set_title("Samplers and beta schedules (the study's Fig. 4)")
@@ -209,7 +214,7 @@ def learning_curves(rows: list[Any], path: Path) -> Path | None:
             ax.fill_between(c.samples, c.lo, c.hi, color=tint, alpha=0.12)
         if c.val_loss:
             ax2.plot(c.val_samples, c.val_loss, ls=ls, color=tint, label=r.label)
-    if _score_axis(ax, "training samples", "mean score on validation seeds (95% CI)", legend=False):
+    if _score_axis(ax, "training samples", f"{score_word(runs.values())} on validation seeds (95% CI)", legend=False):
         # below both panels, outside the data; the validation-loss lines share these colours and styles
         fig.legend(*ax.get_legend_handles_labels(), loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=3,
                    fontsize=7)
