@@ -43,6 +43,8 @@ BUDGETS_MS = budgets()  # Push-T's
 def score_word(rows: Any) -> str:
     """What a score axis shows: Push-T's 'mean score' (coverage), or the 'success rate' of a task scored 1/0."""
     return "mean score" if all(getattr(r, "task", "pusht") == "pusht" for r in rows) else "success rate"
+
+
 COLOURS = {"cnn_mlp": "tab:blue", "resnet50": "tab:orange", "bet": "tab:purple", "bct": "tab:green",
            "diffusion": "tab:red", "flow": "tab:pink", "random": "tab:gray", "scripted": "tab:brown"}
 
