@@ -355,16 +355,17 @@ def test_when_each_tasks_latencies_were_timed_is_said_sitting_by_sitting(tmp_pat
     md = Path(write_across_report(out)["markdown"]).read_text()
     assert "Timed (UTC" not in md  # nothing timed: nothing said
 
-    def stage(end: str, seconds: float, kind: str = "latency") -> str:
-        return json.dumps({"stage": kind, "file": "runs/x/latency-default.json", "seconds": seconds,
+    def stage(end: str, seconds: float, kind: str = "latency", run: str = "") -> str:
+        return json.dumps({"stage": kind, "file": f"runs/{run or end}/latency-default.json", "seconds": seconds,
                            "finished": end}) + "\n"
 
     (tmp_path / "drawer" / "index.jsonl").write_text(
-        stage("2026-12-06T17:33:00+00:00", 60) + stage("2026-12-06T17:36:00+00:00", 30)
+        stage("2026-12-06T09:00:00+00:00", 60, run="a")  # timed again at 17:33: its file holds the later timing
+        + stage("2026-12-06T17:33:00+00:00", 60, run="a") + stage("2026-12-06T17:36:00+00:00", 30)
         + stage("2026-12-06T18:10:00+00:00", 120, "eval")  # not a timing: no sitting of its own
         + stage("2026-12-07T00:04:00+00:00", 30) + stage("2026-12-07T00:40:00+00:00", 7 * 60))
     (tmp_path / "peg" / "index.jsonl").write_text(stage("2026-12-06T23:59:30+00:00", 60)
-                                                  + stage("2026-12-07T00:01:00+00:00", 20))
+                                                  + stage("2026-12-07T01:01:00+01:00", 20))  # UTC 00:01
     md = Path(write_across_report(out)["markdown"]).read_text()
     # 00:04 and 00:40 are 29 min apart once the second's 7 min are counted: one sitting; a sitting over midnight
     assert ("Timed (UTC; a sitting ends where no timing ran for 30 min): metaworld/drawer-open 2 sittings, "
@@ -380,3 +381,37 @@ def test_a_label_splits_at_its_top_level_commas_and_a_shared_part_is_listed_once
     assert _parts("a), b, c") == ["a)", "b", "c"]  # a stray ")" does not stop later commas splitting
     assert common_parts(["X, a, a", "Y, a"]) == ["a"]  # listed once
     assert common_parts(["X, a"]) == [] and common_parts(["X", "Y"]) == []  # one row; nothing but the names
+
+
+def test_a_rows_control_rate_and_horizon_come_from_its_record_and_draw_its_budget_lines(tmp_path):
+    """Figure 5's budget lines from real records: the task's control_hz and the run's action_horizon survive the
+    merge over training seeds; Push-T's records from before tasks read 10 Hz; another task's record without its rate
+    reads none (the analysis cannot know it), so it adds no line of another task's."""
+    from bcbench.analysis.figures import budgets, row_budgets
+    from bcbench.analysis.results import load_rows
+    from bcbench.analysis.seeds import merge_training_seeds
+
+    d = "metaworld/drawer-open"
+
+    def dp(seed: int, rate: float | None) -> dict:
+        ev = _eval("diffusion", "Diffusion Policy", d, "easy", 40 + seed, seed=seed, variant=("ddim", 10))
+        ev["policy"]["config"]["action_horizon"] = 3
+        if rate is None:
+            del ev["task"]  # written before records held their task
+        else:
+            ev["task"]["control_hz"] = rate
+        return ev
+
+    _study(tmp_path / "new", d, "easy", {f"dp{s}@ddim10": dp(s, 80.0) for s in range(3)})
+    rows = merge_training_seeds(load_rows(tmp_path / "new"))
+    assert [(r.control_hz, r.action_horizon, r.seed_ids) for r in rows] == [(80.0, 3, [0, 1, 2])]
+    assert row_budgets(rows) == budgets(80.0, [3]) and [ms for ms, _ in row_budgets(rows)] == [12.5, 37.5]
+    _study(tmp_path / "old", d, "easy", {"dp0@ddim10": dp(0, None)})
+    assert [r.control_hz for r in load_rows(tmp_path / "old")] == [None]
+    assert row_budgets(load_rows(tmp_path / "old")) == ()
+    pusht = _eval("cnn_mlp", "CNN-MLP", "pusht", None, 30)
+    pusht["policy"]["config"]["action_horizon"] = 8
+    del pusht["task"], pusht["eval_config"]  # a Push-T record from before tasks
+    _study(tmp_path / "pusht", "pusht", None, {"cnn@default": pusht})
+    assert row_budgets(load_rows(tmp_path / "pusht")) == ((100.0, "10 Hz, re-plan every step (100 ms)"),
+                                                          (800.0, "10 Hz, re-plan every 8 steps (800 ms)"))

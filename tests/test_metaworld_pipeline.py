@@ -53,7 +53,12 @@ def test_every_learned_policy_trains_and_is_scored_on_a_metaworld_task(name, dem
     assert rec["episodes"][0]["length"] == 6 and 0.0 <= rec["episodes"][0]["max_coverage"] <= 1.0
 
 
-def test_eval_latency_and_realtime_on_a_metaworld_run(dp_run, demos, tmp_path, capsys):
+def test_eval_latency_and_realtime_on_a_metaworld_run(dp_run, demos, tmp_path, capsys, monkeypatch):
+    import bcbench.analysis.figures as figures
+
+    drawn = []  # the latency chart's budget lines: MetaWorld's 80 Hz step and chunk, not Push-T's 100 / 800 ms
+    bars = figures.latency_bars
+    monkeypatch.setattr(figures, "latency_bars", lambda *a: drawn.append(a[3]) or bars(*a))
     assert main(["eval", "--checkpoint", str(dp_run), "--episodes", "2", "--max-steps", "10", "--workers", "1",
                  "--quiet", "--out", str(tmp_path / "e")]) == 0
     assert main(["eval", "--checkpoint", str(dp_run), "--task", "pusht", "--episodes", "1"]) == 2
@@ -65,6 +70,8 @@ def test_eval_latency_and_realtime_on_a_metaworld_run(dp_run, demos, tmp_path, c
                  str(tmp_path / "lat")]) == 0
     lat = json.loads((tmp_path / "lat" / "latency.json").read_text())
     assert lat["task"] == TASK and lat["rate_hz"] == 80.0 and lat["rows"][0]["calls"] >= 5
+    k = lat["rows"][0]["action_horizon"]
+    assert [ms for ms, _ in drawn[0]] == [12.5, 12.5 * k] and k > 1 and "80 Hz" in drawn[0][1][1]
     assert main(["realtime", "--checkpoint", str(dp_run), "--delays", "0", "2", "--execution", "async",
                  "--episodes", "2", "--max-steps", "10", "--quiet", "--out", str(tmp_path / "rt")]) == 0
     d2 = json.loads((tmp_path / "rt" / "realtime-async-d2.json").read_text())

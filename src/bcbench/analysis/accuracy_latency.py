@@ -14,7 +14,16 @@ from typing import Any
 import matplotlib.pyplot as plt
 
 from bcbench.analysis.fewstep import interleaved_medians
-from bcbench.analysis.figures import COLOURS, MARKERS, budget_lines, colour, nth_of_policy, row_budgets, save_png
+from bcbench.analysis.figures import (
+    COLOURS,
+    MARKERS,
+    budget_lines,
+    colour,
+    nth_of_policy,
+    row_budgets,
+    save_png,
+    score_word,
+)
 from bcbench.analysis.findings import interleaved_key, shared_timing
 from bcbench.reference import STUDY_REFERENCE
 
@@ -87,7 +96,7 @@ def zoom_box(panel: Panel) -> tuple[list[Any], tuple[float, float, float, float]
 
 def score_axis(rows: list[Any]) -> str:
     """What the score axis measures: Push-T's coverage score, or the success rate of a task scored by success."""
-    if all(getattr(r, "task", "pusht") == "pusht" for r in rows):
+    if score_word(rows) == "mean score":
         return "mean score (max coverage / 0.95)"
     return "success rate (success at any step)"
 

@@ -12,7 +12,7 @@ on a machine whose speed drifts. Reads result files only.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from datetime import datetime, timedelta
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 from bcbench.analysis.results import study_machines, study_time
@@ -81,12 +81,16 @@ def timing_sittings(folder: Path) -> list[tuple[datetime, datetime]]:
     """(start, end) of each sitting in which a study folder's (or a combined report's studies') latency stages ran,
     from their index lines (a stage's end and its seconds), in time order: stages less than SITTING_GAP_S apart share
     a sitting. Why: a timing compares with another from the same few minutes; a VM's speed drifts between sittings."""
-    spans = []
+    last: dict[tuple[Path, str], dict] = {}  # a stage run again: its last line is the timing its file holds
     for d in study_dirs(folder):
         for i in read_jsonl(d / "index.jsonl"):
             if i.get("stage") == "latency" and i.get("finished"):
-                end = datetime.fromisoformat(i["finished"])
-                spans.append((end - timedelta(seconds=float(i.get("seconds") or 0.0)), end))
+                last[(d, str(i.get("file")))] = i
+    spans = []
+    for i in last.values():
+        end = datetime.fromisoformat(i["finished"])
+        end = end.replace(tzinfo=UTC) if end.tzinfo is None else end.astimezone(UTC)  # the study writes UTC
+        spans.append((end - timedelta(seconds=float(i.get("seconds") or 0.0)), end))
     out: list[tuple[datetime, datetime]] = []
     for start, end in sorted(spans):
         if out and (start - out[-1][1]).total_seconds() < SITTING_GAP_S:
@@ -99,7 +103,7 @@ def timing_sittings(folder: Path) -> list[tuple[datetime, datetime]]:
 def sittings_text(named: list[tuple[str, Path]]) -> str:
     """One sentence: when each named folder's latencies were timed (UTC), sitting by sitting; '' where none was."""
     def span(s: tuple[datetime, datetime]) -> str:
-        a, b = s  # index times are UTC ("+00:00")
+        a, b = s  # UTC (timing_sittings)
         return f"{a:%Y-%m-%d %H:%M}-{b:%H:%M}" if a.date() == b.date() else f"{a:%Y-%m-%d %H:%M}-{b:%Y-%m-%d %H:%M}"
 
     parts = []

@@ -12,7 +12,7 @@ import matplotlib
 matplotlib.use("Agg")  # files only, no display
 import matplotlib.pyplot as plt
 
-from bcbench.analysis.realtime import delay_curve, strategy_of
+from bcbench.analysis.realtime import delay_curve, step_rate, strategy_of
 from bcbench.utils.io import atomic_path
 
 
@@ -21,8 +21,8 @@ def budgets(rate_hz: float = 10.0, horizons: tuple[int, ...] | list[int] = (8,))
     within it) and, per action horizon k the figure's runs execute, k steps (re-planning every k steps). Push-T's
     10 Hz and 8 by default; MetaWorld's 80 Hz and 3 give 12.5 and 37.5 ms."""
     step = 1e3 / rate_hz
-    out = [(step, f"{rate_hz:g} Hz, re-plan every step ({step:g} ms)")]
-    out += [(k * step, f"{rate_hz:g} Hz, re-plan every {k} steps ({k * step:g} ms)") for k in sorted(set(horizons))
+    out = [(step, f"{rate_hz:g} Hz, re-plan every step ({step:.3g} ms)")]
+    out += [(k * step, f"{rate_hz:g} Hz, re-plan every {k} steps ({k * step:.3g} ms)") for k in sorted(set(horizons))
             if k > 1]
     return tuple(out)
 
@@ -30,14 +30,31 @@ def budgets(rate_hz: float = 10.0, horizons: tuple[int, ...] | list[int] = (8,))
 def row_budgets(rows: list[Any]) -> tuple[tuple[float, str], ...]:
     """The budget lines for a figure of result rows: their task's control rate and their trained runs' action
     horizons (a baseline's configured horizon is not one it was trained to execute; with no trained run, every
-    row's). Rows of several rates (never one task's) get no lines rather than one task's."""
-    rates = sorted({r.control_hz for r in rows})
+    row's; with none recorded, Push-T's 8 on Push-T, else the one-step line only). Rows of several known rates (never
+    one task's), or of none, get no lines rather than another task's."""
+    rates = sorted({r.control_hz for r in rows if r.control_hz})
     horizons = ({r.action_horizon for r in rows if r.train_seed is not None and r.action_horizon}
                 or {r.action_horizon for r in rows if r.action_horizon})
-    return budgets(rates[0], sorted(horizons) or [8]) if len(rates) == 1 else ()
+    pusht = all(getattr(r, "task", "pusht") == "pusht" for r in rows)
+    return budgets(rates[0], sorted(horizons) or ([8] if pusht else [])) if len(rates) == 1 else ()
 
 
-BUDGETS_MS = budgets()  # Push-T's
+def _sweep_results(by_policy: dict[str, dict[str, dict[str, Any]]]) -> list[dict[str, Any]]:
+    return [r for s in by_policy.values() for r in s.values() if isinstance(r, dict)]
+
+
+def _sweep_rate(by_policy: dict[str, dict[str, dict[str, Any]]]) -> tuple[float, str]:
+    """The sweeps' step rate and task in words (`analysis.realtime.step_rate`: Push-T's 10 Hz for old records)."""
+    return step_rate({str(i): r for i, r in enumerate(_sweep_results(by_policy))})
+
+
+def sweep_budgets(by_policy: dict[str, dict[str, dict[str, Any]]]) -> tuple[tuple[float, str], ...]:
+    """The budget lines for real-time sweeps (label -> {setting: evaluation}): their task's step rate
+    (`analysis.realtime.step_rate`) and the executed horizons their policies were configured with."""
+    results = _sweep_results(by_policy)
+    rate, task = _sweep_rate(by_policy)
+    horizons = {((r.get("policy") or {}).get("config") or {}).get("action_horizon") for r in results} - {None}
+    return budgets(rate, sorted(horizons) or ([8] if task == "Push-T" else []))
 
 
 def score_word(rows: Any) -> str:
@@ -80,7 +97,7 @@ def save_png(fig: Any, path: Path) -> Path:
     return path
 
 
-def budget_lines(ax: Any, vertical: bool = True, lines: tuple[tuple[float, str], ...] = BUDGETS_MS) -> None:
+def budget_lines(ax: Any, lines: tuple[tuple[float, str], ...], vertical: bool = True) -> None:
     for ms, label in lines:
         (ax.axvline if vertical else ax.axhline)(ms, ls="--", lw=1, color="k", alpha=0.5)
         if vertical:
@@ -177,7 +194,7 @@ def figure4(rows: list[Any], path: Path) -> Path | None:
 
 
 def latency_bars(records: list[dict[str, Any]], path: Path, title: str,
-                 lines: tuple[tuple[float, str], ...] = BUDGETS_MS) -> Path | None:
+                 lines: tuple[tuple[float, str], ...]) -> Path | None:
     """Horizontal bars of median latency (log x) per row, with the real-time budget lines."""
     if not records:
         return None
@@ -256,9 +273,10 @@ def _sweep_colours(by_policy: dict[str, dict[str, dict[str, Any]]]) -> dict[str,
 
 
 def realtime_figure(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path) -> Path:
-    """Score against delay d (control steps of 0.1 s), one colour per policy: async solid, blocking dashed. Sweeps
-    of an execution strategy other than naive (their records say which) are left to the strategies' figure, one
-    panel per policy, where they stand beside naive async: here they would double the lines, all in one colour."""
+    """Score against delay d (control steps at the task's rate), one colour per policy: async solid, blocking
+    dashed. Sweeps of an execution strategy other than naive (their records say which) are left to the strategies'
+    figure, one panel per policy, where they stand beside naive async: here they would double the lines, all in one
+    colour."""
     fig, ax = plt.subplots(figsize=(10, 4.5))
     plain = {label: results for label, results in by_policy.items() if strategy_of(results) == "naive"} or by_policy
     left, by_policy = len(by_policy) - len(plain), plain
@@ -271,7 +289,9 @@ def realtime_figure(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path)
                 err = [[e["value"] - e["ci95"][0] for _, e in pts], [e["ci95"][1] - e["value"] for _, e in pts]]
                 ax.errorbar([d for d, _ in pts], [e["value"] for _, e in pts], yerr=err, capsize=3, marker=marker,
                             ls=style, color=colour, label=f"{label}, {execution}")
-    if _score_axis(ax, "delay d (control steps of 0.1 s at 10 Hz; d = 0: sync, the world waits)", legend=False):
+    rate = _sweep_rate(by_policy)[0]
+    if _score_axis(ax, f"delay d (control steps of {1 / rate:g} s at {rate:g} Hz; d = 0: sync, the world waits)",
+                   legend=False):
         ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)  # outside the data
     fig.tight_layout()
     ax.set_title("Score under real-time execution" + (f" (naive; {left} strategy sweeps in the strategies' figure)"
@@ -297,7 +317,7 @@ def figure5_realtime(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path
         ax.errorbar(ms, rt["value"], yerr=[[rt["value"] - rt["ci95"][0]], [rt["ci95"][1] - rt["value"]]],
                     fmt=marker, color=colour, capsize=3, label=f"{label} ({ms:.0f} ms)")
     ax.set_xscale("log")
-    budget_lines(ax)
+    budget_lines(ax, lines=sweep_budgets(by_policy))  # the sweeps' task's rate and horizons
     _score_axis(ax, "median latency per call on this machine (ms, log scale)")
     ax.set_title("Figure 5, real time: score under async execution at measured latency (hollow: sync)", fontsize=10)
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)  # outside the data

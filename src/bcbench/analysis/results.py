@@ -83,7 +83,8 @@ class Row:
     seed_scores: list[dict[int, float]] = field(default_factory=list)
     seed_ids: list[int] = field(default_factory=list)
     task: str = "pusht"  # the task its episodes ran (a record from before tasks: Push-T)
-    control_hz: float = 10.0  # its task's control rate (a record from before tasks: Push-T's 10 Hz)
+    control_hz: float | None = 10.0  # its task's control rate (Push-T's 10 Hz for a record from before tasks; None:
+    # another task's record from before the rate was recorded, which the analysis cannot know without its task)
     action_horizon: int | None = None  # the steps of each chunk it executes, from its config (None: not recorded)
     difficulty: str | None = None  # the task's published difficulty group, where its record names one
     data_split: dict[str, Any] = field(default_factory=dict)  # its run.json's (val_fraction, split_seed, demos)
@@ -150,7 +151,7 @@ def _row_from_eval(path: Path, margin: float = 0.05, role: dict[str, Any] | None
               train_seed=cfg.get("seed") if "run_dir" in pol else None,
               task=(ev.get("eval_config") or {}).get("task") or "pusht",
               difficulty=(ev.get("task") or {}).get("difficulty"),
-              control_hz=float((ev.get("task") or {}).get("control_hz") or 10.0),
+              control_hz=_control_hz(ev),
               action_horizon=cfg.get("action_horizon"))
     lat = run_dir / f"latency-{vkey}.json"
     if lat.exists():
@@ -167,6 +168,14 @@ def _row_from_eval(path: Path, margin: float = 0.05, role: dict[str, Any] | None
         row.curve = load_curve(run_dir)
         row.converged, row.convergence = plateau(row.curve, margin)
     return row
+
+
+def _control_hz(ev: dict[str, Any]) -> float | None:
+    """An evaluation's task control rate: its record's, else Push-T's 10 Hz for a Push-T record, else unknown."""
+    rate = (ev.get("task") or {}).get("control_hz")
+    if rate:
+        return float(rate)
+    return 10.0 if ((ev.get("eval_config") or {}).get("task") or "pusht") == "pusht" else None
 
 
 def recipe_text(optim: dict[str, Any]) -> str:

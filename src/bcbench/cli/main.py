@@ -383,7 +383,7 @@ def cmd_latency(args: argparse.Namespace) -> int:
     horizons = sorted({r["action_horizon"] for r in rec["rows"] if r.get("action_horizon")})
     latency_bars([{**r, "label": f"{r['policy']} {r['preset']} {r['variant']} {r['mode']}"} for r in rec["rows"]],
                  plot, f"Latency per call, batch 1 ({hw.get('gpu') or hw['cpu_model']}, {hw['torch_threads']} threads)",
-                 budgets(rec["rate_hz"], horizons or [8]))
+                 budgets(rec["rate_hz"], horizons))  # every fresh row records its horizon
     print(f"latency results: {out['json']}  table: {out['table']}  plot: {plot}")
     return 0
 
