@@ -363,6 +363,35 @@ def test_real_time_figures_stay_readable_with_many_policies_and_strategies(tmp_p
     assert (tmp_path / "strategies.png").stat().st_size > 1000
 
 
+def test_real_time_figures_count_delay_in_their_tasks_steps_and_draw_its_budgets(tmp_path, monkeypatch):
+    """A MetaWorld sweep (80 Hz, 3 actions executed a chunk): delay in 0.0125 s steps, success rate on the score
+    axis, and real-time Figure 5's lines at 12.5 and 37.5 ms; Push-T's sweeps keep 0.1 s, mean score, 100 / 800 ms."""
+    from bcbench.analysis import figures, strategies
+
+    drawn = []
+    monkeypatch.setattr(figures, "save_png", lambda fig, path: drawn.append(fig) or path)
+    monkeypatch.setattr(strategies.plt, "close", lambda fig: drawn.append(fig))
+    base = np.random.default_rng(0).uniform(0.3, 0.9, 100)
+
+    def sweep(task: dict | None, horizon: int) -> dict:
+        out = {"realtime-sync": _setting(base, 20.0), "realtime-async-measured": _setting(base - 0.1, 20.0),
+               "realtime-async-d2": _setting(base - 0.1)}
+        return {k: {**v, "policy": {"config": {"action_horizon": horizon}}, **({"task": task} if task else {})}
+                for k, v in out.items()}
+
+    for task, horizon, step, word, lines in (
+            ({"name": "metaworld/pick-place", "control_hz": 80.0}, 3, "0.0125 s", "success rate", [12.5, 37.5]),
+            (None, 8, "0.1 s", "mean score", [100.0, 800.0])):
+        figures.realtime_figure({"P": sweep(task, horizon)}, tmp_path / "realtime.png")
+        assert f"control steps of {step} at" in drawn[-1].axes[0].get_xlabel()
+        figures.figure5_realtime({"P": sweep(task, horizon)}, tmp_path / "fig5rt.png")
+        dashed = [ln.get_xdata()[0] for ln in drawn[-1].axes[0].lines if ln.get_linestyle() == "--"]
+        assert sorted(dashed) == lines
+        strategies.strategy_figure({"P": {"naive": sweep(task, horizon)}}, tmp_path / "s.png")
+        ax = drawn[-1].axes[0]
+        assert f"control steps of {step})" in ax.get_xlabel() and ax.get_ylabel().startswith(word)
+
+
 def test_a_strategy_is_judged_safe_against_the_plain_sync_score_not_its_own():
     """A strategy that costs 0.2 everywhere, sync included, stays within the margin of its OWN sync at every delay;
     against the policy's plain (naive) sync it keeps nothing, which is how the strategies' table judges it and how

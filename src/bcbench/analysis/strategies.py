@@ -20,6 +20,7 @@ from bcbench.analysis.realtime import (
     largest_safe_delay,
     pool_training_seeds,
     pooled_sentence,
+    step_rate,
     with_plain_sync,
 )
 from bcbench.analysis.results import realtime_records, sweep_label
@@ -100,6 +101,8 @@ def strategy_figure(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path,
     """Score against delay, one panel per policy, one line per strategy (95% intervals); None: nothing to draw."""
     if not by_policy:
         return None
+    results = (r for sweeps in by_policy.values() for settings in sweeps.values() for r in settings.values())
+    rate, task = step_rate({str(i): r for i, r in enumerate(results) if isinstance(r, dict)})  # the sweeps' task
     cols = min(4, len(by_policy))  # a grid, not one row: seven policies in a row are too wide to read
     rows = -(-len(by_policy) // cols)
     fig, axes = plt.subplots(rows, cols, figsize=(4.4 * cols + 2, 3.6 * rows), squeeze=False, sharey=True)
@@ -113,11 +116,11 @@ def strategy_figure(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path,
             ax.errorbar([d for d, _ in pts], [e["value"] for _, e in pts], yerr=err, capsize=3, marker=marker,
                         ls=ls, color=colour, label=kind)
         ax.set_title(label, fontsize=9)
-        ax.set_xlabel(f"delay d ({execution}; control steps of 0.1 s)")
+        ax.set_xlabel(f"delay d ({execution}; control steps of {1 / rate:g} s)")
         ax.set_ylim(0, 1)
         ax.grid(alpha=0.3)
     for row in axes:
-        row[0].set_ylabel("mean score (95% interval)")
+        row[0].set_ylabel(f"{'mean score' if task == 'Push-T' else 'success rate'} (95% interval)")
     handles: dict[str, Any] = {}  # every strategy of every panel, once
     for ax in axes.flat:
         for handle, name in zip(*ax.get_legend_handles_labels(), strict=True):
