@@ -15,9 +15,9 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
-from bcbench.analysis.results import study_machines, study_time
-from bcbench.analysis.studies import run_files, study_dirs
-from bcbench.utils.io import read_json, read_jsonl
+from bcbench.analysis.results import index_lines, study_machines, study_time
+from bcbench.analysis.studies import run_files
+from bcbench.utils.io import read_json
 
 SITTING_GAP_S = 1800  # timings with no timing between them for this long belong to two sittings
 
@@ -79,13 +79,13 @@ def _row(name: str, c: Cost) -> list[str]:
 
 def timing_sittings(folder: Path) -> list[tuple[datetime, datetime]]:
     """(start, end) of each sitting in which a study folder's (or a combined report's studies') latency stages ran,
-    from their index lines (a stage's end and its seconds), in time order: stages less than SITTING_GAP_S apart share
-    a sitting. Why: a timing compares with another from the same few minutes; a VM's speed drifts between sittings."""
+    from their index lines (`results.index_lines`: a stage's end and its seconds), in time order: stages less than
+    SITTING_GAP_S apart share a sitting. Why: a timing compares with another from the same few minutes; a VM's speed
+    drifts between sittings."""
     last: dict[tuple[Path, str], dict] = {}  # a stage run again: its last line is the timing its file holds
-    for d in study_dirs(folder):
-        for i in read_jsonl(d / "index.jsonl"):
-            if i.get("stage") == "latency" and i.get("finished"):
-                last[(d, str(i.get("file")))] = i
+    for d, i in index_lines(folder):
+        if i.get("stage") == "latency" and i.get("finished"):
+            last[(d, str(i.get("file")))] = i
     spans = []
     for i in last.values():
         end = datetime.fromisoformat(i["finished"])

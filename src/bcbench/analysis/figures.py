@@ -43,16 +43,11 @@ def _sweep_results(by_policy: dict[str, dict[str, dict[str, Any]]]) -> list[dict
     return [r for s in by_policy.values() for r in s.values() if isinstance(r, dict)]
 
 
-def _sweep_rate(by_policy: dict[str, dict[str, dict[str, Any]]]) -> tuple[float, str]:
-    """The sweeps' step rate and task in words (`analysis.realtime.step_rate`: Push-T's 10 Hz for old records)."""
-    return step_rate({str(i): r for i, r in enumerate(_sweep_results(by_policy))})
-
-
 def sweep_budgets(by_policy: dict[str, dict[str, dict[str, Any]]]) -> tuple[tuple[float, str], ...]:
     """The budget lines for real-time sweeps (label -> {setting: evaluation}): their task's step rate
     (`analysis.realtime.step_rate`) and the executed horizons their policies were configured with."""
     results = _sweep_results(by_policy)
-    rate, task = _sweep_rate(by_policy)
+    rate, task = step_rate(results)
     horizons = {((r.get("policy") or {}).get("config") or {}).get("action_horizon") for r in results} - {None}
     return budgets(rate, sorted(horizons) or ([8] if task == "Push-T" else []))
 
@@ -289,7 +284,7 @@ def realtime_figure(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path)
                 err = [[e["value"] - e["ci95"][0] for _, e in pts], [e["ci95"][1] - e["value"] for _, e in pts]]
                 ax.errorbar([d for d, _ in pts], [e["value"] for _, e in pts], yerr=err, capsize=3, marker=marker,
                             ls=style, color=colour, label=f"{label}, {execution}")
-    rate = _sweep_rate(by_policy)[0]
+    rate = step_rate(_sweep_results(by_policy))[0]
     if _score_axis(ax, f"delay d (control steps of {1 / rate:g} s at {rate:g} Hz; d = 0: sync, the world waits)",
                    legend=False):
         ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)  # outside the data

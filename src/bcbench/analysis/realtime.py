@@ -8,6 +8,7 @@ import glob
 import math
 import re
 import statistics
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -229,10 +230,10 @@ def too_few_episodes(settings: dict[str, dict[str, Any]]) -> int | None:
     return n if n < MIN_CHOICE_EPISODES else None
 
 
-def step_rate(settings: dict[str, dict[str, Any]]) -> tuple[float, str]:
+def step_rate(settings: dict[str, dict[str, Any]] | Iterable[dict[str, Any]]) -> tuple[float, str]:
     """The control rate a sweep counts delay in, and its task in words, from its records' `task` (Push-T's 10 Hz
-    for a record written before tasks existed)."""
-    for r in settings.values():
+    for a record written before tasks existed); `settings`: a sweep (setting name -> record) or any records."""
+    for r in settings.values() if isinstance(settings, dict) else settings:
         task = r.get("task")
         if isinstance(task, dict) and task.get("name", "pusht") != "pusht":
             return float(task["control_hz"]), str(task["name"])

@@ -7,7 +7,7 @@ result JSON (e.g. `results/` brought back from a GPU machine), or the studies a 
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -292,13 +292,19 @@ def study_time(results: str | Path) -> dict[str, float]:
     """
     out = {"training": 0.0, "curve rollouts": 0.0, "evaluation": 0.0, "timing": 0.0, "real-time sweep": 0.0}
     kinds = {"eval": "evaluation", "check": "evaluation", "latency": "timing", "realtime": "real-time sweep"}
+    for study, rec in index_lines(results):
+        _add_stage(out, kinds, study, rec)
+    return out
+
+
+def index_lines(results: str | Path) -> Iterator[tuple[Path, dict[str, Any]]]:
+    """(study folder, index.jsonl line) of every finished stage a report reads: each study's (a combined report's
+    studies), less the runs it leaves out."""
     skip = left_out_runs(Path(results))
     for study in study_dirs(Path(results)):
-        index = study / "index.jsonl"
-        for rec in read_jsonl(index) if index.exists() else []:
+        for rec in read_jsonl(study / "index.jsonl"):  # none: an empty list
             if not skip.intersection((study / rec.get("file", "")).parents):
-                _add_stage(out, kinds, study, rec)
-    return out
+                yield study, rec
 
 
 def _add_stage(out: dict[str, float], kinds: dict[str, str], results: Path, rec: dict[str, Any]) -> None:

@@ -101,8 +101,7 @@ def strategy_figure(by_policy: dict[str, dict[str, dict[str, Any]]], path: Path,
     """Score against delay, one panel per policy, one line per strategy (95% intervals); None: nothing to draw."""
     if not by_policy:
         return None
-    results = (r for sweeps in by_policy.values() for settings in sweeps.values() for r in settings.values())
-    rate, task = step_rate({str(i): r for i, r in enumerate(results) if isinstance(r, dict)})  # the sweeps' task
+    rate, task = step_rate(r for sweeps in by_policy.values() for s in sweeps.values() for r in s.values())
     cols = min(4, len(by_policy))  # a grid, not one row: seven policies in a row are too wide to read
     rows = -(-len(by_policy) // cols)
     fig, axes = plt.subplots(rows, cols, figsize=(4.4 * cols + 2, 3.6 * rows), squeeze=False, sharey=True)
