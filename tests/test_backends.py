@@ -74,6 +74,14 @@ def test_one_step_samplers_make_one_denoiser_call():
     assert model.deployed is None  # the recorder is removed again
 
 
+def _int8_constants(export_dir, graph) -> int:
+    """How many of an OpenVINO export's constants are stored in 8 bits."""
+    import openvino as ov
+
+    ops = ov.Core().read_model(str(export_dir / f"{graph}.xml")).get_ops()
+    return sum(o.get_type_name() == "Constant" and o.get_element_type() in (ov.Type.u8, ov.Type.i8) for o in ops)
+
+
 @pytest.mark.parametrize("name, modes", [("diffusion", ["openvino-bf16"]), ("cnn_mlp", ["openvino-int8"]),
                                          ("flow", ["openvino-int8w"]), ("bct", ["openvino-int8w"]),
                                          ("diffusion", ["onnxruntime-int8"]), ("bct", ["onnxruntime-int8"])])
@@ -82,8 +90,9 @@ def test_approximate_modes_are_close_and_labelled(name, modes, exports, tmp_path
     model = _model(name)
     calib = [model.example_obs(1) for _ in range(4)]
     obs = model.example_obs(2)
-    c = {**_chunks(model, ["fast"], obs), **_chunks(model, modes, obs, calibration=calib,
-                                                     export_dir=None if "int8" in modes[0] else exports[name])}
+    int8w = exports[name].with_name(f"{name}-int8w")  # kept (not a temporary export) to read its weights below
+    export_dir = int8w if modes[0].endswith("int8w") else None if "int8" in modes[0] else exports[name]
+    c = {**_chunks(model, ["fast"], obs), **_chunks(model, modes, obs, calibration=calib, export_dir=export_dir)}
     for mode in modes:
         assert np.isfinite(c[mode]).all()
         assert np.abs(c[mode] - c["fast"]).max() < 0.5, mode  # approximate, not unrelated
@@ -91,26 +100,15 @@ def test_approximate_modes_are_close_and_labelled(name, modes, exports, tmp_path
     assert model.deployment["backend"] == backend and model.deployment["precision"] == precision
     # a temporary export is deleted once compiled (it leaked 15 GB); torch's own compile cache may appear there
     assert not [p for p in tmp_path.iterdir() if not p.name.startswith("torchinductor")]
+    if precision == "int8w":
+        # weight-only int8: the denoising loop's matrix products get int8 weights (no calibration needed); the
+        # encoder, run once per call, stays float; a policy without a loop (BCT) has all its graphs compressed
+        for graph in model.graphs:
+            assert (_int8_constants(int8w, graph) > 0) == (graph in (model.loop_graphs or model.graphs)), graph
+        set_mode(model, "openvino-fp32", export_dir=exports[name])  # the float export (cached if written already)
+        assert all(_int8_constants(exports[name], graph) == 0 for graph in model.graphs)
     set_mode(model, "fast")
     assert model.deployed is None and model.deployment == {"backend": "torch", "precision": "fp32"}
-
-
-def test_int8w_stores_the_loop_graphs_weights_in_int8(tmp_path):
-    """Weight-only int8: the denoising loop's matrix products get int8 weights (no calibration needed); the encoder,
-    run once per call, stays float; a policy without a loop has all its graphs compressed."""
-    import openvino as ov
-
-    from bcbench.evaluation.backends import export_openvino
-
-    def int8_weights(out, graph):
-        ops = ov.Core().read_model(str(out / f"{graph}.xml")).get_ops()
-        return sum(o.get_type_name() == "Constant" and o.get_element_type() in (ov.Type.u8, ov.Type.i8) for o in ops)
-
-    flow = export_openvino(_model("flow"), "int8w", tmp_path / "flow")
-    assert int8_weights(flow, "denoise") > 0 and int8_weights(flow, "obs_film") == 0
-    cnn = export_openvino(_model("cnn_mlp"), "int8w", tmp_path / "cnn")
-    assert int8_weights(cnn, "forward") > 0
-    assert int8_weights(export_openvino(_model("flow"), "fp32", tmp_path / "float"), "denoise") == 0
 
 
 def test_mode_names_and_errors(monkeypatch):
