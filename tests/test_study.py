@@ -211,6 +211,13 @@ def test_study_stages_runs_timing_first_and_the_study_then_skips_it(synthetic_za
     index = [json.loads(x) for x in (out / "index.jsonl").read_text().splitlines()]
     assert [i["stage"] for i in index] == ["latency", "realtime", "realtime"]  # the timing above, then the sweeps
     assert all((out / i["file"]).is_file() for i in index)
+    assert stages.main(["--again", str(spec), str(out), "latency", "realtime"]) == 2  # a timing only, not a sweep
+    assert "runs latency stages only" in capsys.readouterr().err
+    timed = json.loads((out / index[0]["file"]).read_text())
+    assert stages.main(["--again", str(spec), str(out), "latency"]) == 0  # timed again, in this sitting
+    again = [json.loads(x) for x in (out / "index.jsonl").read_text().splitlines()][len(index):]
+    assert [(i["stage"], i["file"]) for i in again] == [("latency", index[0]["file"])]
+    assert json.loads((out / index[0]["file"]).read_text()) != timed  # the file holds the new timing
     assert main(["study", str(spec), "--out", str(out), "--data", str(synthetic_zarr), "--quiet", "--no-report"]) == 0
     assert "1 stage(s) run, 3 already done" in capsys.readouterr().out  # only the evaluation was left
 
