@@ -5,6 +5,7 @@ combined report, which reads studies of one task, refusing studies of several.""
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -271,6 +272,15 @@ def test_a_task_under_the_goal_reads_its_twice_the_steps_check_and_a_stage_with_
             "from 10 on the same 50 validation episodes: +0.500 [") in line
     assert line.endswith("(paired; one training seed each; pick50).")
     assert "metaworld/pick-place: twice the steps" in (out / "report" / "report.html").read_text()
+
+    # a better policy with no check of its own: its line says so, then reads the task's other policies' checks
+    write_json(pick / "runs" / "bct@default" / "eval-default.json", _eval("bct", "BCT", p, "hard", 20))  # 40%
+    line = next(x for x in Path(write_across_report(out)["markdown"]).read_text().splitlines()
+                if x.startswith("- **metaworld/pick-place**: twice"))
+    assert line.startswith("- **metaworld/pick-place**: twice the steps: no twice-the-steps check yet; the other "
+                           "policies' checks: Diffusion Policy +0.040 ["), line
+    assert "] (inconclusive, training seed 0); demonstration count: Diffusion Policy DDIM10" in line
+    shutil.rmtree(pick / "runs" / "bct@default")
 
     # a stage with nothing evaluated yet, and one whose run differs in more than its demonstrations, read nothing
     write_json(more / "runs" / "dp50@ddim10" / "run.json", {"data_split": {"demos": 50},

@@ -273,8 +273,8 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
     goals = goal_lines(columns, {t: int(d["kept"]) for t, d in records.items()})
     stages = stage_folders(results, spec, [c.task for c in columns])
     whys = why_lines(columns, stages)
-    why_head = (f"Why under {GOAL:.0%}, per task below it: the best setting's twice-the-steps check, then a stage that "
-                "trained the same policy on more demonstrations"
+    why_head = (f"Why under {GOAL:.0%}, per task below it: the best setting's twice-the-steps check (and the task's "
+                "other policies'), then a stage that trained the same policy on more demonstrations"
                 + (", then one that showed it larger frames" if stages.get("larger_frame") else "")
                 + ", paired with the confirm run on its check base's validation episodes (one training seed each: "
                 "evidence on a cause, not a reported score).")

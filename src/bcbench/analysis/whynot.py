@@ -70,13 +70,18 @@ def stage_folders(results: Path, spec: dict[str, Any], tasks: list[str]) -> dict
 
 def steps_reading(task_folder: Path, checks: list[Row], best: Row) -> str:
     """The best setting's run's twice-the-steps verdicts (each checked training seed's, as its study's report reads
-    them: `bcbench.analysis.convergence`), or that it has none yet. `checks`: the folder's check-*.json rows."""
+    them: `bcbench.analysis.convergence`), or that it has none yet; then the task's other checked runs' (a budget
+    that suffices for one policy says nothing of another's). `checks`: the folder's check-*.json rows."""
     margin = study_spec(task_folder).get("margin") or DEFAULT_MARGIN
     # a confirm study's checks are on validation episodes (check-*.json); an explore study's on its own episodes
     rows = checks or load_rows(task_folder, None, margin)
-    verdicts = run_verdicts(doubling_checks(rows, margin), margin)
-    mine = [v for (run, _), v in sorted(verdicts.items(), key=lambda kv: kv[0][1] or 0) if run == best.run_label]
-    return "; ".join(verdict_text(v) for v in mine) if mine else f"twice the steps: {NO_STEPS_CHECK}"
+    verdicts = sorted(run_verdicts(doubling_checks(rows, margin), margin).items(), key=lambda kv: (kv[0][0],
+                                                                                                   kv[0][1] or 0))
+    mine = [v for (run, _), v in verdicts if run == best.run_label]
+    text = "; ".join(verdict_text(v) for v in mine) if mine else f"twice the steps: {NO_STEPS_CHECK}"
+    others = [f"{run.split(', ')[0]} {v.est:+.3f} [{v.lo:+.3f}, {v.hi:+.3f}] ({v.verdict}, training seed "
+              f"{v.train_seed})" for (run, _), v in verdicts if run != best.run_label]
+    return text + (f"; the other policies' checks: {' and '.join(others)}" if others else "")
 
 
 def _check_bases(task_folder: Path, checks: list[Row]) -> dict[tuple[str, str, int | None], Row]:
