@@ -79,9 +79,15 @@ def steps_reading(task_folder: Path, checks: list[Row], best: Row) -> str:
                                                                                                    kv[0][1] or 0))
     mine = [v for (run, _), v in verdicts if run == best.run_label]
     text = "; ".join(verdict_text(v) for v in mine) if mine else f"twice the steps: {NO_STEPS_CHECK}"
-    others = [f"{run.split(', ')[0]} {v.est:+.3f} [{v.lo:+.3f}, {v.hi:+.3f}] ({v.verdict}, training seed "
+    others = [f"{_policy_name(run)} {v.est:+.3f} [{v.lo:+.3f}, {v.hi:+.3f}] ({v.verdict}, training seed "
               f"{v.train_seed})" for (run, _), v in verdicts if run != best.run_label]
     return text + (f"; the other policies' checks: {' and '.join(others)}" if others else "")
+
+
+def _policy_name(label: str) -> str:
+    """'Diffusion Policy (cosine)' of 'Diffusion Policy (cosine), 10 demos, horizons 4 / 3': the label less its demos,
+    horizons and size."""
+    return label.split(", ")[0]
 
 
 def _check_bases(task_folder: Path, checks: list[Row]) -> dict[tuple[str, str, int | None], Row]:
@@ -151,7 +157,7 @@ def _paired_line(r: Row, b: Row, stage: str, mine: str, theirs: str) -> str:
         return f"{r.setting} {mine} shares no episode with the check base {theirs}"
     shared = r.scores.keys() & b.scores.keys()
     ours, base = (100 * sum(x.scores[k] for k in shared) / n for x in (r, b))
-    name = b.label.split(", ")[0]  # "Diffusion Policy (cosine)": the label less its demos, horizons and size
+    name = _policy_name(b.label)
     setting = "" if r.variant == "default" else f" {r.variant.upper()}"
     return (f"{name}{setting} (training seed {r.train_seed}) {mine} {ours:.0f}% against {base:.0f}% {theirs} on the "
             f"same {n} validation episodes: {est:+.3f} [{lo:+.3f}, {hi:+.3f}] (paired; one training seed each; "
