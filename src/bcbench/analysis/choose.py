@@ -105,7 +105,7 @@ def _rate_cell(settings: dict[str, Any] | None, ms: float | None, margin: float)
     if not d:
         return "none shown: no delay swept is shown within the margin of sync"
     rate = highest_safe_rate(d, ms) or 0.0
-    return rate_text(rate, f"{mode}, up to d = {d}", step_rate(settings))
+    return rate_text(rate, f"{mode}, up to d = {d}", step_rate(settings.values()))
 
 
 def control_loop_rows(rows: list[Row], realtime: dict[str, dict[str, Any]], margin: float,
@@ -126,7 +126,7 @@ def control_loop_rows(rows: list[Row], realtime: dict[str, dict[str, Any]], marg
 
 def _step(realtime: dict[str, dict[str, Any]], step: tuple[float, str]) -> tuple[float, str]:
     """The step rate and task the choice table is capped at: the sweeps', else `step`."""
-    return next((step_rate(s) for s in realtime.values()), step)
+    return next((step_rate(s.values()) for s in realtime.values()), step)
 
 
 def _header(top: float, task: str) -> list[str]:

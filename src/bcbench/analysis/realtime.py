@@ -230,10 +230,10 @@ def too_few_episodes(settings: dict[str, dict[str, Any]]) -> int | None:
     return n if n < MIN_CHOICE_EPISODES else None
 
 
-def step_rate(settings: dict[str, dict[str, Any]] | Iterable[dict[str, Any]]) -> tuple[float, str]:
+def step_rate(records: Iterable[dict[str, Any]]) -> tuple[float, str]:
     """The control rate a sweep counts delay in, and its task in words, from its records' `task` (Push-T's 10 Hz
-    for a record written before tasks existed); `settings`: a sweep (setting name -> record) or any records."""
-    for r in settings.values() if isinstance(settings, dict) else settings:
+    for a record written before tasks existed); `records`: a sweep's (its settings' values) or several sweeps'."""
+    for r in records:
         task = r.get("task")
         if isinstance(task, dict) and task.get("name", "pusht") != "pusht":
             return float(task["control_hz"]), str(task["name"])
@@ -283,7 +283,7 @@ def safe_delay_sentence(settings: dict[str, dict[str, Any]], margin: float, plai
     fits = ""
     if measured:
         med, slow = (highest_safe_rate(best, measured[k]) for k in ("median_ms", "max_ms"))
-        top, task = step_rate(settings)
+        top, task = step_rate(settings.values())
         fits = (f"; its measured median call {measured['median_ms']:.0f} ms "
                 f"{'fits' if med >= top else 'does not fit'} within {mode} d = {best} at {top:g} Hz; "
                 f"highest safe control rate {min(med, top):.1f} Hz ({min(slow, top):.1f} Hz at its slowest call), "
