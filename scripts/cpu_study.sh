@@ -43,6 +43,13 @@ case "${1:-start}" in
     if pgrep -f "$PATTERN" >/dev/null; then echo "already running (log: $LOG)"; exit 0; fi
     make -s install
     mkdir -p "$BCBENCH_HOME"
+    # A MetaWorld study trains on generated demonstrations, which a new machine's empty cache lacks: generate each
+    # task's store again from its committed record (results/metaworld-demos) and check it byte for byte (minutes).
+    TASKS="$(grep -oE 'task = "metaworld/[^"]+"' "$SPEC" | cut -d'"' -f2 | sort -u || true)"
+    if [ -n "$TASKS" ]; then
+      # shellcheck disable=SC2086  # one word a task
+      MUJOCO_GL="${MUJOCO_GL:-egl}" .venv/bin/python scripts/demo_records.py --ensure results/metaworld-demos $TASKS
+    fi
     # A new machine (empty cache) goes on from the committed export, at the commit its files were written at.
     if [ ! -d "$OUT" ] && [ -f "results/$NAME/index.jsonl" ]; then
       .venv/bin/python -m bcbench.study.restore "results/$NAME" "$OUT" > "$PIN.tmp" && mv "$PIN.tmp" "$PIN"

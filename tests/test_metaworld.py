@@ -357,3 +357,32 @@ def test_dataset_paths(tmp_path, monkeypatch, stores):
     assert task.dataset(str(stores["a"][0])) == stores["a"][0]
     with pytest.raises(BCBenchError, match="already exists"):
         generate("pick-place", 1, stores["a"][0], progress=False)
+
+
+def test_a_new_machine_generates_a_missing_store_from_its_record_and_checks_it(stores, tmp_path, monkeypatch,
+                                                                                capsys):
+    """scripts/demo_records.py --ensure (scripts/cpu_study.sh runs it): a store missing from the task's default
+    place is generated with its record's settings and must equal the record byte for byte; a store that differs
+    from its record stops the study in one line, exit 2."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("demo_records", Path(SRC).parent / "scripts" / "demo_records.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    records = tmp_path / "records"
+    records.mkdir()
+    rec = mod.record("metaworld/pick-place", stores["a"][0])  # seed_start 0, noise 0.1, 2 kept
+    (records / "pick-place.json").write_text(json.dumps(rec))
+    monkeypatch.setenv("BCBENCH_HOME", str(tmp_path / "home"))
+    made = mod.ensure(records, "metaworld/pick-place", progress=False)
+    assert made.startswith("metaworld/pick-place: generated") and "2 episodes" in made
+    mine, theirs = _arrays(tmp_path / "home/data/metaworld/pick-place.zarr"), _arrays(stores["a"][0])
+    assert all(np.array_equal(mine[k], theirs[k]) for k in theirs)
+    assert mod.ensure(records, "metaworld/pick-place", progress=False).startswith("metaworld/pick-place: found")
+    rec["arrays_sha256"]["data/action"] = "0" * 64
+    (records / "pick-place.json").write_text(json.dumps(rec))
+    assert mod.main(["--ensure", str(records), "metaworld/pick-place"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "data/action differ from" in err and "found here" in err
+    assert mod.main(["--ensure", str(records), "metaworld/door-open"]) == 2
+    assert "no record" in capsys.readouterr().err
