@@ -63,6 +63,35 @@ def test_settings_merge_over_training_seeds_with_a_two_level_interval(tmp_path):
     assert nhi - nlo < 0.1 and narrow.summary["training_seed_share"] < 0.9
 
 
+def test_a_labels_latency_is_its_newest_timing_of_any_seed(tmp_path):
+    """A study times one training seed per label, its lowest; a restored study whose seed 0 weights stayed behind
+    times seed 1 in a later sitting (scripts/study_stages.py --any-seed --again): the merged setting, and so the
+    table, Figure 5, the findings and the across-tasks cell, reads the newest timing; equal times, the lowest seed."""
+    from bcbench.analysis.across_cells import latency_cell
+    from bcbench.analysis.findings import points_from_rows
+
+    _study(tmp_path, {"ResNet-50": [0.55, 0.60, 0.65], "BCT": [0.40, 0.45, 0.50], "CNN-MLP": [0.2, 0.2, 0.2]})
+
+    def timed(seed: int, ms: float, created: str) -> None:
+        write_json(tmp_path / "runs" / f"ResNet-50-s{seed}" / "latency-default.json",
+                   {"type": "latency", "created": created, "modes": {"reference": {"median_ms": ms}},
+                    "node": f"vm{seed}"})
+
+    def merged() -> dict:
+        return {r.label: r for r in merge_training_seeds(load_rows(tmp_path))}
+
+    timed(1, 12.5, "2026-12-07T06:00:00+00:00")
+    timed(2, 99.0, "2026-12-07T06:00:00+00:00")  # as new as seed 1's: the lower seed wins
+    resnet, bct = merged()["ResNet-50"], merged()["BCT"]
+    assert resnet.seed_ids == [0, 1, 2] and resnet.latency_ms() == 12.5 and resnet.timed_on == "vm1"
+    assert latency_cell(resnet) == "12.5 ms (reference)" and latency_cell(bct) == "not timed"
+    assert {p.run: p.latency_ms for p in points_from_rows(merged().values())}["ResNet-50"] == 12.5
+    timed(0, 30.0, "2026-12-07T01:00:00+00:00")  # seed 0's older sitting: seed 1's newer timing stays
+    assert merged()["ResNet-50"].latency_ms() == 12.5
+    timed(0, 30.0, "2026-12-07T07:00:00+00:00")
+    assert merged()["ResNet-50"].latency_ms() == 30.0 and merged()["ResNet-50"].timed_on == "vm0"
+
+
 def test_paired_findings_resample_training_seeds(tmp_path):
     # per-seed differences 0.05, 0.15, 0.25: the mean is 0.15 and training seeds make most of its spread
     _study(tmp_path, {"ResNet-50": [0.55, 0.60, 0.65], "BCT": [0.50, 0.45, 0.40], "CNN-MLP": [0.2, 0.2, 0.2]})

@@ -184,17 +184,22 @@ def test_study_killed_then_rerun_resumes_without_redoing(synthetic_zarr, tmp_pat
     assert "0 stage(s) run" in capsys.readouterr().out
 
 
-def test_study_stages_runs_timing_first_and_the_study_then_skips_it(synthetic_zarr, tmp_path, capsys):
-    """scripts/study_stages.py: a study's timing and real-time stages now, recorded as the study records them (the
-    study's later run skips them); stages whose training is not done here are refused before anything runs."""
+def _study_stages():
     import importlib.util
-
-    from bcbench.cli.main import main
 
     path = Path(__file__).parents[1] / "scripts" / "study_stages.py"
     mod_spec = importlib.util.spec_from_file_location("study_stages", path)
     stages = importlib.util.module_from_spec(mod_spec)
     mod_spec.loader.exec_module(stages)
+    return stages
+
+
+def test_study_stages_runs_timing_first_and_the_study_then_skips_it(synthetic_zarr, tmp_path, capsys):
+    """scripts/study_stages.py: a study's timing and real-time stages now, recorded as the study records them (the
+    study's later run skips them); stages whose training is not done here are refused before anything runs."""
+    from bcbench.cli.main import main
+
+    stages = _study_stages()
     text = _spec_text(tmp_path)
     spec = tmp_path / "tiny.toml"
     spec.write_text(text)
@@ -220,6 +225,62 @@ def test_study_stages_runs_timing_first_and_the_study_then_skips_it(synthetic_za
     assert json.loads((out / index[0]["file"]).read_text()) != timed  # the file holds the new timing
     assert main(["study", str(spec), "--out", str(out), "--data", str(synthetic_zarr), "--quiet", "--no-report"]) == 0
     assert "1 stage(s) run, 3 already done" in capsys.readouterr().out  # only the evaluation was left
+
+
+def test_study_stages_any_seed_times_seed_1_where_seed_0_is_not_trained(synthetic_zarr, tmp_path, capsys):
+    """--any-seed: a label's latency stage (its lowest seed, 0) whose network is not here times the same label's seed
+    1, trained here, into seed 1's folder as the study records a latency stage; the flag times latency only. A seed-0
+    run restored from an export (its finished training's record, no checkpoint) is not trained here either."""
+    from bcbench.study.runner import StudyRunner
+    from bcbench.utils.io import read_json
+
+    stages = _study_stages()
+    tiny = ", ".join(f'"{k}" = {json.dumps(v)}' for k, v in TINY["cnn_mlp"].items())
+    spec = tmp_path / "tiny.toml"
+    spec.write_text(f"""
+[study]
+name = "tiny"
+episodes = 2
+max_steps = 8
+latency_min_calls = 2
+latency_min_seconds = 0.0
+
+[[run]]
+policy = "cnn_mlp"
+seeds = [0, 1]
+set = {{ {tiny}, "optim.max_steps" = 2, "optim.batch_size" = 4 }}
+""")
+    out = tmp_path / "out"
+    runner = StudyRunner(load_spec(spec), out, str(synthetic_zarr), progress=False)
+    s0, s1 = sorted(runner.spec.runs, key=lambda r: r.seed)
+    runner.finish("train", s1, None, runner.compute("train", s1, None), 0.0)  # seed 1 trained here, seed 0 not
+    assert stages.main(["--any-seed", str(spec), str(out), "latency", "eval"]) == 2  # a timing only
+    err = capsys.readouterr().err
+    assert "--any-seed" in err and "runs latency stages only" in err and len(err.strip().splitlines()) == 1
+    assert stages.main([str(spec), str(out), "latency"]) == 2  # without the flag seed 0's timing waits for it
+    assert "need a training that is not done here" in capsys.readouterr().err
+    assert stages.main(["--any-seed", "--trained", str(spec), str(out), "latency"]) == 0
+    printed = capsys.readouterr().out
+    assert "s1 stands in for s0" in printed and "1 stage(s) run" in printed
+    timed = runner.result_file("latency", s1, s1.variants[0])
+    index = [json.loads(x) for x in (out / "index.jsonl").read_text().splitlines()]
+    assert [(i["stage"], i["seed"], i["file"]) for i in index] == [
+        ("train", 1, f"runs/{runner.run_dir(s1).name}/train_summary.json"),
+        ("latency", 1, str(timed.relative_to(out)))]
+    record = read_json(timed)  # which weights ran: seed 1's, by folder, seed and hash
+    assert Path(record["policy"]["run_dir"]).name == runner.run_dir(s1).name and record["policy"]["weights_sha256"]
+    assert record["policy"]["config"]["seed"] == 1 and record["study"]["label"] == s0.label
+    assert list(out.rglob("latency-*.json")) == [timed] and not runner.run_dir(s0).exists()
+    assert stages.main(["--any-seed", str(spec), str(out), "latency"]) == 0  # timed already: nothing to do
+    assert "0 stage(s) run" in capsys.readouterr().out
+    assert stages.main(["--any-seed", "--again", str(spec), str(out), "latency"]) == 0  # in this sitting again
+    assert "1 stage(s) run" in capsys.readouterr().out and read_json(timed) != record
+    # seed 0 restored from an export: its finished training's record, but no checkpoint (its weights stayed behind)
+    runner.run_dir(s0).mkdir(parents=True)
+    (runner.run_dir(s0) / "train_summary.json").write_text((runner.run_dir(s1) / "train_summary.json").read_text())
+    assert runner.is_done("train", s0, None)
+    assert stages.main(["--trained", str(spec), str(out), "latency"]) == 0  # waits: not "has no checkpoint yet"
+    assert "1 stage(s) wait for a training" in capsys.readouterr().out
 
 
 def test_restore_refuses_an_existing_folder_and_mixed_commits(tmp_path):

@@ -71,6 +71,7 @@ class Row:
     hardware: dict[str, Any] = field(default_factory=dict)
     timed_on: str | None = None  # the machine that timed it (recorded by studies; matters on a cluster)
     timed_hardware: dict[str, Any] = field(default_factory=dict)  # its latency record's CPU and threads
+    timed_at: str = ""  # when (its latency record's `created`, ISO UTC): a label's newest timing is its sitting's
     source: str = ""
     overrides: dict[str, Any] = field(default_factory=dict)  # dotted preset overrides (its run.json)
     preset_values: dict[str, Any] = field(default_factory=dict)  # the preset's value of each overridden key
@@ -158,6 +159,7 @@ def _row_from_eval(path: Path, margin: float = 0.05, role: dict[str, Any] | None
         record = read_json(lat)
         row.latency = record["modes"]
         row.timed_on, row.timed_hardware = record.get("node"), record.get("hardware") or {}
+        row.timed_at = str(record.get("created") or "")
     if (run_dir / "run.json").exists():
         meta = read_json(run_dir / "run.json")
         row.overrides, row.preset_values = meta.get("overrides") or {}, meta.get("preset_values") or {}

@@ -4,9 +4,10 @@ A confirm study trains each preset with several seeds (`seeds = [0, 1, 2]`) and 
 test episodes. The report then shows a setting (policy label + sampler variant) once: the mean over training seeds
 of each seed's mean episode score, with a t interval over the training seeds' means (bcbench.stats.over_training_seeds:
 with three seeds a bootstrap over them covers too rarely) and the two-level bootstrap's beside it, and each seed's
-own score. Shares (> 0.5, > 0.9, success) pool the episodes of all seeds. Latency is the first seed's (the seeds
-share one network and its cost). A study with one seed per setting is returned unchanged, so its report reads
-exactly as before.
+own score. Shares (> 0.5, > 0.9, success) pool the episodes of all seeds. Latency is that of the seed timed last
+(the seeds share one network architecture and its cost; a study times one seed, its lowest, but a restored study
+whose seed 0 weights stayed behind may time seed 1 in a later sitting: scripts/study_stages.py --any-seed
+--again). A study with one seed per setting is returned unchanged, so its report reads exactly as before.
 """
 
 from __future__ import annotations
@@ -37,6 +38,9 @@ def merge_training_seeds(rows: list[Row]) -> list[Row]:
 
 def _merged(group: list[Row]) -> Row:
     first = group[0]
+    # the newest timing of the group (group: by seed, so equal times give the lowest seed): a task's networks are
+    # timed again in one sitting (study_stages.py --again), on whichever seed's weights are here (--any-seed)
+    timed = max((r for r in group if r.latency), key=lambda r: r.timed_at, default=first)
     est = over_training_seeds([r.scores for r in group])
     n = sum(len(r.scores) for r in group)
     summary = {**first.summary, "n": n, "mean_score": {"value": est["value"], "ci95": est["ci95"],
@@ -49,6 +53,7 @@ def _merged(group: list[Row]) -> Row:
     return replace(first, key=f"{first.key.split(':')[0]}+{len(group) - 1}:{first.variant}", summary=summary,
                    scores={}, seed_scores=[dict(r.scores) for r in group],
                    seed_ids=[int(r.train_seed) for r in group if r.train_seed is not None],
+                   latency=timed.latency, timed_on=timed.timed_on, timed_hardware=timed.timed_hardware,
                    converged=None if any(r.converged is None for r in group) else all(r.converged for r in group))
 
 
