@@ -783,3 +783,18 @@ def test_a_restored_run_that_cannot_go_on_is_dropped_and_its_first_models_files_
     export_results(out, dest)  # the first model's files leave the committed export with it
     assert not (dest / "runs" / runs[0].name).exists() and (dest / "runs" / runs[2].name / "eval-ddim2.json").exists()
     assert (dest / "dropped-runs.jsonl").exists()
+
+
+def test_a_study_without_its_tasks_demonstrations_stops_in_one_line_before_any_stage(tmp_path, monkeypatch):
+    """A new machine's cache has no generated MetaWorld demonstrations: a study with a training to run says so once,
+    before anything runs (the random baseline first in the spec, which needs none, does not run either)."""
+    from bcbench.errors import DatasetError
+    from bcbench.study import run_study
+
+    monkeypatch.setenv("BCBENCH_HOME", str(tmp_path / "home"))
+    spec = parse_spec({"study": {"task": "metaworld/pick-place", "episodes": 2},
+                       "run": [{"policy": "random"}, {"policy": "cnn_mlp", "steps": 2}]})
+    with pytest.raises(DatasetError, match=r"no MetaWorld demonstrations for metaworld/pick-place at .*bcbench data "
+                                           r"generate --task metaworld/pick-place"):
+        run_study(spec, tmp_path / "out", progress=False)
+    assert not (tmp_path / "out" / "index.jsonl").exists()

@@ -12,6 +12,7 @@ from bcbench.study.on_ray import run_on_ray
 from bcbench.study.progress import LAUNCH_FILE
 from bcbench.study.runner import StudyRunner
 from bcbench.study.spec import StudySpec
+from bcbench.tasks import get_task
 from bcbench.utils.io import read_json, write_json
 
 __all__ = ["StudyRunner", "StudySpec", "run_study"]
@@ -31,6 +32,10 @@ def run_study(spec: StudySpec, out: str | Path | None = None, data: str | None =
     if problem:
         raise BCBenchError(f"study {spec.name}: {problem}")
     runner = StudyRunner(spec, out, str(Path(data).resolve()) if data else None, progress)
+    if any(stage == "train" and not runner.is_done(stage, run, v) for stage, run, v in runner.stages()):
+        # a training to run needs the task's demonstrations: missing ones stop the study here, in one line, rather
+        # than as one failure per training after the evaluations that need none (a new machine's empty cache)
+        get_task(spec.task).dataset(runner.data)
     if ray is None:
         # for `bcbench study --status` (another process): trainings one at a time here (run_on_ray writes its own)
         write_json(out / LAUNCH_FILE, {"ray": False})
