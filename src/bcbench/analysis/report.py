@@ -248,18 +248,8 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     # latency timed in interleaved rounds, per inference mode, where the study's folder has it: the findings' times
     # and Figure 5's axis (reference mode), and finding 3's DDIM/DDPM ratios (any mode's where reference has none)
     paired = load_paired(results)
-    # the report opens with Figure 5 (and which policy suits which control loop); its zoom leads the other figures
-    fig5, zoom = figure5(settings, out / "fig5_accuracy_vs_latency.png", timing=paired.get("reference"),
-                         run=one_interleaved_run(paired), zoom_path=out / "fig5_zoom.png")
-    figs = {FIG5_ZOOM: zoom,
-            "Figure 3: generative policies against sampling steps": figure3(settings, out / "fig3_denoising_steps.png"),
-            "Figure 4: DDPM-cosine, DDIM-cosine, DDIM-linear": figure4(settings, out / "fig4_samplers.png"),
-            "Learning curves": learning_curves(rows, out / "learning_curves.png")}
     realtime, strategies = load_realtime(results), load_strategy_sweeps(results)
-    if realtime:
-        figs["Score under real-time execution"] = realtime_figure(realtime, out / "realtime.png")
-        figs["Figure 5, real time"] = figure5_realtime(realtime, out / "fig5_realtime.png")
-        figs["Execution strategies: score against delay"] = strategy_figure(strategies, out / "strategies.png")
+    fig5, figs = _figures(out, settings, rows, paired, realtime, strategies)
     ratio_file = paired.get("reference") or next(iter(paired.values()), {})
     findings = judge(with_interleaved(points_from_rows(settings), paired.get("reference")), margin,
                      ratio_file.get("ratios"))
@@ -268,27 +258,14 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     table = table_rows(settings, multi)
     task = study_spec(results).get("task") or "pusht"
     step = (float(study_spec(results).get("rate_hz", 10.0)), "Push-T" if task == "pusht" else task)
-    pusht_scores = ("Scores: mean over the evaluation episodes of the max reward min(coverage/0.95, 1), with 95% "
-                    "bootstrap intervals. ")
-    scores = pusht_scores if task == "pusht" else (
-        f"Task {task}: an episode scores 1 when it succeeds at any step, else 0, so the mean score is the success rate "
-        "(its Wilson interval under 'success'); the study's A100 numbers are Push-T's and stand beside no row here. ")
-    intro = (scores + (SEEDS_NOTE if multi else "")
-             + "Latency: one call at batch 1, raw observation in, chunk out (median, and the p99 from at "
-             "least 100 calls or else the maximum, labelled 'max of N'). The study's numbers were measured by the "
-             "study on an A100; ours on the hardware named at the top. " + _spacing_note(rows))
+    intro = _intro(task, multi, rows)
     informed = test_informed_lines(results)
     warnings = weights_conflicts(results)
     notes = preset_choices(results) + informed + warnings
     notes += provenance_notes(rows, file_commits(results, extra_dirs), mixing_reason(results))
     notes += paired_conditions(paired, shared_timing(settings, paired.get("reference")))
-    sources = [d.name for d in study_dirs(results) if d != results]
-    # labels quoted and joined with "and": a label with a comma in it ("ResNet-50 CNN, twice the steps") reads as two
-    leaving = [f"; leaves out {' and '.join(repr(x) for x in labels)} of {study}"
-               for study, labels in left_out(results).items()]
-    name = (study_spec(results).get("name") or results.name) + (f" on {task}" if task != "pusht" else "") + (
-        f" (combines {', '.join(sources)}{''.join(leaving)})" if sources else "")
-    lead = lead_line(name, settings, mixed=any("mix several commits" in n for n in notes), runs=rows)
+    lead = lead_line(_study_name(results, task), settings, mixed=any("mix several commits" in n for n in notes),
+                     runs=rows)
     trained = [r for r in rows if r.converged is not None]
     if trained and not any(r.converged for r in trained):
         lead += (" None of its trained models is shown converged (smoke-sized or short trainings: see 'Training: "
@@ -331,6 +308,45 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
         tmp.write_text(_html(lead.replace("`", ""), findings_html, (columns, table), figs, convergence_lines(rows),
                              top, tail))
     return {"markdown": str(md_path), "html": str(html_path), "dir": str(out), "warnings": warnings}
+
+
+def _figures(out: Path, settings: list, rows: list, paired: dict, realtime: list, strategies: list) -> tuple:
+    """Figure 5 and the report's other figures, by title (a figure with nothing to draw is None)."""
+    # the report opens with Figure 5 (and which policy suits which control loop); its zoom leads the other figures
+    fig5, zoom = figure5(settings, out / "fig5_accuracy_vs_latency.png", timing=paired.get("reference"),
+                         run=one_interleaved_run(paired), zoom_path=out / "fig5_zoom.png")
+    figs = {FIG5_ZOOM: zoom,
+            "Figure 3: generative policies against sampling steps": figure3(settings, out / "fig3_denoising_steps.png"),
+            "Figure 4: DDPM-cosine, DDIM-cosine, DDIM-linear": figure4(settings, out / "fig4_samplers.png"),
+            "Learning curves": learning_curves(rows, out / "learning_curves.png")}
+    if realtime:
+        figs["Score under real-time execution"] = realtime_figure(realtime, out / "realtime.png")
+        figs["Figure 5, real time"] = figure5_realtime(realtime, out / "fig5_realtime.png")
+        figs["Execution strategies: score against delay"] = strategy_figure(strategies, out / "strategies.png")
+    return fig5, figs
+
+
+def _intro(task: str, multi: bool, rows: list) -> str:
+    """'How to read the numbers': what a score is on this task, what a latency is, and the runs' spacing."""
+    pusht_scores = ("Scores: mean over the evaluation episodes of the max reward min(coverage/0.95, 1), with 95% "
+                    "bootstrap intervals. ")
+    scores = pusht_scores if task == "pusht" else (
+        f"Task {task}: an episode scores 1 when it succeeds at any step, else 0, so the mean score is the success rate "
+        "(its Wilson interval under 'success'); the study's A100 numbers are Push-T's and stand beside no row here. ")
+    return (scores + (SEEDS_NOTE if multi else "")
+            + "Latency: one call at batch 1, raw observation in, chunk out (median, and the p99 from at "
+            "least 100 calls or else the maximum, labelled 'max of N'). The study's numbers were measured by the "
+            "study on an A100; ours on the hardware named at the top. " + _spacing_note(rows))
+
+
+def _study_name(results: Path, task: str) -> str:
+    """The lead line's study name, with its task and the studies it combines (and what it leaves out of them)."""
+    sources = [d.name for d in study_dirs(results) if d != results]
+    # labels quoted and joined with "and": a label with a comma in it ("ResNet-50 CNN, twice the steps") reads as two
+    leaving = [f"; leaves out {' and '.join(repr(x) for x in labels)} of {study}"
+               for study, labels in left_out(results).items()]
+    return (study_spec(results).get("name") or results.name) + (f" on {task}" if task != "pusht" else "") + (
+        f" (combines {', '.join(sources)}{''.join(leaving)})" if sources else "")
 
 
 def _informed_sentence(informed: list[str]) -> str:

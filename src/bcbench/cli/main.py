@@ -17,7 +17,14 @@ from typing import Any
 from bcbench.cli import data, wallclock
 from bcbench.cli.choose import cmd_choose  # noqa: F401  (a handler, found by name in main)
 from bcbench.cli.parser import build_parser
-from bcbench.cli.policies import load_eval_policy, load_head, load_weak, sampler_of, strategy_config
+from bcbench.cli.policies import (
+    load_eval_policy,
+    load_head,
+    load_weak,
+    measured_sources,
+    sampler_of,
+    strategy_config,
+)
 from bcbench.errors import BCBenchError
 from bcbench.protocol import strategy_label
 from bcbench.stats import fmt_estimate, fmt_share
@@ -212,7 +219,6 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     from bcbench.analysis.figures import figure5_realtime, realtime_figure
     from bcbench.analysis.findings import DEFAULT_MARGIN
     from bcbench.analysis.realtime import margin_power_sentence, safe_delay_sentence
-    from bcbench.evaluation.latency_sources import LatencySource
     from bcbench.evaluation.realtime import finished_settings, realtime_record, sweep
     from bcbench.policies.learned import PolicyRunner
 
@@ -236,17 +242,8 @@ def cmd_realtime(args: argparse.Namespace) -> int:
     if longer:  # a clean prefix longer than any the network saw in training: refused, not extrapolated silently
         raise BCBenchError(f"--strategy prefix: this model was trained with delays {trained[0]}-{trained[1]} "
                            f"(delay_train); --delays {' '.join(map(str, longer))} would give it a longer clean prefix")
-    measured: dict[str, LatencySource] = {}
-    if args.measured and len(strategies) > 1:  # timed together, before any episode (latency_sources says why)
-        from statistics import median
-
-        from bcbench.evaluation.latency_sources import interleaved_request_ms
-
-        rounds, contention = interleaved_request_ms(policy, built)
-        measured = {k: LatencySource("measured", samples_ms=[ms for r in rs for ms in r], contention=contention)
-                    for k, rs in rounds.items()}
-        print(f"measured latency, each strategy's request timed in {len(rounds[strategies[0]])} interleaved rounds "
-              "before any episode: " + ", ".join(f"{k} {median(v.samples_ms):.1f} ms" for k, v in measured.items()))
+    # several strategies timed together, before any episode (latency_sources says why)
+    measured = measured_sources(policy, built) if args.measured and len(strategies) > 1 else {}
     out = Path(args.out) if args.out else default_out.with_name(default_out.name.replace("eval-", "realtime-"))
     mode = policy.info.mode if isinstance(policy, PolicyRunner) else None  # what apply_mode set; baselines: none
     base = args.label or (f"{policy.name} ({mode})" if mode else policy.name)

@@ -127,3 +127,18 @@ def load_weak(args: argparse.Namespace, policy: Any) -> Any:
     configure_runner(weak, policy.info.sampler, policy.info.steps, args.seed, policy.info.spacing)  # as the policy
     apply_mode(weak, policy.info.mode or mode_name(backend(args), args.precision, args.reference))
     return weak
+
+
+def measured_sources(policy: Any, built: dict[str, Any]) -> dict[str, Any]:
+    """Each strategy's measured latency, its request timed in interleaved rounds with the others' before any
+    episode, so that no strategy's delays come from a quieter moment of the machine than another's."""
+    from statistics import median
+
+    from bcbench.evaluation.latency_sources import LatencySource, interleaved_request_ms
+
+    rounds, contention = interleaved_request_ms(policy, built)
+    measured = {k: LatencySource("measured", samples_ms=[ms for r in rs for ms in r], contention=contention)
+                for k, rs in rounds.items()}
+    print(f"measured latency, each strategy's request timed in {len(next(iter(rounds.values())))} interleaved rounds "
+          "before any episode: " + ", ".join(f"{k} {median(v.samples_ms):.1f} ms" for k, v in measured.items()))
+    return measured
