@@ -1,7 +1,7 @@
 """Latency sources for real-time evaluation: how many control steps a policy call takes.
 
-The control loop runs at 10 Hz (0.1 s per environment step), so a call that takes L seconds takes
-d = ceil(L / 0.1) steps (`steps_for`). L comes from one of:
+Push-T's control loop runs at 10 Hz (0.1 s per environment step), so a call that takes L seconds takes
+d = ceil(L / 0.1) steps (`steps_for`); a task at another rate f (its `control_hz`) takes ceil(L f). L comes from one of:
 - a fixed number of milliseconds (`--latency-ms 250`, d = 3);
 - `measured`: the policy's own call times on this machine, timed before the episodes with the backend in
   use and through the execution strategy (RTC's backward passes, BID's N samples and selection, the correction
