@@ -235,11 +235,12 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     results = Path(results)
     if is_across(results):  # one study per task, read side by side
         return write_across_report(results)
-    margin = study_spec(results).get("margin", DEFAULT_MARGIN)
+    spec = study_spec(results)  # read once: for a combined report it reads every study's spec.json
+    margin = spec.get("margin", DEFAULT_MARGIN)
     rows = load_rows(results, extra_dirs, margin)
     check_rows = load_check_rows(results)  # a confirm study compares on validation episodes, apart from its table
     checks = doubling_checks(check_rows or rows, margin)
-    strict = bool(study_spec(results).get("purpose"))  # studies under the seed protocol need the check
+    strict = bool(spec.get("purpose"))  # studies under the seed protocol need the check
     verdicts = apply_checks(rows, checks, strict, margin)
     # one row per setting from here on (several training seeds merged); `rows` keeps one per run for training
     settings = merge_training_seeds(rows)
@@ -256,16 +257,16 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     multi = any(r.seed_scores for r in settings)
     columns = [*COLUMNS[:3], "per training seed", *COLUMNS[3:]] if multi else COLUMNS
     table = table_rows(settings, multi)
-    task = study_spec(results).get("task") or "pusht"
-    step = (float(study_spec(results).get("rate_hz", 10.0)), "Push-T" if task == "pusht" else task)
+    task = spec.get("task") or "pusht"
+    step = (float(spec.get("rate_hz", 10.0)), "Push-T" if task == "pusht" else task)
     intro = _intro(task, multi, rows)
     informed = test_informed_lines(results)
     warnings = weights_conflicts(results)
     notes = preset_choices(results) + informed + warnings
     notes += provenance_notes(rows, file_commits(results, extra_dirs), mixing_reason(results))
     notes += paired_conditions(paired, shared_timing(settings, paired.get("reference")))
-    lead = lead_line(_study_name(results, task), settings, mixed=any("mix several commits" in n for n in notes),
-                     runs=rows)
+    lead = lead_line(_study_name(results, spec.get("name"), task), settings,
+                     mixed=any("mix several commits" in n for n in notes), runs=rows)
     trained = [r for r in rows if r.converged is not None]
     if trained and not any(r.converged for r in trained):
         lead += (" None of its trained models is shown converged (smoke-sized or short trainings: see 'Training: "
@@ -339,13 +340,13 @@ def _intro(task: str, multi: bool, rows: list) -> str:
             "study on an A100; ours on the hardware named at the top. " + _spacing_note(rows))
 
 
-def _study_name(results: Path, task: str) -> str:
+def _study_name(results: Path, name: str | None, task: str) -> str:
     """The lead line's study name, with its task and the studies it combines (and what it leaves out of them)."""
     sources = [d.name for d in study_dirs(results) if d != results]
     # labels quoted and joined with "and": a label with a comma in it ("ResNet-50 CNN, twice the steps") reads as two
     leaving = [f"; leaves out {' and '.join(repr(x) for x in labels)} of {study}"
                for study, labels in left_out(results).items()]
-    return (study_spec(results).get("name") or results.name) + (f" on {task}" if task != "pusht" else "") + (
+    return (name or results.name) + (f" on {task}" if task != "pusht" else "") + (
         f" (combines {', '.join(sources)}{''.join(leaving)})" if sources else "")
 
 
