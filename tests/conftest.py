@@ -65,6 +65,20 @@ def real_zarr() -> Path:
 
 
 @pytest.fixture(autouse=True)
+def scheduling_unchanged():
+    """A test that leaves this worker's scheduling policy changed fails, and the policy is put back: a worker left at
+    SCHED_FIFO 99 (SVT-AV1's video encoder did it, as root) runs every later test, and every process they start,
+    real-time, which starved the other worker's wall-clock steps and let Chromium spin past its timeout."""
+    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+    yield
+    now = os.sched_getscheduler(0), os.sched_getparam(0)
+    if now != (policy, param):
+        os.sched_setscheduler(0, policy, param)
+        pytest.fail(f"the test changed this process's scheduling from policy {policy} priority {param.sched_priority}"
+                    f" to policy {now[0]} priority {now[1].sched_priority}")
+
+
+@pytest.fixture(autouse=True)
 def cpu_unless_a_gpu_test(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> None:
     """The suite describes the CPU, CI's machine. On a machine with CUDA, `--device auto` would move the tests'
     models there and break their comparisons with CPU tensors and CPU runtimes (seen on a lent H200: 9 tests), so

@@ -5,6 +5,7 @@ in tests/test_lerobot_sidecar.py and run where `make lerobot-env` has made the s
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import sys
 from pathlib import Path
@@ -52,6 +53,15 @@ def test_video_export_is_lossy_but_aligned(buffer, tmp_path):
     back = import_lerobot(out)
     assert np.array_equal(back.state, buffer.state) and np.array_equal(back.episode_ends, buffer.episode_ends)
     assert back.images.shape == buffer.images.shape  # every row found its frame by timestamp
+
+
+def test_a_video_export_leaves_the_process_scheduled_as_it_was(buffer, tmp_path):
+    """SVT-AV1 switches the thread that encodes to SCHED_FIFO 99 where it may (as root, as CI runs) and leaves it
+    there; the export puts it back. Checked on the policy and priority directly (conftest's guard would also fail
+    the test); as a user without that privilege the encoder cannot switch and the check holds trivially."""
+    before = os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
+    export_lerobot(buffer, tmp_path / "v", video=True)
+    assert (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority) == before
 
 
 def test_cli_export_import_and_train_from_the_copy(synthetic_zarr, tmp_path, capsys):

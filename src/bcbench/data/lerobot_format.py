@@ -39,6 +39,8 @@ from __future__ import annotations
 import io
 import json
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
@@ -168,11 +170,26 @@ def _png(img: np.ndarray) -> bytes:
     return bio.getvalue()
 
 
+@contextmanager
+def _scheduling_kept() -> Iterator[None]:
+    """Give the calling thread back the scheduling policy it had. SVT-AV1 (PyAV 18.1's libSvtAv1Enc) switches the
+    thread that encodes to SCHED_FIFO at priority 99 where it may (as root) and leaves it there: measured, the
+    policy goes from SCHED_OTHER to FIFO 99 at the first frame. Everything the process did next, and every process
+    it started, then ran real-time: a test suite whose worker had exported a video starved its other worker (late
+    wall-clock steps) and Chromium spun at FIFO 99 for minutes, past its own timeout."""
+    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+    try:
+        yield
+    finally:
+        if (os.sched_getscheduler(0), os.sched_getparam(0)) != (policy, param):
+            os.sched_setscheduler(0, policy, param)  # lowering a thread's own priority needs no privilege
+
+
 def _write_video(path: Path, images: np.ndarray, fps: int | float, av: Any) -> None:
     os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 prints its configuration to stderr at its default level
     path.parent.mkdir(parents=True, exist_ok=True)
     rate = fps if isinstance(fps, int) else Fraction(fps).limit_denominator(10_000)
-    with av.open(str(path), "w") as out:
+    with _scheduling_kept(), av.open(str(path), "w") as out:
         stream = out.add_stream("libsvtav1", rate, options=VIDEO_OPTIONS)
         stream.pix_fmt, stream.width, stream.height = "yuv420p", images.shape[2], images.shape[1]
         for img in images:
