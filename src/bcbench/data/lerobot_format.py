@@ -177,6 +177,9 @@ def _scheduling_kept() -> Iterator[None]:
     policy goes from SCHED_OTHER to FIFO 99 at the first frame. Everything the process did next, and every process
     it started, then ran real-time: a test suite whose worker had exported a video starved its other worker (late
     wall-clock steps) and Chromium spun at FIFO 99 for minutes, past its own timeout."""
+    if not hasattr(os, "sched_getscheduler"):  # macOS, Windows: no POSIX scheduling calls in Python
+        yield
+        return
     policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
     try:
         yield
