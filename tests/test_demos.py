@@ -121,7 +121,7 @@ def test_a_study_run_trains_on_its_demos(synthetic_zarr, tmp_path):
     spec.write_text(f'[study]\nname = "few"\nepisodes = 1\nmax_steps = 4\nlatency = false\n\n'
                     f'[[run]]\npolicy = "cnn_mlp"\ndemos = 1\nset = {{ {sets} }}\n')
     out = tmp_path / "out"
-    assert main(["study", str(spec), "--out", str(out), "--data", str(synthetic_zarr), "--quiet"]) == 0
+    assert main(["study", str(spec), "--out", str(out), "--data", str(synthetic_zarr), "--quiet", "--no-report"]) == 0
     (run,) = (out / "runs").iterdir()
     assert json.loads((run / "run.json").read_text())["data_split"]["demos"] == 1
     from bcbench.study.spec import load_spec
