@@ -20,6 +20,7 @@ import torch
 torch.set_num_threads(int(os.environ["OMP_NUM_THREADS"]))
 
 from bcbench.data.replay_buffer import ReplayBuffer, write_replay_buffer  # noqa: E402
+from bcbench.utils.system import restore_scheduling, scheduling  # noqa: E402
 
 EPISODE_LENGTHS = (5, 20, 12)
 
@@ -69,16 +70,11 @@ def scheduling_unchanged():
     """A test that leaves this worker's scheduling policy changed fails, and the policy is put back: a worker left at
     SCHED_FIFO 99 (SVT-AV1's video encoder did it, as root) runs every later test, and every process they start,
     real-time, which starved the other worker's wall-clock steps and let Chromium spin past its timeout."""
-    if not hasattr(os, "sched_getscheduler"):  # not Linux
-        yield
-        return
-    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+    was = scheduling()
     yield
-    now = os.sched_getscheduler(0), os.sched_getparam(0)
-    if now != (policy, param):
-        os.sched_setscheduler(0, policy, param)
-        pytest.fail(f"the test changed this process's scheduling from policy {policy} priority {param.sched_priority}"
-                    f" to policy {now[0]} priority {now[1].sched_priority}")
+    now = scheduling()
+    if restore_scheduling(was):
+        pytest.fail(f"the test changed this process's scheduling (policy, priority) from {was} to {now}")
 
 
 @pytest.fixture(autouse=True)

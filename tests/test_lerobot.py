@@ -19,6 +19,7 @@ from bcbench.data.lerobot_format import DATA_FILE, export_lerobot
 from bcbench.data.lerobot_import import import_lerobot
 from bcbench.data.replay_buffer import load_replay_buffer
 from bcbench.policies.outside import outside_policy
+from bcbench.utils.system import scheduling
 from tests.conftest import make_synthetic_buffer
 
 STANDIN = str(Path(__file__).with_name("lerobot_standin.py"))
@@ -60,9 +61,9 @@ def test_a_video_export_leaves_the_process_scheduled_as_it_was(buffer, tmp_path)
     """SVT-AV1 switches the thread that encodes to SCHED_FIFO 99 where it may (as root, as CI runs) and leaves it
     there; the export puts it back. Checked on the policy and priority directly (conftest's guard would also fail
     the test); as a user without that privilege the encoder cannot switch and the check holds trivially."""
-    before = os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
+    before = scheduling()
     export_lerobot(buffer, tmp_path / "v", video=True)
-    assert (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority) == before
+    assert scheduling() == before
 
 
 def test_cli_export_import_and_train_from_the_copy(synthetic_zarr, tmp_path, capsys):

@@ -51,6 +51,7 @@ import numpy as np
 from bcbench.data.replay_buffer import ReplayBuffer
 from bcbench.errors import DatasetError
 from bcbench.utils.io import atomic_dir
+from bcbench.utils.system import restore_scheduling, scheduling
 
 CODEBASE_VERSION = "v3.0"
 FPS = 10  # Push-T's control rate
@@ -177,15 +178,11 @@ def _scheduling_kept() -> Iterator[None]:
     policy goes from SCHED_OTHER to FIFO 99 at the first frame. Everything the process did next, and every process
     it started, then ran real-time: a test suite whose worker had exported a video starved its other worker (late
     wall-clock steps) and Chromium spun at FIFO 99 for minutes, past its own timeout."""
-    if not hasattr(os, "sched_getscheduler"):  # macOS, Windows: no POSIX scheduling calls in Python
-        yield
-        return
-    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+    was = scheduling()
     try:
         yield
     finally:
-        if (os.sched_getscheduler(0), os.sched_getparam(0)) != (policy, param):
-            os.sched_setscheduler(0, policy, param)  # lowering a thread's own priority needs no privilege
+        restore_scheduling(was)
 
 
 def _write_video(path: Path, images: np.ndarray, fps: int | float, av: Any) -> None:

@@ -219,3 +219,20 @@ class CpuContention:
             print(f"bcbench: warning: while timing {what}, other processes used {r['other_cpus']:.2f} CPUs and the "
                   f"hypervisor stole {r['steal_cpus']:.2f} (of {os.cpu_count()}): not a quiet-machine timing "
                   "(recorded as cpu_contention)", file=sys.stderr)
+
+
+def scheduling() -> tuple[int, int] | None:
+    """The calling thread's scheduling policy and priority (os.SCHED_OTHER, 0 for an ordinary thread); None where
+    Python has no POSIX scheduling calls (macOS, Windows)."""
+    if not hasattr(os, "sched_getscheduler"):
+        return None
+    return os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
+
+
+def restore_scheduling(was: tuple[int, int] | None) -> bool:
+    """Put the calling thread back to `was` (from `scheduling()`) if it changed since; True if it had. Lowering a
+    thread's own priority needs no privilege."""
+    if was is None or scheduling() == was:
+        return False
+    os.sched_setscheduler(0, was[0], os.sched_param(was[1]))
+    return True
