@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 import torch
@@ -113,6 +114,45 @@ def test_seeded_inference_is_reproducible(tiny):
         tiny.reset_noise(3)
         b = tiny.predict_action_chunk(_obs())
     torch.testing.assert_close(a, b)
+
+
+@pytest.mark.parametrize("beta_schedule", ["squaredcos_cap_v2", "linear"])
+@pytest.mark.parametrize("n", [100, 7])
+def test_own_noise_schedule_and_timesteps_equal_diffusers_bit_for_bit(n, beta_schedule):
+    """bcbench computes DDPM's noise levels and the visited timesteps itself (diffusers costs seconds to import):
+    every tensor and every timestep list equals diffusers' own, for every K, sampler and spacing."""
+    from diffusers import DDPMScheduler
+
+    from bcbench.policies.samplers import spaced_timesteps
+
+    ours = make_train_scheduler(n, beta_schedule)
+    ref = DDPMScheduler(num_train_timesteps=n, beta_schedule=beta_schedule, clip_sample=True,
+                        prediction_type="epsilon", variance_type="fixed_small")
+    assert torch.equal(ours.betas, ref.betas) and torch.equal(ours.alphas_cumprod, ref.alphas_cumprod)
+    for kind in ("ddpm", "ddim"):
+        for spacing in ("trailing", "leading"):
+            for k in range(1, n + 1):
+                want = [int(t) for t in make_diffusers_sampler(ours, kind, k, spacing).timesteps]
+                assert spaced_timesteps(n, k, spacing) == want == plan(ours, kind, k, spacing).timesteps, (kind, k)
+
+
+def test_building_and_sampling_a_diffusion_policy_does_not_import_diffusers():
+    import subprocess
+    import sys
+
+    code = ("import sys, torch\n"
+            "from bcbench.policies import make_policy\n"
+            "from tests.tiny import tiny_overrides\n"
+            "m = make_policy('diffusion', 'quick', **tiny_overrides('diffusion')).eval()\n"
+            "m.set_sampler('ddpm', 3, 'leading')\n"
+            "obs = {'image': torch.rand(1, 2, 3, 96, 96), 'agent_pos': torch.rand(1, 2, 2)}\n"
+            "with torch.no_grad():\n"
+            "    m.predict_action_chunk(obs)\n"
+            "print('diffusers' in sys.modules)\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                          cwd=str(Path(__file__).parents[1]))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip() == "False"
 
 
 def test_linear_beta_config():

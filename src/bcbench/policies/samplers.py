@@ -1,6 +1,8 @@
 """DDPM and DDIM sampling for any number of steps, with coefficients precomputed once.
 
-Training uses diffusers' `DDPMScheduler` (Ho et al., 2020) with 100 steps. At evaluation any K in 1..100
+Training uses DDPM's noise levels (Ho et al., 2020) over 100 steps, computed as diffusers' `DDPMScheduler`
+computes them (`NoiseSchedule`; equal bit for bit, tested) without importing diffusers, whose import costs seconds
+(it imports torch's compiler stack) in every process that builds a Diffusion Policy. At evaluation any K in 1..100
 works without retraining: DDPM (ancestral sampling over K of the 100 timesteps, as diffusers' DDPM does
 for K < 100) or DDIM (Song et al., 2021; deterministic, eta = 0).
 
@@ -16,14 +18,16 @@ t = -1, for K in {29, 31, 58, 62, 97}; bcbench keeps the first K): DDPM steps to
 list, DDIM to t - 100 // K (as diffusers does; with trailing spacing and K not dividing 100 this is within
 one timestep of the next one).
 bcbench evaluates them from per-step constants instead of calling `scheduler.step` each time; tests check
-the two agree to 1e-5 given the same noise.
+the timesteps equal diffusers' for every K and spacing, and the two loops agree to 1e-5 given the same noise.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from bcbench.errors import BCBenchError
@@ -36,15 +40,43 @@ DEFAULT_SPACING = "trailing"
 NoiseFn = Callable[[tuple[int, ...]], torch.Tensor]
 
 
-def make_train_scheduler(num_train_timesteps: int, beta_schedule: str):
-    from diffusers import DDPMScheduler  # diffusers takes seconds to import: only when a sampler is built
+@dataclass(frozen=True)
+class NoiseSchedule:
+    """DDPM's forward-process noise levels (Ho et al. 2020, eq. 4: q(x_t | x_0) = N(sqrt(abar_t) x_0, (1 - abar_t) I)).
 
-    require_known_version("diffusers")  # the plan below reproduces its formulas and spacings
+    `squaredcos_cap_v2` is Nichol & Dhariwal 2021's cosine schedule (eq. 17, betas capped at 0.999), `linear` Ho
+    et al.'s 1e-4..0.02; both in float32, in diffusers' order of operations: equal to diffusers' bit for bit."""
 
-    if beta_schedule not in ("squaredcos_cap_v2", "linear"):
+    num_train_timesteps: int
+    beta_schedule: str
+    betas: torch.Tensor  # (n,) float32
+    alphas_cumprod: torch.Tensor  # (n,) float32: abar_t = prod_{s <= t} (1 - beta_s)
+
+
+def _cosine_alpha_bar(t: float) -> float:
+    return math.cos((t + 0.008) / 1.008 * math.pi / 2) ** 2
+
+
+def make_train_scheduler(num_train_timesteps: int, beta_schedule: str) -> NoiseSchedule:
+    n = num_train_timesteps
+    if beta_schedule == "squaredcos_cap_v2":  # in float64 Python, then float32, as diffusers' betas_for_alpha_bar
+        betas = torch.tensor([min(1 - _cosine_alpha_bar((i + 1) / n) / _cosine_alpha_bar(i / n), 0.999)
+                              for i in range(n)], dtype=torch.float32)
+    elif beta_schedule == "linear":
+        betas = torch.linspace(0.0001, 0.02, n, dtype=torch.float32)
+    else:
         raise BCBenchError(f"beta_schedule must be squaredcos_cap_v2 or linear, got '{beta_schedule}'")
-    return DDPMScheduler(num_train_timesteps=num_train_timesteps, beta_schedule=beta_schedule, clip_sample=True,
-                         prediction_type="epsilon", variance_type="fixed_small")
+    return NoiseSchedule(n, beta_schedule, betas, torch.cumprod(1.0 - betas, dim=0))
+
+
+def spaced_timesteps(n: int, steps: int, spacing: str) -> list[int]:
+    """The K = `steps` of n timesteps visited, first (noisiest) first: diffusers' formulas for DDPM and DDIM alike
+    (`set_timesteps`, steps_offset 0), and for trailing spacing its first K only (see the module's docstring)."""
+    if check_spacing(spacing) == "leading":
+        ts = (np.arange(0, steps) * (n // steps)).round()[::-1].astype(np.int64)
+    else:
+        ts = np.round(np.arange(n, 0, -(n / steps))).astype(np.int64) - 1
+    return [int(t) for t in ts[:steps]]
 
 
 def check_spacing(spacing: str) -> str:
@@ -53,12 +85,16 @@ def check_spacing(spacing: str) -> str:
     return spacing
 
 
-def make_diffusers_sampler(train_scheduler, kind: str, steps: int, spacing: str = DEFAULT_SPACING):
-    """diffusers' scheduler for sampling (the 'reference' way), timesteps set for `steps` and `spacing`."""
-    from diffusers import DDIMScheduler, DDPMScheduler  # as above
+def make_diffusers_sampler(schedule: NoiseSchedule, kind: str, steps: int, spacing: str = DEFAULT_SPACING):
+    """diffusers' scheduler for sampling (the public code's way, the tests' reference), timesteps set for `steps` and
+    `spacing`, over the same training schedule."""
+    from diffusers import DDIMScheduler, DDPMScheduler  # seconds to import: only where the reference is asked for
 
+    require_known_version("diffusers")
+    train = DDPMScheduler(num_train_timesteps=schedule.num_train_timesteps, beta_schedule=schedule.beta_schedule,
+                          clip_sample=True, prediction_type="epsilon", variance_type="fixed_small")
     cls = {"ddpm": DDPMScheduler, "ddim": DDIMScheduler}[kind]
-    sched = cls.from_config(train_scheduler.config, timestep_spacing=check_spacing(spacing))
+    sched = cls.from_config(train.config, timestep_spacing=check_spacing(spacing))
     sched.set_timesteps(steps)
     # diffusers (0.42.1) builds trailing timesteps with a float arange, which for K in {29, 31, 58, 62, 97}
     # yields K + 1 of them, the last being t = -1 (alphas_cumprod[-1] is the *noisiest* level): keep K.
@@ -80,17 +116,16 @@ class SamplerPlan:
     s: list[float]
 
 
-def plan(train_scheduler, kind: str, steps: int, spacing: str = DEFAULT_SPACING) -> SamplerPlan:
-    """Constants of `kind` sampling with `steps` steps, from the training scheduler's alphas."""
-    n = int(train_scheduler.config.num_train_timesteps)
+def plan(schedule: NoiseSchedule, kind: str, steps: int, spacing: str = DEFAULT_SPACING) -> SamplerPlan:
+    """Constants of `kind` sampling with `steps` steps, from the training schedule's alphas."""
+    n = schedule.num_train_timesteps
     if kind not in ("ddpm", "ddim"):
         raise BCBenchError(f"sampler must be ddpm or ddim, got '{kind}'")
     if not 1 <= steps <= n:
         raise BCBenchError(f"steps must be in 1..{n}, got {steps}")
-    ref = make_diffusers_sampler(train_scheduler, kind, steps, spacing)  # only for its timesteps: one source of truth
-    ac = train_scheduler.alphas_cumprod.double()
+    ac = schedule.alphas_cumprod.double()
     one = torch.tensor(1.0, dtype=torch.float64)
-    p = SamplerPlan(kind, spacing, [int(t) for t in ref.timesteps], [], [], [], [], [])
+    p = SamplerPlan(kind, spacing, spaced_timesteps(n, steps, spacing), [], [], [], [], [])
     for k, t in enumerate(p.timesteps):
         # diffusers' DDPM steps to the next timestep of the list (-1 after the last), its DDIM by a fixed stride
         last = k + 1 == len(p.timesteps)
