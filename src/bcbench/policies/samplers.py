@@ -58,6 +58,7 @@ def _cosine_alpha_bar(t: float) -> float:
 
 
 def make_train_scheduler(num_train_timesteps: int, beta_schedule: str) -> NoiseSchedule:
+    """A Diffusion Policy's training noise schedule (the name is from when this built diffusers' scheduler)."""
     n = num_train_timesteps
     if beta_schedule == "squaredcos_cap_v2":  # in float64 Python, then float32, as diffusers' betas_for_alpha_bar
         betas = torch.tensor([min(1 - _cosine_alpha_bar((i + 1) / n) / _cosine_alpha_bar(i / n), 0.999)
