@@ -10,7 +10,14 @@ import torch
 
 from bcbench.policies import make_policy
 from bcbench.policies.diffusion import DiffusionConfig
-from bcbench.policies.samplers import make_diffusers_sampler, make_train_scheduler, plan, run_diffusers, run_plan
+from bcbench.policies.samplers import (
+    make_diffusers_sampler,
+    make_train_scheduler,
+    plan,
+    run_diffusers,
+    run_plan,
+    spaced_timesteps,
+)
 from bcbench.policies.unet1d import ConditionalResidualBlock1D, ConditionalUnet1D, Conv1d, UpConv1d
 from bcbench.reference import DIFFUSION_PARAMETERS as STUDY_PARAMETERS
 from tests.tiny import tiny_overrides
@@ -121,13 +128,8 @@ def test_seeded_inference_is_reproducible(tiny):
 def test_own_noise_schedule_and_timesteps_equal_diffusers_bit_for_bit(n, beta_schedule):
     """bcbench computes DDPM's noise levels and the visited timesteps itself (diffusers costs seconds to import):
     every tensor and every timestep list equals diffusers' own, for every K, sampler and spacing."""
-    from diffusers import DDPMScheduler
-
-    from bcbench.policies.samplers import spaced_timesteps
-
     ours = make_train_scheduler(n, beta_schedule)
-    ref = DDPMScheduler(num_train_timesteps=n, beta_schedule=beta_schedule, clip_sample=True,
-                        prediction_type="epsilon", variance_type="fixed_small")
+    ref = make_diffusers_sampler(ours, "ddpm", n)  # diffusers' own scheduler, built from the schedule's settings only
     assert torch.equal(ours.betas, ref.betas) and torch.equal(ours.alphas_cumprod, ref.alphas_cumprod)
     for kind in ("ddpm", "ddim"):
         for spacing in ("trailing", "leading"):
