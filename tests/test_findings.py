@@ -177,6 +177,28 @@ def test_fewstep_section_is_absent_without_flow_or_ddpm100():
     assert fewstep_lines(pts[1:], 0.05) == [] and fewstep_lines(pts[:3], 0.05) == []
 
 
+def test_a_flow_timed_in_another_sitting_than_ddim10_is_not_set_against_it():
+    """A network timed again alone a day later (the VM's GEMM rate 97-121 GFLOP/s there, 175-184 the day before)
+    must not make a speed-up: its share is withheld and the goal is not judged; in one sitting it is judged."""
+    from dataclasses import replace
+    from datetime import UTC, datetime
+
+    from bcbench.analysis.fewstep import fewstep_lines
+
+    day1 = (datetime(2026, 12, 6, 17, 30, tzinfo=UTC), datetime(2026, 12, 6, 17, 40, tzinfo=UTC))
+    day2 = (datetime(2026, 12, 7, 18, 40, tzinfo=UTC), datetime(2026, 12, 7, 18, 50, tzinfo=UTC))
+    at = {"ddim10": "2026-12-06T17:36:00+00:00", "flow1": "2026-12-07T18:43:00+00:00"}
+    pts = [replace(p, timed_at=at.get(p.name, "")) for p in fewstep_points(0.0, 15.0)]
+    lines = fewstep_lines(pts, 0.05, sittings=[day1, day2])
+    row1 = next(line for line in lines if line.startswith("| 1 |"))
+    assert row1.endswith("| 15.0 | - (another sitting) |")
+    assert "**not judged (flow K = 1 and DP DDIM-10 timed in different sittings)**" in lines[-2]
+    assert "**met at K = 1**" in fewstep_lines(pts, 0.05, sittings=[(day1[0], day2[1])])[-2]  # one sitting
+    assert "**met at K = 1**" in fewstep_lines(pts, 0.05)[-2]  # no sittings known: as before
+    worse = [replace(p, timed_at=at.get(p.name, "")) for p in fewstep_points(-0.3, 15.0)]
+    assert "**not met**" in fewstep_lines(worse, 0.05, sittings=[day1, day2])[-2]  # its score fails anyway
+
+
 def test_interleaved_timings_replace_the_study_blocks_where_given():
     """A study times settings in separate blocks minutes apart; a paired (interleaved) file corrects both the
     few-step latency share and finding 3's DDIM/DDPM time ratio, in the mode it was timed in only."""

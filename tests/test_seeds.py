@@ -86,6 +86,8 @@ def test_a_labels_latency_is_its_newest_timing_of_any_seed(tmp_path):
     assert resnet.seed_ids == [0, 1, 2] and resnet.latency_ms() == 12.5 and resnet.timed_on == "vm1"
     assert latency_cell(resnet) == "12.5 ms (reference)" and latency_cell(bct) == "not timed"
     assert {p.run: p.latency_ms for p in points_from_rows(merged().values())}["ResNet-50"] == 12.5
+    # and its time with it (the few-step section compares sittings): seed 1's, not seed 0's untimed empty one
+    assert {p.run: p.timed_at for p in points_from_rows(merged().values())}["ResNet-50"] == "2026-12-07T06:00:00+00:00"
     timed(0, 30.0, "2026-12-07T01:00:00+00:00")  # seed 0's older sitting: seed 1's newer timing stays
     assert merged()["ResNet-50"].latency_ms() == 12.5
     timed(0, 30.0, "2026-12-07T07:00:00+00:00")

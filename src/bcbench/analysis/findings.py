@@ -46,6 +46,7 @@ class Point:
     seed_ids: list[int] = field(default_factory=list)
     train_seed: int | None = None  # a single trained run's seed (None: a baseline, or several seeds in `seeds`)
     timed: str = ""  # where latency_ms comes from when not the study's own timing block (`with_interleaved`)
+    timed_at: str = ""  # when its latency record was written (ISO UTC): which sitting timed it
 
 
 class Diff(NamedTuple):
@@ -401,5 +402,5 @@ def points_from_rows(rows: list, mode: str = "reference") -> list[Point]:
     return [Point(r.setting, r.policy, r.variant, r.score,
                   tuple(r.est("mean_score")["ci95"]), r.latency_ms(mode), r.beta_schedule, dict(r.scores),
                   getattr(r, "converged", None), r.label, [dict(sc) for sc in r.seed_scores], list(r.seed_ids),
-                  None if r.seed_scores else r.train_seed)
+                  None if r.seed_scores else r.train_seed, timed_at=getattr(r, "timed_at", ""))
             for r in rows]

@@ -18,6 +18,7 @@ from bcbench.analysis.across import is_across, write_across_report
 from bcbench.analysis.baseline import HEADER as BASELINE_HEADER
 from bcbench.analysis.baseline import baseline_lines, baseline_rows
 from bcbench.analysis.choose import choose_header, control_loop_lines, control_loop_rows
+from bcbench.analysis.compute import timing_sittings
 from bcbench.analysis.convergence import NO_CHECK, NOT_CONVERGED, apply_checks, check_lines, doubling_checks
 from bcbench.analysis.fewstep import fewstep_lines, load_paired, one_interleaved_run
 from bcbench.analysis.figures import figure3, figure4, figure5_realtime, learning_curves, realtime_figure
@@ -284,7 +285,8 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
            "## Training: converged?", "", *convergence_lines(rows), "",
            *check_lines(verdicts, strict, margin, validation=bool(check_rows)),
            *deviation_lines(rows),
-           *fewstep_lines(points_from_rows(settings, "fast"), margin, paired=paired.get("fast")),
+           *fewstep_lines(points_from_rows(settings, "fast"), margin, paired=paired.get("fast"),
+                          sittings=timing_sittings(results)),
            *time_lines(results),
            *realtime_lines(realtime, margin, rows), *strategy_lines(strategies, margin)]
     for title, path in figs.items():

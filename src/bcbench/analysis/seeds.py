@@ -54,6 +54,7 @@ def _merged(group: list[Row]) -> Row:
                    scores={}, seed_scores=[dict(r.scores) for r in group],
                    seed_ids=[int(r.train_seed) for r in group if r.train_seed is not None],
                    latency=timed.latency, timed_on=timed.timed_on, timed_hardware=timed.timed_hardware,
+                   timed_at=timed.timed_at,
                    converged=None if any(r.converged is None for r in group) else all(r.converged for r in group))
 
 
