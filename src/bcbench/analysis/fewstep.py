@@ -10,14 +10,12 @@ median latency.
 Latency comes from the study's timing stages, unless the study's folder holds a `latency-paired*.json` in the
 section's mode (benchmarks/paired_latency.py): settings timed in interleaved rounds, so that a drifting machine does
 not change their ratio (a study times each setting in its own block, minutes apart from the others).
-A flow-K timed in another sitting than DP DDIM-10 (compute.timing_sittings: hours apart, e.g. a network timed again
-alone) is not set against it: a VM's speed drifts by tens of percent between sittings (a 2-core AMD EPYC Zen 3 read
-its GEMM rate at 175-184 GFLOP/s in one sitting and at 97-121 a day later), and the goal is then not judged.
+A flow-K timed in another sitting than DP DDIM-10 (bcbench.analysis.sittings: e.g. a network timed again alone a
+day later) is not set against it, and the goal is then not judged.
 """
 
 from __future__ import annotations
 
-from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +27,7 @@ from bcbench.analysis.findings import (
     paired_interval,
     with_interleaved,
 )
+from bcbench.analysis.sittings import Sitting, sitting_of
 from bcbench.errors import BCBenchError
 from bcbench.modes import EXACT_MODES
 from bcbench.stats import seeds_to_decide
@@ -54,16 +53,6 @@ def _ms(p: Point | None) -> str:
     return "-" if p is None or p.latency_ms is None else f"{p.latency_ms:.1f}"
 
 
-def _sitting(p: Point | None, sittings: list[tuple[datetime, datetime]]) -> int | None:
-    """Which of `sittings` (compute.timing_sittings: (start, end) in UTC) timed p; None where unknown."""
-    if p is None or not p.timed_at or not sittings:
-        return None
-    t = datetime.fromisoformat(p.timed_at)
-    t = t.replace(tzinfo=UTC) if t.tzinfo is None else t.astimezone(UTC)
-    slack = timedelta(seconds=5)  # a record's `created` is its stage's start, to the second
-    return next((i for i, (a, b) in enumerate(sittings) if a - slack <= t <= b + slack), None)
-
-
 def _score(p: Point | None) -> str:
     return "-" if p is None else f"{p.score:.3f} [{p.ci[0]:.3f}, {p.ci[1]:.3f}]"
 
@@ -83,7 +72,7 @@ def load_paired(study_dir: str | Path) -> dict[str, dict[str, Any]]:
 
 
 def fewstep_lines(points: list[Point], margin: float, mode: str = "fast", paired: dict[str, Any] | None = None,
-                  sittings: list[tuple[datetime, datetime]] | None = None) -> list[str]:
+                  sittings: list[Sitting] | None = None) -> list[str]:
     """Markdown lines: a table row per flow K and the goal's verdict; [] when there is no flow or no DP DDPM-100.
     `points` carry their latency in `mode` (bcbench.analysis.findings.points_from_rows); `paired` (load_paired), when
     given and timed in the same mode, replaces the flow and DDIM-10 latencies. With `sittings` (the folder's timing
@@ -96,7 +85,8 @@ def fewstep_lines(points: list[Point], margin: float, mode: str = "fast", paired
     if not flows or ref is None:
         return []
     base_ms = ddim10.latency_ms if ddim10 is not None else None  # the goal's yardstick
-    base_sitting = None if paired else _sitting(ddim10, sittings or [])  # interleaved rounds: one run by design
+    # interleaved rounds are one run by design
+    base_sitting = None if paired or ddim10 is None else sitting_of(ddim10.timed_at, sittings or [])
     source = (f"timed in {paired['rounds']} interleaved rounds ({paired.get('file', 'latency-paired')}, "
               f"{paired['threads']} threads)"
               if paired else "timed by the study's stages")
@@ -119,7 +109,7 @@ def fewstep_lines(points: list[Point], margin: float, mode: str = "fast", paired
             need = seeds_to_decide(list(d.per_seed), d.within_var, [-margin])
             verdict += f" (about {need} training seeds would decide it)" if need else " (> 50 training seeds)"
         share = p.latency_ms / base_ms if p.latency_ms is not None and base_ms else None
-        sitting = None if paired else _sitting(p, sittings or [])
+        sitting = None if paired else sitting_of(p.timed_at, sittings or [])
         if share is not None and None not in (sitting, base_sitting) and sitting != base_sitting:
             share = None  # timed hours apart from DDIM-10: the machine's speed is not the same
             apart.append(k)
