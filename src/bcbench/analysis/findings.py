@@ -46,7 +46,7 @@ class Point:
     seed_ids: list[int] = field(default_factory=list)
     train_seed: int | None = None  # a single trained run's seed (None: a baseline, or several seeds in `seeds`)
     timed: str = ""  # where latency_ms comes from when not the study's own timing block (`with_interleaved`)
-    timed_at: str = ""  # when its latency record was written (ISO UTC): which sitting timed it
+    timed_at: str = ""  # its latency record's `created` (ISO UTC, the timing stage's start): which sitting timed it
 
 
 class Diff(NamedTuple):
