@@ -12,12 +12,14 @@ from datetime import UTC, datetime, timedelta
 
 Sitting = tuple[datetime, datetime]  # (start, end), UTC
 
-SLACK = timedelta(seconds=5)  # a latency record's `created` is its stage's start, to the second
+# a latency record's `created` is its stage's start; the index's start (finished - seconds) can be later where the
+# driver received the result late (Ray): sittings are at least 30 min apart, so a minute's slack costs nothing
+SLACK = timedelta(seconds=60)
 
 
 def sitting_of(timed_at: str, sittings: list[Sitting]) -> int | None:
     """The index of the sitting whose span holds the ISO time `timed_at` (a latency record's `created`); None where
-    either is unknown."""
+    either is unknown or no sitting holds it (a latency file without its index line: then compared as before)."""
     if not timed_at or not sittings:
         return None
     t = datetime.fromisoformat(timed_at)
