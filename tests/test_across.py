@@ -425,3 +425,19 @@ def test_a_rows_control_rate_and_horizon_come_from_its_record_and_draw_its_budge
     _study(tmp_path / "pusht", "pusht", None, {"cnn@default": pusht})
     assert row_budgets(load_rows(tmp_path / "pusht")) == ((100.0, "10 Hz, re-plan every step (100 ms)"),
                                                           (800.0, "10 Hz, re-plan every 8 steps (800 ms)"))
+
+
+def test_a_task_studys_test_informed_decision_is_said_at_the_top_and_listed_under_provenance(tmp_path):
+    out = _two_tasks(tmp_path)
+    md = Path(write_across_report(out)["markdown"]).read_text()
+    assert "informed by a test-seed result" not in md  # none recorded: no line
+    spec = json.loads((tmp_path / "peg" / "spec.json").read_text())
+    spec["test_informed"] = [{"decision": "a check of CNN-MLP added after its test score", "read": "runs/*/eval.json"}]
+    write_json(tmp_path / "peg" / "spec.json", spec)
+    paths = write_across_report(out)
+    md, page = Path(paths["markdown"]).read_text(), Path(paths["html"]).read_text()
+    head = md.split("## Success and latency per task")[0]
+    assert "Against the protocol, 1 decision(s)" in head and "Against the protocol, 1 decision(s)" in page
+    provenance = md.split("## Provenance")[1]
+    assert ("- metaworld/peg-insert-side: Informed by a test-seed result, against the protocol (peg): a check of "
+            "CNN-MLP added after its test score (read: runs/*/eval.json)") in provenance

@@ -46,7 +46,7 @@ from bcbench.analysis.figures import figure3
 from bcbench.analysis.findings import DEFAULT_MARGIN, Finding, judge, points_from_rows
 from bcbench.analysis.results import Row, file_commits, load_rows
 from bcbench.analysis.seeds import merge_training_seeds
-from bcbench.analysis.studies import ACROSS_FILE, study_spec
+from bcbench.analysis.studies import ACROSS_FILE, informed_sentence, study_spec, test_informed_lines
 from bcbench.analysis.tables import html_image, html_table, md_table
 from bcbench.analysis.whynot import STAGE_KINDS, stage_folders, why_not_lines
 from bcbench.errors import BCBenchError
@@ -286,15 +286,18 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
                  "seconds (test and validation); a run reused from an earlier study (same run key) counts as a "
                  "training here and its hours there. A run trained on several machines lists them all, its time "
                  "not split. Times from different machines do not compare.")
+    # a task study's decisions informed by a test score: named here too, as its own report names them
+    informed = [f"{c.task}: {line}" for c in columns for line in test_informed_lines(c.folder)]
     notes = [f"{c.task}: {c.folder.name}, result files at commit(s) {', '.join(x[:7] for x in c.commits)}"
-             for c in columns]
+             for c in columns] + informed
     cells = ("Each cell: success [95% interval] (Wilson over the episodes for one training seed; for several, the "
              "findings' interval over training seeds, t widened to the episodes' where the seeds agree), training "
              "seeds; latency at batch 1 in the fastest exact mode timed (median; 'not timed' where the study timed "
              "nothing)." + (f" Every learned setting: {', '.join(shared)}." if shared else ""))
     timed = sittings_text([(c.task, c.folder) for c in columns])
     cells += f" {timed}" if timed else ""
-    md = ["# bcbench report across tasks", "", top, "", "## Success and latency per task", "", md_table(head, rows),
+    md = ["# bcbench report across tasks", "", top, "", *([informed_sentence(informed), ""] if informed else []),
+          "## Success and latency per task", "", md_table(head, rows),
           "", cells, "",
           "## Against the goals", "", *goals, "", *([why_head, "", *whys, ""] if whys else []),
           "## The study's findings per task", "",
@@ -314,7 +317,9 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
            # the first table grows with every task and setting and has to end in a laptop's first screen (scripts/
            # check_report.py): 11 px and tighter cells keep a table with all 5 tasks' cells filled 120 px above it
            ".grid table{font-size:11px}.grid td,.grid th{padding:2px 4px}.note{font-size:13px;color:#444}")
-    body = (f"<h1>bcbench report across tasks</h1><p>{html.escape(top)}</p><h2>Success and latency per task</h2>"
+    body = (f"<h1>bcbench report across tasks</h1><p>{html.escape(top)}</p>"
+            + (f"<p>{html.escape(informed_sentence(informed))}</p>" if informed else "")
+            + "<h2>Success and latency per task</h2>"
             f"<div class='grid'>{html_table(head, rows)}</div><p class='note'>{html.escape(cells)}</p>"
             "<h2>Against the goals</h2><ul>"
             + "".join(f"<li>{html.escape(x[2:].replace('**', ''))}</li>" for x in goals) + "</ul>"

@@ -43,6 +43,7 @@ from bcbench.analysis.results import (
 from bcbench.analysis.seeds import merge_training_seeds, per_seed_cell
 from bcbench.analysis.strategies import load_strategy_sweeps, strategy_figure, strategy_lines
 from bcbench.analysis.studies import (
+    informed_sentence,
     left_out,
     mixing_reason,
     preset_choices,
@@ -277,7 +278,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     md = ["# bcbench report", "", lead, "",
           *([f"![{FIG5}]({fig5.name})", ""] if fig5 else []),
           *control_loop_lines(settings, realtime, margin, paired, step),
-          *([_informed_sentence(informed), ""] if informed else []),
+          *([informed_sentence(informed), ""] if informed else []),
           *machines_md, "## The study's findings on this evidence", "", FINDINGS_INTRO.format(m=margin), ""]
     md += [f"{f.number}. **{f.claim}**: *{f.verdict}*. {f.evidence}  \n   Rule: {f.rule}" for f in findings]
     versus = baseline_rows(settings, realtime)  # each learned policy against the scripted baseline
@@ -299,7 +300,7 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
     html_path = out / "report.html"
     with atomic_path(html_path) as tmp:
         choose = control_loop_rows(settings, realtime, margin, paired)
-        under = _informed_sentence(informed) if informed else ""
+        under = informed_sentence(informed) if informed else ""
         top = ((html_image(FIG5, fig5, "lead", _lead_height(lead, choose, under)) if fig5 else "")
                + "<h2>Which policy for my control loop</h2>" + html_table(choose_header(realtime, step), choose)
                + (f"<p>{html.escape(under)}</p>" if under else "")
@@ -350,11 +351,6 @@ def _study_name(results: Path, name: str | None, task: str) -> str:
                for study, labels in left_out(results).items()]
     return (name or results.name) + (f" on {task}" if task != "pusht" else "") + (
         f" (combines {', '.join(sources)}{''.join(leaving)})" if sources else "")
-
-
-def _informed_sentence(informed: list[str]) -> str:
-    return (f"Against the protocol, {len(informed)} decision(s) behind these presets or stages were informed by a "
-            "test-seed result; each is listed under Provenance, with the file it read.")
 
 
 # A choice-table row's height in Chromium at 1280 x 900 (scripts/check_report.py): every row of every committed

@@ -115,6 +115,13 @@ def test_informed(results: Path) -> list[dict[str, str]]:
     return listed
 
 
+def informed_sentence(informed: list[str]) -> str:
+    """The line a report heads with when `informed` (test_informed_lines) is not empty: the brief's rule that a report
+    says so itself where a test score informed a decision, not only a study file."""
+    return (f"Against the protocol, {len(informed)} decision(s) behind these presets or stages were informed by a "
+            "test-seed result; each is listed under Provenance, with the file it read.")
+
+
 def test_informed_lines(results: Path) -> list[str]:
     """Provenance's lines for `test_informed`, one a decision."""
     return [f"Informed by a test-seed result, against the protocol ({e.get('about', results.name)}): {e['decision']} "
