@@ -288,6 +288,7 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
                  "not split. Times from different machines do not compare.")
     # a task study's decisions informed by a test score: named here too, as its own report names them
     informed = [f"{c.task}: {line}" for c in columns for line in test_informed_lines(c.folder)]
+    against = informed_sentence(informed) if informed else ""  # heads both pages
     notes = [f"{c.task}: {c.folder.name}, result files at commit(s) {', '.join(x[:7] for x in c.commits)}"
              for c in columns] + informed
     cells = ("Each cell: success [95% interval] (Wilson over the episodes for one training seed; for several, the "
@@ -296,7 +297,7 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
              "nothing)." + (f" Every learned setting: {', '.join(shared)}." if shared else ""))
     timed = sittings_text([(c.task, c.folder) for c in columns])
     cells += f" {timed}" if timed else ""
-    md = ["# bcbench report across tasks", "", top, "", *([informed_sentence(informed), ""] if informed else []),
+    md = ["# bcbench report across tasks", "", top, "", *([against, ""] if against else []),
           "## Success and latency per task", "", md_table(head, rows),
           "", cells, "",
           "## Against the goals", "", *goals, "", *([why_head, "", *whys, ""] if whys else []),
@@ -318,7 +319,7 @@ def write_across_report(results: str | Path) -> dict[str, Any]:
            # check_report.py): 11 px and tighter cells keep a table with all 5 tasks' cells filled 120 px above it
            ".grid table{font-size:11px}.grid td,.grid th{padding:2px 4px}.note{font-size:13px;color:#444}")
     body = (f"<h1>bcbench report across tasks</h1><p>{html.escape(top)}</p>"
-            + (f"<p>{html.escape(informed_sentence(informed))}</p>" if informed else "")
+            + (f"<p>{html.escape(against)}</p>" if against else "")
             + "<h2>Success and latency per task</h2>"
             f"<div class='grid'>{html_table(head, rows)}</div><p class='note'>{html.escape(cells)}</p>"
             "<h2>Against the goals</h2><ul>"
