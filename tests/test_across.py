@@ -441,3 +441,12 @@ def test_a_task_studys_test_informed_decision_is_said_at_the_top_and_listed_unde
     provenance = md.split("## Provenance")[1]
     assert ("- metaworld/peg-insert-side: Informed by a test-seed result, against the protocol (peg): a check of "
             "CNN-MLP added after its test score (read: runs/*/eval.json)") in provenance
+
+
+def test_a_figure_with_nothing_to_draw_leaves_no_earlier_drawing_in_the_folder(tmp_path):
+    out = _two_tasks(tmp_path)
+    stale = out / "report" / "fig3_metaworld-drawer-open.png"  # drawer has one step count: no Figure 3 now
+    stale.parent.mkdir(parents=True)
+    stale.write_bytes(b"an earlier drawing")
+    write_across_report(out)
+    assert not stale.exists()

@@ -95,3 +95,14 @@ def test_the_delay_trained_sweep_readme_numbers_come_from_its_records():
             == "prefix" and len(prefix) == 100
         diff, lo, hi, _ = paired_bootstrap(prefix, [sync])
         assert f"{sum(prefix.values()) / 100:.3f} ({diff:+.3f} [{lo:+.3f}, {hi:+.3f}])" in readme, d
+
+
+def test_a_report_rebuilt_in_place_drops_a_figure_it_no_longer_draws(tmp_path):
+    copy = tmp_path / "study"
+    shutil.copytree(RESULTS / "metaworld-explore-3", copy)  # no real-time sweep: no realtime.png to draw
+    stale = copy / "report" / "realtime.png"
+    stale.write_bytes(b"an earlier drawing")
+    write_report(copy)
+    assert not stale.exists()
+    for png in (RESULTS / "metaworld-explore-3" / "report").glob("*.png"):
+        assert (copy / "report" / png.name).stat().st_size > 1000  # what it draws stays

@@ -233,12 +233,15 @@ def figure_lines(columns: list[TaskColumn], out: Path) -> tuple[list[str], dict[
     for c in columns:
         slug = c.task.replace("/", "-")
         lines.append(f"- {c.task}: [its report]({_rel(c.folder / 'report' / 'report.md', out)})")
-        drawn = {"Figure 5": figure5(c.settings, out / f"fig5_{slug}.png")[0],
-                 "Figure 3": figure3(c.settings, out / f"fig3_{slug}.png")}
+        target = {"Figure 5": out / f"fig5_{slug}.png", "Figure 3": out / f"fig3_{slug}.png"}
+        drawn = {"Figure 5": figure5(c.settings, target["Figure 5"])[0],
+                 "Figure 3": figure3(c.settings, target["Figure 3"])}
         for title, path in drawn.items():
             if path:
                 lines.append(f"  ![{title}, {c.task}]({path.name})")
                 figs[f"{title}, {c.task}"] = path
+            else:  # nothing to draw now: an earlier drawing must not stay in the folder
+                target[title].unlink(missing_ok=True)
         missing = [text for title, text in (("Figure 5", "no Figure 5: its study timed nothing"),
                                             ("Figure 3", "no Figure 3: fewer than two step counts of a generative "
                                                          "policy")) if not drawn[title]]

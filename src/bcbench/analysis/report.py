@@ -316,17 +316,24 @@ def write_report(results: str | Path, extra_dirs: list[str] | None = None) -> di
 
 def _figures(out: Path, settings: list, rows: list, paired: dict, realtime: list, strategies: list) -> tuple:
     """Figure 5 and the report's other figures, by title (a figure with nothing to draw is None)."""
+    names = ("fig5_accuracy_vs_latency", "fig5_zoom", "fig3_denoising_steps", "fig4_samplers", "learning_curves",
+             "realtime", "fig5_realtime", "strategies")
+    path = {n: out / f"{n}.png" for n in names}
     # the report opens with Figure 5 (and which policy suits which control loop); its zoom leads the other figures
-    fig5, zoom = figure5(settings, out / "fig5_accuracy_vs_latency.png", timing=paired.get("reference"),
-                         run=one_interleaved_run(paired), zoom_path=out / "fig5_zoom.png")
+    fig5, zoom = figure5(settings, path["fig5_accuracy_vs_latency"], timing=paired.get("reference"),
+                         run=one_interleaved_run(paired), zoom_path=path["fig5_zoom"])
     figs = {FIG5_ZOOM: zoom,
-            "Figure 3: generative policies against sampling steps": figure3(settings, out / "fig3_denoising_steps.png"),
-            "Figure 4: DDPM-cosine, DDIM-cosine, DDIM-linear": figure4(settings, out / "fig4_samplers.png"),
-            "Learning curves": learning_curves(rows, out / "learning_curves.png")}
+            "Figure 3: generative policies against sampling steps": figure3(settings, path["fig3_denoising_steps"]),
+            "Figure 4: DDPM-cosine, DDIM-cosine, DDIM-linear": figure4(settings, path["fig4_samplers"]),
+            "Learning curves": learning_curves(rows, path["learning_curves"])}
     if realtime:
-        figs["Score under real-time execution"] = realtime_figure(realtime, out / "realtime.png")
-        figs["Figure 5, real time"] = figure5_realtime(realtime, out / "fig5_realtime.png")
-        figs["Execution strategies: score against delay"] = strategy_figure(strategies, out / "strategies.png")
+        figs["Score under real-time execution"] = realtime_figure(realtime, path["realtime"])
+        figs["Figure 5, real time"] = figure5_realtime(realtime, path["fig5_realtime"])
+        figs["Execution strategies: score against delay"] = strategy_figure(strategies, path["strategies"])
+    drawn = {p for p in (fig5, *figs.values()) if p}
+    for p in path.values():  # a figure with nothing to draw now: an earlier drawing of it must not stay beside the text
+        if p not in drawn:
+            p.unlink(missing_ok=True)
     return fig5, figs
 
 
