@@ -42,7 +42,7 @@ from bcbench.analysis.across_cells import (
     without,
 )
 from bcbench.analysis.compute import cost_table, sittings_text
-from bcbench.analysis.figures import figure3
+from bcbench.analysis.figures import drop_undrawn, figure3
 from bcbench.analysis.findings import DEFAULT_MARGIN, Finding, judge, points_from_rows
 from bcbench.analysis.results import Row, file_commits, load_rows
 from bcbench.analysis.seeds import merge_training_seeds
@@ -240,8 +240,7 @@ def figure_lines(columns: list[TaskColumn], out: Path) -> tuple[list[str], dict[
             if path:
                 lines.append(f"  ![{title}, {c.task}]({path.name})")
                 figs[f"{title}, {c.task}"] = path
-            else:  # nothing to draw now: an earlier drawing must not stay in the folder
-                target[title].unlink(missing_ok=True)
+        drop_undrawn(target.values(), drawn.values())
         missing = [text for title, text in (("Figure 5", "no Figure 5: its study timed nothing"),
                                             ("Figure 3", "no Figure 3: fewer than two step counts of a generative "
                                                          "policy")) if not drawn[title]]

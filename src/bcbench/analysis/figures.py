@@ -92,6 +92,13 @@ def save_png(fig: Any, path: Path) -> Path:
     return path
 
 
+def drop_undrawn(paths: Any, drawn: Any) -> None:
+    """Remove each of a report's figure files that this build did not draw: a report rebuilt in place must not keep
+    an earlier drawing beside text that no longer shows it (both the study report and the report across tasks)."""
+    for p in set(paths) - {d for d in drawn if d}:
+        p.unlink(missing_ok=True)
+
+
 def budget_lines(ax: Any, lines: tuple[tuple[float, str], ...], vertical: bool = True) -> None:
     for ms, label in lines:
         (ax.axvline if vertical else ax.axhline)(ms, ls="--", lw=1, color="k", alpha=0.5)

@@ -21,7 +21,7 @@ from bcbench.analysis.choose import choose_header, control_loop_lines, control_l
 from bcbench.analysis.compute import timing_sittings
 from bcbench.analysis.convergence import NO_CHECK, NOT_CONVERGED, apply_checks, check_lines, doubling_checks
 from bcbench.analysis.fewstep import fewstep_lines, load_paired, one_interleaved_run
-from bcbench.analysis.figures import figure3, figure4, figure5_realtime, learning_curves, realtime_figure
+from bcbench.analysis.figures import drop_undrawn, figure3, figure4, figure5_realtime, learning_curves, realtime_figure
 from bcbench.analysis.findings import DEFAULT_MARGIN, Finding, judge, points_from_rows, shared_timing, with_interleaved
 from bcbench.analysis.provenance import MACHINES_HEADER, lead_line, machine_rows, paired_conditions, provenance_notes
 from bcbench.analysis.report_realtime import REALTIME_COLUMNS as REALTIME_COLUMNS  # the real-time section, re-exported
@@ -330,10 +330,7 @@ def _figures(out: Path, settings: list, rows: list, paired: dict, realtime: list
         figs["Score under real-time execution"] = realtime_figure(realtime, path["realtime"])
         figs["Figure 5, real time"] = figure5_realtime(realtime, path["fig5_realtime"])
         figs["Execution strategies: score against delay"] = strategy_figure(strategies, path["strategies"])
-    drawn = {p for p in (fig5, *figs.values()) if p}
-    for p in path.values():  # a figure with nothing to draw now: an earlier drawing of it must not stay beside the text
-        if p not in drawn:
-            p.unlink(missing_ok=True)
+    drop_undrawn(path.values(), (fig5, *figs.values()))
     return fig5, figs
 
 
