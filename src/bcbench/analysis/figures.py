@@ -4,6 +4,7 @@ steps), Fig. 4 (DDPM-cosine, DDIM-cosine, DDIM-linear over steps), and the laten
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -92,10 +93,10 @@ def save_png(fig: Any, path: Path) -> Path:
     return path
 
 
-def drop_undrawn(paths: Any, drawn: Any) -> None:
+def drop_undrawn(paths: Iterable[Path], drawn: Iterable[Path | None]) -> None:
     """Remove each of a report's figure files that this build did not draw: a report rebuilt in place must not keep
     an earlier drawing beside text that no longer shows it (both the study report and the report across tasks)."""
-    for p in set(paths) - {d for d in drawn if d}:
+    for p in set(paths) - set(drawn):  # a None (nothing drawn) matches no path
         p.unlink(missing_ok=True)
 
 
